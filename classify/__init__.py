@@ -1,0 +1,1 @@
+"""classify: per-point features, random-forest classification of collaborative / non-collaborative regions, masks."""

@@ -1,0 +1,52 @@
+"""The toolkit's error hierarchy.
+
+Every error that comes from bad input carries the file it concerns and the problem in words, so that
+the CLI can print one readable line (``hybridsplat: <file>: <problem>``) and exit with code 2.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+
+class HybridSplatError(Exception):
+    """Base class of every error the toolkit raises on purpose.
+
+    Parameters
+    ----------
+    problem:
+        What is wrong, in words a user can act on (expected vs got, and how to fix it where known).
+    path:
+        The file or folder concerned, if any.
+    """
+
+    def __init__(self, problem: str, path: str | PathLike[str] | None = None) -> None:
+        self.problem = problem
+        self.path = Path(path) if path is not None else None
+        super().__init__(self.one_line())
+
+    def one_line(self) -> str:
+        """The message as a single line: ``<path>: <problem>`` or just the problem."""
+        text = " ".join(self.problem.split())
+        return f"{self.path}: {text}" if self.path is not None else text
+
+
+class InputFileError(HybridSplatError):
+    """A file or folder that should be read is missing, unreadable, truncated or empty."""
+
+
+class FormatError(HybridSplatError):
+    """A file exists but its content does not follow the expected format (missing properties, bad header)."""
+
+
+class DataError(HybridSplatError):
+    """Values are invalid: NaN/inf coordinates, inconsistent array shapes, empty clouds where points are required."""
+
+
+class ConfigError(HybridSplatError):
+    """An option or configuration value is out of range or inconsistent."""
+
+
+class ReconstructionError(HybridSplatError):
+    """A reconstruction stage failed on valid input (images do not overlap, too few registered images)."""

@@ -1,0 +1,133 @@
+"""3DGS PLY files, as splat viewers (SuperSplat, PlayCanvas, Spark, gsplat.js) and the original 3DGS code load them.
+
+Vertex properties, in this order, binary little-endian float32::
+
+    x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 f_rest_0 .. f_rest_{3*((d+1)^2-1)-1} opacity scale_0 scale_1 scale_2
+    rot_0 rot_1 rot_2 rot_3
+
+``f_rest`` is channel-major (all R coefficients, then G, then B); ``opacity`` is logit(α), ``scale_*`` log σ,
+``rot_*`` the quaternion (w, x, y, z). Normals are written as zeros. Positions are local; the float64 origin
+goes to the ``<name>.origin.json`` sidecar. Extra per-Gaussian fields (e.g. ``source``, ``classification``)
+may be appended after ``rot_3`` as float32 properties — viewers ignore unknown properties.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+import plyfile
+
+from core.errors import DataError, FormatError
+from core.gaussians import GaussianSet, num_sh_bases, sh_degree_from_rest
+from core.io.atomic import atomic_path
+from core.io.origin import read_origin, remove_origin, write_origin
+from core.io.ply import load_ply_data
+
+
+def gaussian_property_names(sh_degree: int) -> list[str]:
+    """The 3DGS PLY vertex property names in viewer order for an SH degree (0–3)."""
+    n_rest = 3 * (num_sh_bases(sh_degree) - 1)
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(n_rest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
+
+
+def write_gaussian_ply(
+    path: str | PathLike[str],
+    gaussians: GaussianSet,
+    *,
+    sh_degree: int | None = None,
+    extra_fields: bool = False,
+) -> Path:
+    """Write a Gaussian set as a 3DGS PLY (atomically) plus the origin sidecar when the origin is not zero.
+
+    ``sh_degree`` truncates or zero-pads SH (default: the set's degree). ``extra_fields`` appends the set's
+    ``fields`` as float32 properties after ``rot_3``. Raises :class:`DataError` on NaN/inf parameters.
+    """
+    path = Path(path)
+    gs = gaussians if sh_degree is None else gaussians.with_sh_degree(sh_degree)
+    gs.validate(str(path))
+    degree = gs.sh_degree
+    names = gaussian_property_names(degree)
+    n = len(gs)
+    # channel-major f_rest: (N, K-1, 3) -> (N, 3, K-1) -> flat
+    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, -1)  # type: ignore[union-attr]
+    payload = np.concatenate(
+        [
+            gs.means.astype(np.float32),
+            np.zeros((n, 3), np.float32),
+            gs.sh_dc,
+            rest,
+            gs.logit_opacities[:, None],
+            gs.log_scales,
+            gs.quats,
+        ],
+        axis=1,
+    ).astype("<f4")
+    if extra_fields and gs.fields:
+        extras = sorted(gs.fields)
+        names = names + extras
+        payload = np.concatenate([payload] + [gs.fields[k].astype("<f4")[:, None] for k in extras], axis=1)
+    vertex = np.ascontiguousarray(payload).view(np.dtype([(name, "<f4") for name in names])).reshape(n)
+    ply = plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=False, byte_order="<")
+    with atomic_path(path) as tmp:
+        ply.write(str(tmp))
+    if np.any(gs.origin != 0):
+        write_origin(path, gs.origin)
+    else:
+        remove_origin(path)
+    return path
+
+
+def read_gaussian_ply(path: str | PathLike[str]) -> GaussianSet:
+    """Read a 3DGS PLY (any SH degree 0–3) and its origin sidecar into a :class:`GaussianSet`.
+
+    Properties beyond the 3DGS set are returned in ``fields``. Raises :class:`FormatError` naming the missing
+    properties when the file is not a 3DGS PLY, :class:`DataError` on NaN/inf values.
+    """
+    path = Path(path)
+    data = load_ply_data(path)
+    if "vertex" not in data:
+        raise FormatError("PLY file has no 'vertex' element", path)
+    v = data["vertex"].data
+    names = set(v.dtype.names or ())
+    n_rest = sum(1 for name in names if name.startswith("f_rest_"))
+    if n_rest % 3:
+        raise FormatError(f"{n_rest} f_rest_* properties is not a multiple of 3", path)
+    try:
+        degree = sh_degree_from_rest(n_rest // 3)
+    except DataError as err:
+        raise FormatError(err.problem, path) from err
+    required = [name for name in gaussian_property_names(degree) if name not in ("nx", "ny", "nz")]
+    missing = [name for name in required if name not in names]
+    if missing:
+        shown = ", ".join(missing[:8]) + (" ..." if len(missing) > 8 else "")
+        raise FormatError(f"not a 3DGS PLY: missing vertex properties {shown}", path)
+
+    def cols(keys: list[str], dtype: type = np.float32) -> np.ndarray:
+        return np.stack([np.asarray(v[k], dtype=dtype) for k in keys], axis=1) if keys else np.zeros((len(v), 0), dtype)
+
+    means = cols(["x", "y", "z"], np.float64)
+    k = num_sh_bases(degree) - 1
+    rest = cols([f"f_rest_{i}" for i in range(3 * k)]).reshape(len(v), 3, k).transpose(0, 2, 1)
+    known = set(gaussian_property_names(degree))
+    fields = {name: np.asarray(v[name]) for name in v.dtype.names if name not in known}  # type: ignore[union-attr]
+    gs = GaussianSet(
+        means=means,
+        log_scales=cols(["scale_0", "scale_1", "scale_2"]),
+        quats=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        logit_opacities=np.asarray(v["opacity"], dtype=np.float32),
+        sh_dc=cols(["f_dc_0", "f_dc_1", "f_dc_2"]),
+        sh_rest=np.ascontiguousarray(rest),
+        origin=read_origin(path),
+        fields=fields,
+    )
+    try:
+        gs.validate()
+    except DataError as err:
+        raise DataError(err.problem, path) from err
+    return gs

@@ -1,0 +1,136 @@
+"""LAS / LAZ point clouds through laspy (+ lazrs for LAZ).
+
+Scales and offsets are honoured both ways: reading turns the integer records into float64 world
+coordinates (``X·scale + offset``) expressed relative to a local origin; writing stores
+``round((world − offset) / scale)`` with the offset at the cloud's origin, so georeferenced clouds keep
+their millimetres. RGB is 16-bit in LAS (value·257 on write; /257 on read, or kept when the file holds 8-bit
+values), ``classification`` maps to the LAS classification, normals travel as extra dims ``nx, ny, nz``, other
+scalar fields as extra dims.
+"""
+
+from __future__ import annotations
+
+import struct
+from os import PathLike
+from pathlib import Path
+
+import laspy
+import numpy as np
+
+from core.errors import DataError, FormatError, InputFileError
+from core.io.atomic import atomic_path
+from core.pointcloud import PointCloud, choose_origin
+
+_STANDARD_KEPT = ("intensity",)
+_EXTRA_TYPES = {
+    np.dtype(t)
+    for t in (np.int8, np.uint8, np.int16, np.uint16, np.int32, np.uint32, np.int64, np.uint64, np.float32, np.float64)
+}
+
+
+def read_las(path: str | PathLike[str]) -> PointCloud:
+    """Read a LAS or LAZ file as a :class:`PointCloud` (float64 positions relative to a local origin)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("file does not exist" if not path.exists() else "is not a file", path)
+    try:
+        las = laspy.read(path)
+    except laspy.errors.LaspyException as err:
+        raise FormatError(f"not a valid LAS/LAZ file ({err})", path) from err
+    except (ValueError, EOFError, OSError, struct.error) as err:
+        raise InputFileError(f"LAS data is truncated or corrupt ({err})", path) from err
+
+    scales = np.asarray(las.header.scales, dtype=np.float64)
+    offsets = np.asarray(las.header.offsets, dtype=np.float64)
+    if not (np.isfinite(scales).all() and np.isfinite(offsets).all() and (scales > 0).all()):
+        raise FormatError(f"invalid scales {scales.tolist()} or offsets {offsets.tolist()} in the header", path)
+    ints = np.stack([np.asarray(las.X), np.asarray(las.Y), np.asarray(las.Z)], axis=1).astype(np.float64)
+    world_approx = ints * scales + offsets
+    origin = choose_origin(world_approx)
+    # (X·scale) + (offset − origin): the large offset cancels in float64 before adding the small part.
+    positions = ints * scales + (offsets - origin)
+
+    dims = set(las.point_format.dimension_names)
+    colors = None
+    if {"red", "green", "blue"} <= dims:
+        rgb = np.stack([np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)], axis=1)
+        if rgb.size and rgb.max() > 255:
+            colors = np.round(rgb.astype(np.float64) / 257.0).astype(np.uint8)
+        else:
+            colors = rgb.astype(np.uint8)
+
+    extra_names = list(las.point_format.extra_dimension_names)
+    fields: dict[str, np.ndarray] = {"classification": np.asarray(las.classification, dtype=np.uint8)}
+    for name in _STANDARD_KEPT:
+        values = np.asarray(las[name])
+        if values.size and values.any():
+            fields[name] = values.copy()
+    normals = None
+    if {"nx", "ny", "nz"} <= set(extra_names):
+        normals = np.stack([np.asarray(las[n], dtype=np.float32) for n in ("nx", "ny", "nz")], axis=1)
+    for name in extra_names:
+        if name in ("nx", "ny", "nz") and normals is not None:
+            continue
+        fields[name] = np.asarray(las[name]).copy()
+    return PointCloud(positions, origin, colors, normals, fields)
+
+
+def write_las(
+    path: str | PathLike[str],
+    cloud: PointCloud,
+    *,
+    scale: float = 0.001,
+    offset: np.ndarray | None = None,
+) -> Path:
+    """Write a point cloud as LAS 1.4 (``.las``) or LAZ (``.laz``), atomically.
+
+    ``scale`` (metres per integer step, default 1 mm) applies to x, y, z; ``offset`` defaults to the cloud's
+    origin (rounded to the scale). Raises :class:`DataError` when coordinates do not fit the int32 range at
+    that scale.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        raise DataError(f"LAS output needs a .las or .laz suffix, got {path.suffix!r}", path)
+    cloud.validate(str(path))
+    offset_arr = np.round(np.asarray(cloud.origin if offset is None else offset, dtype=np.float64) / scale) * scale
+    local = cloud.positions + (cloud.origin - offset_arr)
+    ints = np.round(local / scale)
+    limit = np.iinfo(np.int32).max
+    if ints.size and np.abs(ints).max() > limit:
+        raise DataError(f"coordinates span more than ±{limit * scale:.0f} m from the offset at scale {scale}", path)
+
+    point_format = 7 if cloud.colors is not None else 6
+    header = laspy.LasHeader(point_format=point_format, version="1.4")
+    header.scales = np.array([scale] * 3)
+    header.offsets = offset_arr
+    extras = {k: v for k, v in cloud.fields.items() if k not in ("classification",) + _STANDARD_KEPT}
+    if cloud.normals is not None:
+        extras = {"nx": cloud.normals[:, 0], "ny": cloud.normals[:, 1], "nz": cloud.normals[:, 2], **extras}
+    for name, values in extras.items():
+        dtype = np.dtype(values.dtype)
+        if dtype == np.bool_:
+            dtype = np.dtype(np.uint8)
+        if dtype not in _EXTRA_TYPES:
+            raise DataError(f"field {name!r} of dtype {values.dtype} cannot be stored as a LAS extra dim", path)
+        header.add_extra_dim(laspy.ExtraBytesParams(name=name[:32], type=dtype))
+
+    las = laspy.LasData(header)
+    las.X = ints[:, 0].astype(np.int32)
+    las.Y = ints[:, 1].astype(np.int32)
+    las.Z = ints[:, 2].astype(np.int32)
+    if "classification" in cloud.fields:
+        cls = np.asarray(cloud.fields["classification"])
+        if cls.size and (cls.min() < 0 or cls.max() > 255):
+            raise DataError("classification codes must lie in 0..255 for LAS", path)
+        las.classification = cls.astype(np.uint8)
+    for name in _STANDARD_KEPT:
+        if name in cloud.fields:
+            las[name] = np.asarray(cloud.fields[name])
+    if cloud.colors is not None:
+        rgb16 = cloud.colors.astype(np.uint16) * 257
+        las.red, las.green, las.blue = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
+    for name, values in extras.items():
+        las[name[:32]] = np.asarray(values).astype(np.uint8) if values.dtype == np.bool_ else values
+    with atomic_path(path) as tmp:
+        las.write(str(tmp), do_compress=path.suffix.lower() == ".laz")
+    return path

@@ -1,0 +1,3 @@
+from hybridsplat.cli import main
+
+main()

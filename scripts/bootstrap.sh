@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Creates .venv and installs everything the project needs on a fresh machine (2 cores, Python >= 3.10,
+# no GPU, only the package registries reachable). Safe to run repeatedly; fast when nothing changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+VENV=.venv
+STAMP=$VENV/.installed-$(sha1sum pyproject.toml | cut -c1-12)
+
+# open3d needs the system library libusb-1.0 at import time.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "bootstrap: installing libusb-1.0-0 (needed by open3d)" >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0) >/dev/null
+  else
+    echo "bootstrap: open3d needs the system library libusb-1.0-0; install it, e.g. 'sudo apt-get install libusb-1.0-0'" >&2
+    exit 1
+  fi
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  "$PYTHON" -m venv "$VENV"
+fi
+if [ ! -f "$STAMP" ]; then
+  "$VENV/bin/python" -m pip install -q --upgrade pip wheel setuptools
+  # A CPU build of torch 2.13.0 is what this project is tested with; an unpinned torch pulls CUDA wheels.
+  if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
+    "$VENV/bin/python" -m pip install -q "torch==2.13.0"
+  fi
+  "$VENV/bin/python" -m pip install -q -e ".[dev]"
+  rm -f "$VENV"/.installed-*
+  touch "$STAMP"
+fi
