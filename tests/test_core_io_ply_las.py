@@ -183,3 +183,13 @@ def test_failed_write_leaves_nothing(tmp_path):
     with pytest.raises(DataError):
         write_las(tmp_path / "x.las", pc)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_atomic_writes_get_normal_permissions(tmp_path):
+    import os
+
+    _, pc = _cloud(10)
+    write_ply(tmp_path / "perm.ply", pc)
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "perm.ply").stat().st_mode & 0o777 == 0o666 & ~mask

@@ -1,0 +1,171 @@
+"""Benchmark of the CPU MVS on a data_synth scene (tabletop by default), known poses.
+
+Prints, per ``max_image_size``: time per view and per megapixel, fused points, and per material the fused
+cloud's accuracy (median distance to the GT mesh and C2C to the GT LiDAR cloud, in GSD) and completeness
+(share of GT LiDAR points with a fused point within 3 GSD), with ratios against the largest size.
+Optionally (``--sfm``) full SfM without known poses, aligned to the true camera centres.
+
+    python bench/bench_mvs.py [--quick] [--scene DIR] [--sizes 320,480,640] [--sfm]
+
+The scene is generated with ``data_synth.generate_scene`` into ``--cache`` when ``--scene`` is not given.
+Timings on a shared machine are noisy; the MVS runs with ``--threads`` torch threads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from core.io.ply import read_ply  # noqa: E402
+from recon.mvs import MvsBackend, MvsOptions, MvsReport, run_mvs  # noqa: E402
+from recon.mvs_cpu import CpuMvsOptions  # noqa: E402
+from recon.sfm import SfmOptions  # noqa: E402
+from recon.stages import sfm_stage  # noqa: E402
+
+
+@dataclass
+class MaterialScore:
+    name: str
+    collaborative: bool
+    fused_points: int
+    median_mesh_gsd: float  # fused -> GT mesh, median, in GSD
+    median_c2c_gsd: float  # fused -> GT LiDAR cloud, median, in GSD
+    completeness: float  # GT LiDAR points with a fused point within tau
+
+
+def evaluate(scene: Path, fused_ply: Path, tau_gsd: float = 3.0) -> tuple[float, list[MaterialScore]]:
+    """Per-material accuracy and completeness of a fused cloud against the scene's ground truth."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    meta = json.loads((scene / "scene.json").read_text())
+    gsd = float(meta["gsd_m"])
+    gt = read_ply(scene / "gt" / "lidar.ply")
+    fused = read_ply(fused_ply).with_origin(gt.origin)
+    mat_gt = np.asarray(gt.fields["material"]).astype(int)
+    mesh = o3d.t.geometry.TriangleMesh.from_legacy(o3d.io.read_triangle_mesh(str(scene / "gt" / "mesh.ply")))
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(mesh)
+    mesh_origin = np.zeros(3)  # gt/mesh.ply is in the local frame; its sidecar (if any) gives the offset
+    side = scene / "gt" / "mesh.origin.json"
+    if side.is_file():
+        mesh_origin = np.asarray(json.loads(side.read_text())["origin"], dtype=np.float64)
+    q = (fused.positions + fused.origin - mesh_origin).astype(np.float32)
+    d_mesh = rc.compute_distance(o3d.core.Tensor(q)).numpy() if len(q) else np.zeros(0)
+    tree_gt = cKDTree(gt.positions)
+    d_c2c, idx = tree_gt.query(fused.positions) if len(fused) else (np.zeros(0), np.zeros(0, int))
+    mat_fused = mat_gt[idx] if len(fused) else np.zeros(0, int)
+    d_back, _ = cKDTree(fused.positions).query(gt.positions) if len(fused) else (np.full(len(gt), np.inf), None)
+    scores = []
+    for m in meta["materials"]:
+        sel_f = mat_fused == m["id"]
+        sel_g = mat_gt == m["id"]
+        if not sel_g.any():
+            continue
+        scores.append(
+            MaterialScore(
+                m["name"],
+                bool(m["collaborative"]),
+                int(sel_f.sum()),
+                float(np.median(d_mesh[sel_f]) / gsd) if sel_f.any() else float("nan"),
+                float(np.median(d_c2c[sel_f]) / gsd) if sel_f.any() else float("nan"),
+                float(np.mean(d_back[sel_g] < tau_gsd * gsd)),
+            )
+        )
+    return gsd, scores
+
+
+def _ensure_scene(args) -> Path:
+    if args.scene:
+        return Path(args.scene)
+    out = Path(args.cache) / args.preset
+    if not (out / "scene.json").is_file():
+        from data_synth.generate import generate_scene
+
+        print(f"generating {args.preset} into {out} ...", flush=True)
+        generate_scene(args.preset, out, seed=0, overwrite=True)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="one size (320 px) only")
+    ap.add_argument("--scene", help="data_synth scene folder (default: generate --preset into --cache)")
+    ap.add_argument("--preset", default="tabletop")
+    ap.add_argument("--cache", default="/tmp/hybridsplat_bench")
+    ap.add_argument("--sizes", default="320,480,640", help="max_image_size values to compare")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--sfm", action="store_true", help="also run full SfM (no known poses) and align to the truth")
+    ap.add_argument("--work", default="/tmp/hybridsplat_bench/work")
+    args = ap.parse_args()
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 2
+    scene = _ensure_scene(args)
+    work = Path(args.work)
+    project = work / "known"
+    t0 = time.perf_counter()
+    rep = sfm_stage(scene, project, known_poses=True, options=SfmOptions(num_threads=args.threads))
+    print(
+        f"known-pose triangulation: {len(rep.registered)} images, {rep.num_points} points, "
+        f"{rep.mean_reprojection_error:.3f} px, {time.perf_counter() - t0:.1f} s"
+    )
+    sizes = [320] if args.quick else [int(s) for s in args.sizes.split(",")]
+    rows: list[tuple[int, MvsReport, list[MaterialScore]]] = []
+    gsd = float("nan")
+    for size in sizes:
+        opts = MvsOptions(backend=MvsBackend.CPU, max_image_size=size, num_threads=args.threads, cpu=CpuMvsOptions())
+        report = run_mvs(project / "sparse", scene / "images", work / f"dense_{size}", opts)
+        gsd, scores = evaluate(scene, work / f"dense_{size}" / "fused.ply")
+        rows.append((size, report, scores))
+        print(
+            f"\nmax_image_size {size}: {report.num_views} views, {report.megapixels:.2f} MP, "
+            f"depth {report.seconds_depth:.1f} s + geometric {report.seconds_geometric:.1f} s + fusion "
+            f"{report.seconds_fusion:.1f} s -> {report.seconds_per_view:.2f} s/view, "
+            f"{report.seconds_per_megapixel:.2f} s/MP, "
+            f"{report.num_points} points"
+        )
+        print(
+            f"  {'material':<20}{'collab':>7}{'points':>9}{'mesh med':>10}{'c2c med':>9}{'compl@3':>9}"
+            f"   (GSD {gsd * 1000:.2f} mm)"
+        )
+        for s in scores:
+            print(
+                f"  {s.name:<20}{'yes' if s.collaborative else 'no':>7}{s.fused_points:>9}"
+                f"{s.median_mesh_gsd:>10.2f}{s.median_c2c_gsd:>9.2f}{s.completeness:>9.1%}"
+            )
+    if len(rows) > 1:
+        ref_size, ref_rep, ref_scores = rows[-1]
+        print(
+            f"\nratios against max_image_size {ref_size} (time, collaborative completeness, collaborative mesh median):"
+        )
+        ref_c = np.mean([s.completeness for s in ref_scores if s.collaborative])
+        ref_a = np.nanmean([s.median_mesh_gsd for s in ref_scores if s.collaborative])
+        for size, rep_, scores in rows:
+            c = np.mean([s.completeness for s in scores if s.collaborative])
+            a = np.nanmean([s.median_mesh_gsd for s in scores if s.collaborative])
+            t = rep_.seconds_depth + rep_.seconds_geometric
+            tr = ref_rep.seconds_depth + ref_rep.seconds_geometric
+            print(f"  {size:>5}: time x{t / tr:.2f}  completeness x{c / ref_c:.2f}  accuracy x{a / ref_a:.2f}")
+    if args.sfm:
+        t1 = time.perf_counter()
+        srep = sfm_stage(scene, work / "full", known_poses=False, options=SfmOptions(num_threads=args.threads))
+        a = srep.alignment
+        print(
+            f"\nfull SfM: {len(srep.registered)}/{srep.num_images} registered, {srep.num_points} points, "
+            f"{srep.mean_reprojection_error:.3f} px, {time.perf_counter() - t1:.1f} s; aligned centres: "
+            f"median {np.median(a.residuals) / gsd:.3f} GSD, max {a.residuals.max() / gsd:.3f} GSD "
+            f"(rms {a.rms_inliers * 1000:.2f} mm, {a.num_inliers} inliers)"
+        )
+
+
+if __name__ == "__main__":
+    main()

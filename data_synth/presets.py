@@ -1,0 +1,190 @@
+"""Scene presets (frozen dataclasses) and their overrides.
+
+- ``tiny``: unit-test scene, 10 training + 2 test views at 96×72, seconds to generate.
+- ``tabletop``: artefact scale (~0.5 m of objects on a 1 m table), 72 training views at 640×480 on three rings.
+- ``aerial``: UAV scale (200 m terrain, switchgear yard with a 28 m pylon), nadir grid at 40 m + obliques at 60 m.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+from core.errors import ConfigError
+from data_synth.lidar import AirborneScan, RangeNoise, TerrestrialScan
+from data_synth.lighting import Environment
+from data_synth.raytrace import RenderSettings
+from data_synth.rig import AerialRig, OrbitRig
+
+GEOREF_ORIGIN = (500000.0, 5000000.0, 300.0)
+"""A UTM-like origin (easting, northing, height) used by ``georef=True``."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Everything that defines a scene except the seed.
+
+    layout: name of the scene builder in :data:`data_synth.scenes.LAYOUTS`.
+    width, height: image size in pixels. rig: camera rig. lidar: scanner geometry; noise: its range noise.
+    render: supersampling and bounce depth. environment: sun and sky. texture_scale: multiplies every
+    material's pattern size. origin: world coordinates of the local origin (metres).
+    stats_points: surface samples per material for the cross-view colour statistics.
+    """
+
+    name: str
+    layout: str
+    width: int
+    height: int
+    rig: OrbitRig | AerialRig
+    lidar: TerrestrialScan | AirborneScan
+    noise: RangeNoise
+    render: RenderSettings
+    environment: Environment
+    texture_scale: float = 1.0
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    stats_points: int = 300
+
+    @property
+    def n_train(self) -> int:
+        if isinstance(self.rig, OrbitRig):
+            return self.rig.views_per_ring * len(self.rig.elevations_deg)
+        return self.rig.grid[0] * self.rig.grid[1] + 4 * self.rig.oblique_per_side
+
+
+PRESETS: dict[str, Preset] = {
+    "tiny": Preset(
+        name="tiny",
+        layout="tiny",
+        width=96,
+        height=72,
+        rig=OrbitRig(radius_m=0.9, elevations_deg=(45.0,), views_per_ring=10, azimuth_start_deg=-70.0,
+                     azimuth_span_deg=90.0, n_test=2, hfov_deg=50.0),
+        lidar=TerrestrialScan(stations=((0.6, -0.3, 0.3), (0.5, 0.45, 0.35)), step_deg=0.5,
+                              azimuth_half_deg=40.0, elevation_deg=(-50.0, 10.0)),
+        noise=RangeNoise(sigma_m=0.0005, sigma_rel=0.0),
+        render=RenderSettings(supersample=2, max_depth=3),
+        environment=Environment(sun_azimuth_deg=20.0, sun_elevation_deg=55.0),
+        texture_scale=1.5,
+        stats_points=150,
+    ),
+    "tabletop": Preset(
+        name="tabletop",
+        layout="tabletop",
+        width=640,
+        height=480,
+        rig=OrbitRig(radius_m=0.85, elevations_deg=(20.0, 38.0, 58.0), views_per_ring=24, n_test=8,
+                     target=(0.0, 0.0, 0.03), hfov_deg=48.0),
+        lidar=TerrestrialScan(stations=((0.7, 0.0, 0.35), (0.0, 0.7, 0.4), (-0.7, 0.0, 0.35), (0.0, -0.7, 0.4)),
+                              step_deg=0.12, azimuth_half_deg=35.0, elevation_deg=(-45.0, 10.0)),
+        noise=RangeNoise(sigma_m=0.0003, sigma_rel=0.0),
+        render=RenderSettings(supersample=2, max_depth=4),
+        environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
+        texture_scale=1.0,
+    ),
+    "aerial": Preset(
+        name="aerial",
+        layout="aerial",
+        width=640,
+        height=480,
+        rig=AerialRig(area_m=(100.0, 80.0), grid=(7, 6), nadir_height_m=40.0, oblique_height_m=60.0,
+                      oblique_tilt_deg=45.0, oblique_per_side=4, n_test=4, hfov_deg=70.0),
+        lidar=AirborneScan(line_y_m=(-50.0, 0.0, 50.0), x_range_m=(-90.0, 90.0), altitude_m=80.0,
+                           line_spacing_m=0.4, half_angle_deg=35.0, pulses_per_line=400),
+        noise=RangeNoise(sigma_m=0.02, sigma_rel=0.0001),
+        render=RenderSettings(supersample=2, max_depth=3),
+        environment=Environment(sun_azimuth_deg=140.0, sun_elevation_deg=55.0, ground_tile=20.0),
+        texture_scale=1.0,
+    ),
+}  # fmt: skip
+
+OVERRIDES = ("views", "test_views", "width", "height", "supersample", "max_depth", "noise", "georef", "origin")
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called ``name``; :class:`ConfigError` lists the known ones otherwise."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ConfigError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}") from None
+
+
+def apply_overrides(preset: Preset, **overrides: object) -> Preset:
+    """A copy of ``preset`` with user overrides (``None`` values are ignored).
+
+    views: training views (orbit: per ring = ceil(views / rings); aerial: nadir grid nearest to
+    views − obliques, kept at the preset's aspect). test_views: held-out views. width, height: pixels (focal
+    length follows the field of view). supersample: S of S×S. max_depth: bounces. noise: False/0 disables the
+    LiDAR range noise, a float sets its constant sigma (metres). georef: True sets the UTM-like origin
+    :data:`GEOREF_ORIGIN`. origin: explicit (x, y, z) local origin.
+    """
+    given = {k: v for k, v in overrides.items() if v is not None}
+    unknown = set(given) - set(OVERRIDES)
+    if unknown:
+        raise ConfigError(f"unknown preset override(s) {sorted(unknown)}; allowed: {', '.join(OVERRIDES)}")
+    p = preset
+    for key in ("views", "test_views", "width", "height", "supersample"):
+        if key in given and (not isinstance(given[key], int) or given[key] < (0 if key == "test_views" else 1)):
+            raise ConfigError(f"{key} must be a positive integer, got {given[key]!r}")
+    if "width" in given or "height" in given:
+        p = replace(p, width=int(given.get("width", p.width)), height=int(given.get("height", p.height)))
+    if "views" in given:
+        n = int(given["views"])  # type: ignore[arg-type]
+        if isinstance(p.rig, OrbitRig):
+            per_ring = max(2, math.ceil(n / len(p.rig.elevations_deg)))
+            p = replace(p, rig=replace(p.rig, views_per_ring=per_ring))
+        else:
+            nadir = max(4, n - 4 * p.rig.oblique_per_side)
+            aspect = p.rig.grid[0] / p.rig.grid[1]
+            ny = max(2, round(math.sqrt(nadir / aspect)))
+            nx = max(2, round(nadir / ny))
+            p = replace(p, rig=replace(p.rig, grid=(nx, ny)))
+    if "test_views" in given:
+        p = replace(p, rig=replace(p.rig, n_test=int(given["test_views"])))  # type: ignore[arg-type]
+    if "supersample" in given or "max_depth" in given:
+        render = replace(
+            p.render,
+            supersample=int(given.get("supersample", p.render.supersample)),  # type: ignore[arg-type]
+            max_depth=int(given.get("max_depth", p.render.max_depth)),  # type: ignore[arg-type]
+        )
+        if render.max_depth < 0:
+            raise ConfigError(f"max_depth must be >= 0, got {render.max_depth}")
+        p = replace(p, render=render)
+    if "noise" in given:
+        value = given["noise"]
+        if value is False or value == 0:
+            p = replace(p, noise=RangeNoise(0.0, 0.0))
+        elif value is not True:
+            sigma = float(value)  # type: ignore[arg-type]
+            if not (sigma >= 0 and math.isfinite(sigma)):
+                raise ConfigError(f"noise must be a non-negative sigma in metres, got {value!r}")
+            p = replace(p, noise=RangeNoise(sigma, p.noise.sigma_rel))
+    if given.get("georef"):
+        p = replace(p, origin=GEOREF_ORIGIN)
+    if "origin" in given:
+        o = tuple(float(v) for v in given["origin"])  # type: ignore[union-attr]
+        if len(o) != 3 or not all(math.isfinite(v) for v in o):
+            raise ConfigError(f"origin must be three finite numbers, got {given['origin']!r}")
+        p = replace(p, origin=o)  # type: ignore[arg-type]
+    return p
+
+
+def preset_summary(preset: Preset) -> dict[str, object]:
+    """A JSON-ready description of the preset's rig and settings (for ``scene.json``)."""
+
+    def as_dict(obj: object) -> dict[str, object]:
+        out: dict[str, object] = {"type": type(obj).__name__}
+        for f in fields(obj):  # type: ignore[arg-type]
+            if f.name == "table":
+                continue
+            v = getattr(obj, f.name)
+            out[f.name] = [list(x) if isinstance(x, tuple) else x for x in v] if isinstance(v, tuple) else v
+        return out
+
+    return {
+        "rig": as_dict(preset.rig),
+        "lidar": as_dict(preset.lidar),
+        "lidar_noise": as_dict(preset.noise),
+        "render": as_dict(preset.render),
+        "environment": as_dict(preset.environment),
+        "texture_scale": preset.texture_scale,
+    }

@@ -1,0 +1,213 @@
+"""Typed per-product evaluation results and the writer/reader of ``PROJECT/eval/metrics.json``.
+
+The pipeline calls :func:`update_metrics` once per product (``mvs``, ``splats``, ``merged``,
+``baseline_gs``); ``hybridsplat report`` reads the file back with :func:`read_metrics`. Layout::
+
+    {"schema": "hybridsplat.metrics/1",
+     "products": {"<name>": {"skipped": false, "reason": null,
+                             "c2c": {count, mean, std, median, rmse, p90, p95, p99, min, max, max_dist,
+                                     outlier_count, outlier_share, tau, completeness, precision, recall, fscore,
+                                     method, reference, reverse: {...}, per_class: {"<class>": {...}},
+                                     histogram: {edges, counts}, registration: {...} | null, files: {...}},
+                             "images": {"full": {views, mse, psnr, ssim, ms_ssim, lpips, delta_e, std: {...}},
+                                        "masked": {...} | null,
+                                        "per_view": [{view, mask_share, full: {...}, masked: {...} | null,
+                                                      files: {...}}]}}}}
+
+Distances are metres, image metrics use colours in [0, 1] (see :mod:`eval.image_metrics`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import FormatError, InputFileError
+from core.io.atomic import write_text_atomic
+from eval.c2c import C2CResult, DistanceStats, ThresholdScores, histogram
+from eval.image_metrics import ImageScores, ScoreSummary, summarize
+
+SCHEMA = "hybridsplat.metrics/1"
+PRODUCTS = ("mvs", "splats", "merged", "baseline_gs")
+
+
+@dataclass(frozen=True)
+class C2CSummary:
+    """Geometry metrics of one product (compared cloud against a reference cloud or mesh)."""
+
+    stats: DistanceStats
+    method: str = "c2c"  # "c2c" (cloud reference) or "c2m" (mesh reference)
+    reference: str | None = None
+    reverse: DistanceStats | None = None
+    scores: ThresholdScores | None = None
+    per_class: Mapping[int, DistanceStats] = field(default_factory=dict)
+    histogram_edges: tuple[float, ...] = ()
+    histogram_counts: tuple[int, ...] = ()
+    registration: Mapping[str, Any] | None = None
+    files: Mapping[str, str] = field(default_factory=dict)
+
+    @classmethod
+    def from_result(
+        cls,
+        result: C2CResult,
+        method: str = "c2c",
+        reference: str | None = None,
+        registration: Mapping[str, Any] | None = None,
+        files: Mapping[str, str] | None = None,
+        bins: int = 50,
+    ) -> C2CSummary:
+        """Summarise a :class:`C2CResult` (or a C2M result with the same fields), histogram included."""
+        d = result.distances
+        upper = result.stats.max_dist if result.stats.max_dist is not None else None
+        edges, counts = histogram(d, bins=bins, upper=upper)
+        return cls(
+            stats=result.stats,
+            method=method,
+            reference=reference,
+            reverse=getattr(result, "reverse", None),
+            scores=getattr(result, "scores", None),
+            per_class=dict(result.per_class),
+            histogram_edges=tuple(float(e) for e in edges),
+            histogram_counts=tuple(int(c) for c in counts),
+            registration=registration,
+            files=dict(files or {}),
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = self.stats.as_dict()
+        s = self.scores
+        out.update(
+            tau=None if s is None else s.tau,
+            completeness=None if s is None else s.completeness,
+            precision=None if s is None else s.precision,
+            recall=None if s is None else s.recall,
+            fscore=None if s is None else s.fscore,
+            method=self.method,
+            reference=self.reference,
+            reverse=None if self.reverse is None else self.reverse.as_dict(),
+            per_class={str(k): v.as_dict() for k, v in sorted(self.per_class.items())},
+            histogram={"edges": list(self.histogram_edges), "counts": list(self.histogram_counts)},
+            registration=None if self.registration is None else dict(self.registration),
+            files=dict(self.files),
+        )
+        return out
+
+
+@dataclass(frozen=True)
+class ViewScores:
+    """Image metrics of one held-out view: whole image, and inside the mask when one exists."""
+
+    view: str
+    full: ImageScores
+    masked: ImageScores | None = None
+    mask_share: float | None = None  # share of pixels inside the mask
+    files: Mapping[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "view": self.view,
+            "mask_share": self.mask_share,
+            "full": self.full.as_dict(),
+            "masked": None if self.masked is None else self.masked.as_dict(),
+            "files": dict(self.files),
+        }
+
+
+@dataclass(frozen=True)
+class ImageEval:
+    """Per-view image metrics of one product and their aggregates (mean, std over views)."""
+
+    per_view: Sequence[ViewScores]
+    full: ScoreSummary | None
+    masked: ScoreSummary | None
+
+    @classmethod
+    def from_views(cls, views: Sequence[ViewScores]) -> ImageEval:
+        masked = [v.masked for v in views if v.masked is not None]
+        return cls(list(views), summarize([v.full for v in views]), summarize(masked))
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "full": None if self.full is None else self.full.as_dict(),
+            "masked": None if self.masked is None else self.masked.as_dict(),
+            "per_view": [v.as_dict() for v in self.per_view],
+        }
+
+
+@dataclass(frozen=True)
+class ProductMetrics:
+    """Everything measured for one product; ``skipped`` with a ``reason`` when the product does not exist."""
+
+    c2c: C2CSummary | None = None
+    images: ImageEval | None = None
+    skipped: bool = False
+    reason: str | None = None
+
+    @classmethod
+    def skip(cls, reason: str) -> ProductMetrics:
+        return cls(skipped=True, reason=reason)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "skipped": self.skipped,
+            "reason": self.reason,
+            "c2c": None if self.c2c is None else self.c2c.as_dict(),
+            "images": None if self.images is None else self.images.as_dict(),
+        }
+
+
+def metrics_path(project: str | PathLike[str]) -> Path:
+    """``PROJECT/eval/metrics.json``."""
+    return Path(project) / "eval" / "metrics.json"
+
+
+def to_json_safe(value: Any) -> Any:
+    """JSON-safe copy: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, Mapping):
+        return {str(k): to_json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def write_metrics(project: str | PathLike[str], products: Mapping[str, ProductMetrics]) -> Path:
+    """Write (replace) ``PROJECT/eval/metrics.json`` with ``products``; atomic. Returns the path."""
+    path = metrics_path(project)
+    payload = {"schema": SCHEMA, "products": {name: p.as_dict() for name, p in products.items()}}
+    write_text_atomic(path, json.dumps(to_json_safe(payload), indent=2) + "\n")
+    return path
+
+
+def update_metrics(project: str | PathLike[str], name: str, product: ProductMetrics) -> Path:
+    """Add or replace one product in ``PROJECT/eval/metrics.json`` (other products are kept); atomic."""
+    path = metrics_path(project)
+    payload = read_metrics(path) if path.exists() else {"schema": SCHEMA, "products": {}}
+    payload["products"][name] = to_json_safe(product.as_dict())
+    write_text_atomic(path, json.dumps(payload, indent=2) + "\n")
+    return path
+
+
+def read_metrics(path: str | PathLike[str]) -> dict[str, Any]:
+    """Read a metrics.json (path to the file or to the project folder) as plain JSON data, checked."""
+    p = Path(path)
+    if p.is_dir():
+        p = metrics_path(p)
+    if not p.is_file():
+        raise InputFileError("metrics file does not exist", p)
+    try:
+        payload = json.loads(p.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as err:
+        raise FormatError(f"not valid JSON ({err})", p) from err
+    if not isinstance(payload, dict) or not isinstance(payload.get("products"), dict):
+        raise FormatError("expected an object with a 'products' object", p)
+    return payload

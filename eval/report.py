@@ -1,0 +1,403 @@
+"""Reports a surveyor can hand over: ``report/report.{json,md,html}`` from ``manifest.json`` + ``eval/metrics.json``.
+
+``report.json`` is a stable schema (``hybridsplat.report/1``) users script against::
+
+    products.<name>.{skipped, reason}
+    products.<name>.c2c.{count, mean, std, median, rmse, p90, p95, p99, max, outlier_count, outlier_share,
+                         tau, completeness, precision, recall, fscore, method, reference, registration, per_class}
+    products.<name>.images.{full, masked}.{views, mse, psnr, ssim, ms_ssim, lpips, delta_e, std}
+    stages.<name>.{seconds, peak_mb, skipped, reason, cached, counts}
+    versions (this report's environment), pipeline_versions (from the manifest), config,
+    timings.{total_seconds, stages}
+
+Every key is always present (null when not measured); the products ``mvs``, ``splats`` and ``merged`` are
+always listed (skipped with a reason when absent), ``baseline_gs`` and others when measured. Distances in
+metres, image metrics on colours in [0, 1]. The HTML page is self-contained (SVG plots inline, PNG as base64).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import platform
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from importlib import metadata
+from os import PathLike
+from pathlib import Path
+from typing import Any
+
+from core.errors import FormatError, InputFileError
+from core.io.atomic import write_text_atomic
+from eval.metrics_io import read_metrics
+from eval.plots import svg_bars, svg_histogram
+
+SCHEMA = "hybridsplat.report/1"
+REQUIRED_PRODUCTS = ("mvs", "splats", "merged")
+C2C_KEYS = (
+    "count", "mean", "std", "median", "rmse", "p90", "p95", "p99", "max", "outlier_count", "outlier_share",
+    "tau", "completeness", "precision", "recall", "fscore",
+)  # fmt: skip
+IMAGE_KEYS = ("mse", "psnr", "ssim", "ms_ssim", "lpips", "delta_e")
+IMAGE_LABELS = {
+    "mse": "MSE",
+    "psnr": "PSNR (dB)",
+    "ssim": "SSIM",
+    "ms_ssim": "MS-SSIM",
+    "lpips": "LPIPS",
+    "delta_e": "ΔE",
+}
+STAGE_KEYS = ("seconds", "peak_mb", "skipped", "reason")
+_PACKAGES = (
+    "hybridsplat",
+    "numpy",
+    "scipy",
+    "torch",
+    "open3d",
+    "pycolmap",
+    "scikit-image",
+    "scikit-learn",
+    "plyfile",
+    "laspy",
+)
+
+
+@dataclass(frozen=True)
+class ReportPaths:
+    """The three files a report consists of."""
+
+    json: Path
+    markdown: Path
+    html: Path
+
+
+def _read_json(path: Path, what: str) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as err:
+        raise FormatError(f"{what} is not valid JSON ({err})", path) from err
+    if not isinstance(data, dict):
+        raise FormatError(f"{what} must hold a JSON object", path)
+    return data
+
+
+def _versions(manifest: Mapping[str, Any] | None) -> dict[str, str | None]:
+    out: dict[str, str | None] = {"python": platform.python_version()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    if manifest is not None:
+        out["manifest"] = None if manifest.get("version") is None else str(manifest.get("version"))
+    return out
+
+
+def _c2c_block(raw: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    if raw is None:
+        return None
+    out = {k: raw.get(k) for k in C2C_KEYS}
+    out.update(
+        method=raw.get("method"),
+        reference=raw.get("reference"),
+        registration=raw.get("registration"),
+        per_class=raw.get("per_class") or {},
+        reverse=raw.get("reverse"),
+    )
+    return out
+
+
+def _image_summary(raw: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    if raw is None:
+        return None
+    std = raw.get("std") or {}
+    return {
+        "views": raw.get("views"),
+        **{k: raw.get(k) for k in IMAGE_KEYS},
+        "std": {k: std.get(k) for k in IMAGE_KEYS},
+    }
+
+
+def _product_block(raw: Mapping[str, Any] | None, missing_reason: str) -> dict[str, Any]:
+    if raw is None:
+        return {"skipped": True, "reason": missing_reason, "c2c": None, "images": {"full": None, "masked": None}}
+    images = raw.get("images") or {}
+    return {
+        "skipped": bool(raw.get("skipped", False)),
+        "reason": raw.get("reason"),
+        "c2c": _c2c_block(raw.get("c2c")),
+        "images": {"full": _image_summary(images.get("full")), "masked": _image_summary(images.get("masked"))},
+    }
+
+
+def build_report(project: str | PathLike[str]) -> dict[str, Any]:
+    """The report.json content for a project folder (reads ``manifest.json`` and ``eval/metrics.json``)."""
+    root = Path(project)
+    if not root.is_dir():
+        raise InputFileError("project folder does not exist", root)
+    manifest = _read_json(root / "manifest.json", "manifest")
+    metrics_file = root / "eval" / "metrics.json"
+    metrics = read_metrics(metrics_file) if metrics_file.is_file() else {"products": {}}
+    measured: Mapping[str, Any] = metrics["products"]
+    if metrics_file.is_file():
+        reason = "not evaluated: no entry for this product in eval/metrics.json"
+    else:
+        reason = "not evaluated: eval/metrics.json does not exist (run the eval stage)"
+    names = list(REQUIRED_PRODUCTS) + sorted(n for n in measured if n not in REQUIRED_PRODUCTS)
+    products = {n: _product_block(measured.get(n), reason) for n in names}
+
+    stages: dict[str, Any] = {}
+    config: dict[str, Any] = {}
+    for name, st in ((manifest or {}).get("stages") or {}).items():
+        st = st or {}
+        stages[name] = {**{k: st.get(k) for k in STAGE_KEYS}, "cached": bool(st.get("cached", False))}
+        stages[name]["counts"] = st.get("counts") or {}
+        stages[name]["skipped"] = bool(stages[name]["skipped"])
+        if st.get("config") is not None:
+            config[name] = st["config"]
+    if manifest is not None and isinstance(manifest.get("config"), Mapping):
+        config = {"project": manifest["config"], **config}
+    total = sum(float(s["seconds"]) for s in stages.values() if isinstance(s.get("seconds"), (int, float)))
+    return {
+        "schema": SCHEMA,
+        "project": str(root.resolve()),
+        "generated_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "versions": _versions(manifest),
+        "pipeline_versions": dict((manifest or {}).get("versions") or {}),
+        "config": config,
+        "timings": {"total_seconds": total, "stages": {n: s["seconds"] for n, s in stages.items()}},
+        "manifest_found": manifest is not None,
+        "products": products,
+        "stages": stages,
+    }
+
+
+# -- formatting -------------------------------------------------------------------------------------
+
+
+def _num(v: Any, digits: int = 4, sci: bool = False) -> str:
+    """Fixed-point text (metres to 0.1 mm by default); ``sci`` for quantities that are often tiny (MSE)."""
+    if v is None:
+        return "–"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if sci and v != 0 and abs(v) < 10 ** (1 - digits):
+            return f"{v:.2e}"
+        return f"{v:.{digits}f}".replace("-0.0000", "0.0000")
+    return str(v)
+
+
+def _pm(block: Mapping[str, Any] | None, key: str) -> str:
+    if block is None or block.get(key) is None:
+        return "–"
+    std = (block.get("std") or {}).get(key)
+    digits = 2 if key in ("psnr", "delta_e") else 4
+    sci = key == "mse"
+    return _num(block[key], digits, sci) + ("" if std is None else f" ± {_num(std, digits, sci)}")
+
+
+def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(title, header, rows) of every table, shared by Markdown and HTML."""
+    products = report["products"]
+    c2c_rows = []
+    for name, p in products.items():
+        c = p["c2c"]
+        if c is None:
+            c2c_rows.append([name, "–", "–", "–", "–", "–", "–", "–", "–", "–", p["reason"] or "not measured"])
+            continue
+        c2c_rows.append(
+            [name, _num(c["mean"]), _num(c["std"]), _num(c["median"]), _num(c["rmse"]), _num(c["p95"]),
+             _num(c["max"]), _num(c["completeness"]), _num(c["fscore"]), _num(c["count"]),
+             f"{c.get('method') or 'c2c'}" + (", ICP" if c.get("registration") else "")]
+        )  # fmt: skip
+    tables = [
+        (
+            "Table 2 — distance to the reference (metres)",
+            [
+                "product",
+                "mean",
+                "st. dev.",
+                "median",
+                "RMSE",
+                "P95",
+                "max",
+                "completeness",
+                "F-score",
+                "points",
+                "note",
+            ],
+            c2c_rows,
+        )
+    ]
+    for part, title in (
+        ("full", "Table 3 — image metrics, whole image"),
+        ("masked", "Table 4 — image metrics, non-collaborative mask"),
+    ):
+        rows = []
+        for name, p in products.items():
+            block = p["images"][part]
+            if block is None:
+                rows.append([name] + ["–"] * len(IMAGE_KEYS) + ["–", p["reason"] or "not measured"])
+            else:
+                rows.append([name] + [_pm(block, k) for k in IMAGE_KEYS] + [_num(block.get("views")), ""])
+        tables.append((title, ["product"] + [IMAGE_LABELS[k] for k in IMAGE_KEYS] + ["views", "note"], rows))
+    class_rows = [
+        [name, str(k), _num(st.get("count")), _num(st.get("mean")), _num(st.get("std")), _num(st.get("rmse")),
+         _num(st.get("p95")), _num(st.get("max")), _num(st.get("outlier_count"))]
+        for name, p in products.items() if p["c2c"] is not None
+        for k, st in (p["c2c"].get("per_class") or {}).items()
+    ]  # fmt: skip
+    if class_rows:
+        header = ["product", "class", "points", "mean", "st. dev.", "RMSE", "P95", "max", "outliers"]
+        tables.append(("Distances per class (metres)", header, class_rows))
+    reg_rows = []
+    for name, p in products.items():
+        reg = (p["c2c"] or {}).get("registration")
+        if reg:
+            # about the local origin: a world-frame translation of a UTM block mixes in rotation × origin
+            t = reg.get("local_transform") or reg.get("world_transform") or [[0.0] * 4] * 3
+            shift = ", ".join(_num(t[i][3], 4) for i in range(3))
+            reg_rows.append([name, reg.get("method", "icp"), _num(reg.get("fitness")), _num(reg.get("inlier_rmse")),
+                             f"({shift})", json.dumps([[round(v, 6) for v in row[:3]] for row in t[:3]])])  # fmt: skip
+    if reg_rows:
+        header = ["product", "method", "fitness", "inlier RMSE (m)", "translation at origin (m)", "rotation"]
+        tables.append(("Registration applied before measuring", header, reg_rows))
+    stage_rows = [
+        [name, _num(s["seconds"], 2), _num(s["peak_mb"], 0), _num(s["skipped"]), s["reason"] or ""]
+        for name, s in report["stages"].items()
+    ]
+    tables.append(("Pipeline stages", ["stage", "seconds", "peak MB", "skipped", "reason"], stage_rows))
+    return tables
+
+
+def to_markdown(report: Mapping[str, Any]) -> str:
+    """The report as Markdown (tables like the paper's Tables 2–4, stage timings, versions)."""
+    lines = [
+        "# hybridsplat evaluation report",
+        "",
+        f"Project: `{report['project']}`  ",
+        f"Generated: {report['generated_utc']}",
+        "",
+    ]
+    if not report.get("manifest_found", True):
+        lines += ["_No manifest.json found: stage timings are unavailable._", ""]
+    for title, header, rows in _tables(report):
+        lines += [f"## {title}", ""]
+        if not rows:
+            lines += ["_none recorded_", ""]
+            continue
+        lines.append("| " + " | ".join(header) + " |")
+        lines.append("|" + "|".join("---" for _ in header) + "|")
+        lines += ["| " + " | ".join(cell.replace("|", "\\|") for cell in row) + " |" for row in rows]
+        lines.append("")
+    skipped = [(n, p["reason"]) for n, p in report["products"].items() if p["skipped"]]
+    if skipped:
+        lines += ["## Skipped products", ""] + [f"- **{n}**: {r}" for n, r in skipped] + [""]
+    lines += [f"Total pipeline time: {_num(report['timings']['total_seconds'], 1)} s", "", "## Versions", ""]
+    lines += [f"- {k}: {v if v is not None else 'not installed'}" for k, v in report["versions"].items()]
+    return "\n".join(lines) + "\n"
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#222}
+table{border-collapse:collapse;margin:0.5em 0 1.5em}th,td{border:1px solid #ccc;padding:4px 8px;text-align:right}
+th{background:#f3f3f3}td:first-child,th:first-child{text-align:left;font-weight:600}
+figure{display:inline-block;margin:0.5em;vertical-align:top}figcaption{font-size:0.85em;color:#555}
+img{max-width:100%;border:1px solid #ddd}.note{color:#777}
+"""
+
+
+def _img_tag(path: Path, alt: str) -> str:
+    if not path.is_file():
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return f'<img src="data:image/png;base64,{data}" alt="{html.escape(alt)}">'
+
+
+def to_html(report: Mapping[str, Any], eval_dir: Path | None, metrics: Mapping[str, Any] | None) -> str:
+    """A self-contained HTML page: tables, C2C histograms and previews, per-view PSNR, render panels."""
+    e = html.escape
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridsplat report</title>",
+        f"<style>{_CSS}</style></head><body>",
+        "<h1>hybridsplat evaluation report</h1>",
+        f"<p>Project <code>{e(report['project'])}</code> · generated {e(report['generated_utc'])} · "
+        f"total pipeline time {_num(report['timings']['total_seconds'], 1)} s</p>",
+    ]
+    for title, header, rows in _tables(report):
+        parts.append(f"<h2>{e(title)}</h2>")
+        if not rows:
+            parts.append("<p class='note'>none recorded</p>")
+            continue
+        parts.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
+        parts += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in row) + "</tr>" for row in rows]
+        parts.append("</table>")
+    raw_products: Mapping[str, Any] = (metrics or {}).get("products", {})
+    figs = []
+    for name, raw in raw_products.items():
+        c2c = (raw or {}).get("c2c")
+        if not c2c:
+            continue
+        hist = c2c.get("histogram") or {}
+        if hist.get("edges") and hist.get("counts"):
+            figs.append(f"<figure>{svg_histogram(hist['edges'], hist['counts'], f'C2C distances: {name}')}</figure>")
+        preview = (c2c.get("files") or {}).get("preview")
+        if preview and eval_dir is not None:
+            tag = _img_tag(eval_dir / preview, f"C2C preview {name}")
+            if tag:
+                figs.append(f"<figure style='max-width:560px'>{tag}<figcaption>{e(name)}: distances colour-mapped "
+                            "(viridis, 0 to max distance or P95)</figcaption></figure>")  # fmt: skip
+    if figs:
+        parts += ["<h2>Distance distributions</h2>"] + figs
+    per_view_series = []
+    labels: list[str] = []
+    panels = []
+    for name, raw in raw_products.items():
+        views = ((raw or {}).get("images") or {}).get("per_view") or []
+        if views:
+            if not labels:
+                labels = [str(v["view"]) for v in views]
+            if [str(v["view"]) for v in views] == labels:
+                per_view_series.append((name, [float(v["full"]["psnr"]) for v in views]))
+        for v in views:
+            panel = (v.get("files") or {}).get("panel")
+            if panel and eval_dir is not None:
+                tag = _img_tag(eval_dir / panel, f"{name} {v['view']}")
+                if tag:
+                    panels.append(f"<figure style='max-width:1150px'>{tag}<figcaption>{e(name)} · {e(str(v['view']))}: "
+                                  "render | photo | RMS colour error (0–0.25)</figcaption></figure>")  # fmt: skip
+    if per_view_series:
+        parts += [
+            "<h2>Per-view PSNR</h2>",
+            svg_bars(per_view_series, labels, "PSNR per held-out view", "view", "PSNR (dB)", width=900),
+        ]
+    if panels:
+        parts += ["<h2>Renders and error maps</h2>"] + panels
+    parts.append("<h2>Versions</h2><ul>")
+    parts += [f"<li>{e(k)}: {e(str(v))}</li>" for k, v in report["versions"].items()]
+    parts.append("</ul>")
+    if report.get("config"):
+        parts.append("<h2>Configuration</h2><pre>" + e(json.dumps(report["config"], indent=2, default=str)) + "</pre>")
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_report(project: str | PathLike[str], out_dir: str | PathLike[str] | None = None) -> ReportPaths:
+    """Build and write ``report.json``, ``report.md`` and ``report.html`` (default ``PROJECT/report/``), atomically."""
+    root = Path(project)
+    report = build_report(root)
+    out = Path(out_dir) if out_dir is not None else root / "report"
+    eval_dir = root / "eval"
+    metrics = read_metrics(eval_dir / "metrics.json") if (eval_dir / "metrics.json").is_file() else None
+    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
+    write_text_atomic(paths.json, json.dumps(report, indent=2, default=str) + "\n")
+    write_text_atomic(paths.markdown, to_markdown(report))
+    write_text_atomic(paths.html, to_html(report, eval_dir, metrics))
+    return paths

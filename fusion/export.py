@@ -1,0 +1,194 @@
+"""Viewer-ready export of Gaussian sets: 3DGS PLY, antimatter15 ``.splat``, and point clouds (PLY / LAS / LAZ).
+
+Every writer first applies :class:`ExportOptions` (:func:`prepare`): crop to an axis-aligned box given in world
+coordinates, drop Gaussians whose opacity α is below ``min_opacity`` (default 1/255: invisible once quantised to
+8 bits), and reduce (or zero-pad) the SH degree. Payloads are float32 in the set's local frame; the float64 origin
+goes to a ``<name>.origin.json`` sidecar (:mod:`core.io.origin`), so georeferenced scenes keep their millimetres.
+
+Point-cloud export (for CloudCompare and survey tools): one point per Gaussian at its mean, colour from the SH DC
+term, and the fields ``source`` (uint8, :class:`fusion.convert.Source`), ``classification`` (uint8, the class codes
+of the classifier; 0 where unknown), ``opacity`` (α, float32) and ``scale`` (largest σ, metres, float32).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from core.errors import ConfigError, DataError, FormatError
+from core.gaussians import GaussianSet
+from core.io import write_point_cloud
+from core.io.gaussian_ply import write_gaussian_ply
+from core.io.origin import remove_origin, write_origin
+from core.pointcloud import PointCloud
+from fusion.convert import Source
+from fusion.merge import subset
+from fusion.splat_format import write_splat
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """Filters applied before writing.
+
+    ``crop_min`` / ``crop_max``: world coordinates (metres) of an axis-aligned box, both or neither; Gaussians whose
+    mean lies outside are dropped (bounds inclusive). ``min_opacity``: α threshold (0 keeps everything).
+    ``sh_degree``: SH degree written to 3DGS PLY (None keeps the set's degree). ``extra_fields``: append the set's
+    fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties after ``rot_3``.
+    """
+
+    crop_min: tuple[float, float, float] | None = None
+    crop_max: tuple[float, float, float] | None = None
+    min_opacity: float = 1.0 / 255.0
+    sh_degree: int | None = None
+    extra_fields: bool = False
+
+    def __post_init__(self) -> None:
+        if (self.crop_min is None) != (self.crop_max is None):
+            raise ConfigError("crop needs both crop_min and crop_max (world coordinates, metres)")
+        if self.crop_min is not None:
+            lo, hi = np.asarray(self.crop_min, float), np.asarray(self.crop_max, float)
+            if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+                raise ConfigError(f"crop bounds must be 3 finite numbers each, got {self.crop_min} / {self.crop_max}")
+            if (lo > hi).any():
+                raise ConfigError(
+                    f"crop_min must not exceed crop_max on any axis, got {self.crop_min} > {self.crop_max}"
+                )
+        if not 0.0 <= self.min_opacity < 1.0:
+            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
+        if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
+            raise ConfigError(f"sh_degree must be 0, 1, 2 or 3, got {self.sh_degree}")
+
+
+@dataclass
+class ExportReport:
+    """What one export wrote: the file, how many Gaussians went in, how many each filter dropped, what came out."""
+
+    path: Path
+    format: str
+    num_input: int
+    dropped_crop: int
+    dropped_opacity: int
+    num_written: int
+    sh_degree: int
+    origin: tuple[float, float, float]
+
+
+@dataclass
+class Prepared:
+    gaussians: GaussianSet
+    num_input: int
+    dropped_crop: int
+    dropped_opacity: int
+
+
+def prepare(gaussians: GaussianSet, options: ExportOptions | None = None) -> Prepared:
+    """Apply crop, opacity threshold and SH degree of ``options`` (order: crop, opacity, degree)."""
+    options = options or ExportOptions()
+    gs = gaussians
+    n0 = len(gs)
+    dropped_crop = 0
+    if options.crop_min is not None:
+        lo = np.asarray(options.crop_min, np.float64) - gs.origin
+        hi = np.asarray(options.crop_max, np.float64) - gs.origin
+        keep = np.all((gs.means >= lo) & (gs.means <= hi), axis=1)
+        dropped_crop = int(n0 - keep.sum())
+        gs = subset(gs, keep)
+    dropped_opacity = 0
+    if options.min_opacity > 0:
+        keep = gs.opacities >= np.float32(options.min_opacity)
+        dropped_opacity = int(len(gs) - keep.sum())
+        gs = subset(gs, keep)
+    if len(gs) == 0:
+        raise DataError(
+            f"nothing to export: of {n0} Gaussians, {dropped_crop} lie outside the crop box and "
+            f"{dropped_opacity} are below opacity {options.min_opacity:.4g}"
+        )
+    if options.sh_degree is not None and options.sh_degree != gs.sh_degree:
+        gs = gs.with_sh_degree(options.sh_degree)
+    return Prepared(gs, n0, dropped_crop, dropped_opacity)
+
+
+def export_gaussian_ply(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Write a 3DGS PLY (viewer property order, binary LE float32, channel-major f_rest, zero normals) + sidecar."""
+    options = options or ExportOptions()
+    prep = prepare(gaussians, options)
+    out = write_gaussian_ply(path, prep.gaussians, extra_fields=options.extra_fields)
+    return _report(out, "3dgs-ply", prep)
+
+
+def export_splat(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Write an antimatter15 ``.splat`` (32 bytes per Gaussian, SH DC only) + origin sidecar when non-zero."""
+    prep = prepare(gaussians, options)
+    out = write_splat(path, prep.gaussians)
+    if np.any(prep.gaussians.origin != 0):
+        write_origin(out, prep.gaussians.origin)
+    else:
+        remove_origin(out)
+    return _report(out, "splat", prep)
+
+
+def gaussians_to_points(gaussians: GaussianSet) -> PointCloud:
+    """One point per Gaussian (mean, DC colour) with ``source``, ``classification``, ``opacity``, ``scale`` fields.
+
+    Other per-Gaussian fields are carried as they are. Missing ``source`` is ``Source.UNKNOWN``, missing
+    ``classification`` is 0.
+    """
+    n = len(gaussians)
+    colors = np.clip(np.rint(gaussians.base_colors.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    fields = dict(gaussians.fields)
+    fields["source"] = np.asarray(fields.get("source", np.full(n, Source.UNKNOWN)), dtype=np.uint8)
+    cls = np.asarray(fields.get("classification", np.zeros(n)))
+    if cls.size and (not np.isfinite(cls.astype(np.float64)).all() or cls.min() < 0 or cls.max() > 255):
+        raise DataError("classification codes must lie in 0..255 to be exported")
+    fields["classification"] = cls.astype(np.uint8)
+    fields["opacity"] = gaussians.opacities.astype(np.float32)
+    fields["scale"] = gaussians.scales.max(axis=1).astype(np.float32) if n else np.zeros(0, np.float32)
+    return PointCloud(gaussians.means.copy(), gaussians.origin.copy(), colors=colors, fields=fields)
+
+
+def export_points(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Write the Gaussians' centres as a point cloud (.ply with sidecar, or .las/.laz at 1 mm) with class and source."""
+    path = Path(path)
+    if path.suffix.lower() not in (".ply", ".las", ".laz"):
+        raise FormatError(f"point export needs .ply, .las or .laz, got {path.suffix!r}", path)
+    prep = prepare(gaussians, options)
+    out = write_point_cloud(path, gaussians_to_points(prep.gaussians))
+    return _report(out, path.suffix.lower().lstrip("."), prep)
+
+
+def export_gaussians(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Dispatch on the suffix: ``.splat`` → :func:`export_splat`, ``.las``/``.laz`` → :func:`export_points`,
+    ``.ply`` → 3DGS PLY (:func:`export_gaussian_ply`); use :func:`export_points` for a point-cloud PLY."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".splat":
+        return export_splat(path, gaussians, options)
+    if suffix in (".las", ".laz"):
+        return export_points(path, gaussians, options)
+    if suffix == ".ply":
+        return export_gaussian_ply(path, gaussians, options)
+    raise FormatError(f"unknown export format {suffix!r}; expected .ply, .splat, .las or .laz", path)
+
+
+def _report(path: Path, fmt: str, prep: Prepared) -> ExportReport:
+    gs = prep.gaussians
+    return ExportReport(
+        path=Path(path),
+        format=fmt,
+        num_input=prep.num_input,
+        dropped_crop=prep.dropped_crop,
+        dropped_opacity=prep.dropped_opacity,
+        num_written=len(gs),
+        sh_degree=gs.sh_degree,
+        origin=tuple(float(v) for v in gs.origin),  # type: ignore[arg-type]
+    )

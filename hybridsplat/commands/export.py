@@ -1,0 +1,37 @@
+"""``hybridsplat export GAUSSIANS.ply --out FILE``: re-export a 3DGS PLY for viewers or survey tools, filtered."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from core.io.gaussian_ply import read_gaussian_ply
+from fusion.export import export_gaussians, export_points
+from hybridsplat.commands.convert import export_options, print_export
+
+
+def export(
+    gaussians: Path = typer.Argument(..., help="A 3DGS PLY (with its .origin.json sidecar when georeferenced)."),
+    out: list[Path] = typer.Option(
+        ..., "--out", "-o", help="Output(s): .ply (3DGS PLY), .splat, or .las/.laz (centres; repeatable)."
+    ),
+    points: bool = typer.Option(False, help="Write .ply outputs as point clouds (class/source fields) instead."),
+    crop_min: tuple[float, float, float] | None = typer.Option(None, help="Crop box minimum X Y Z (world, metres)."),
+    crop_max: tuple[float, float, float] | None = typer.Option(None, help="Crop box maximum X Y Z (world, metres)."),
+    min_opacity: float = typer.Option(1 / 255, help="Drop Gaussians with opacity below this (0 keeps all)."),
+    sh_degree: int | None = typer.Option(None, help="SH degree written to 3DGS PLY outputs (default: as read)."),
+    extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
+) -> None:
+    """Export Gaussians to viewer formats (.ply, .splat) or point clouds with class/source fields (.ply, .las)."""
+    options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
+    gs = read_gaussian_ply(gaussians)
+    for path in out:
+        if points and path.suffix.lower() == ".ply":
+            print_export(export_points(path, gs, options))
+        else:
+            print_export(export_gaussians(path, gs, options))
+
+
+def register(app: typer.Typer) -> None:
+    app.command("export")(export)

@@ -1,0 +1,335 @@
+"""Structure from motion with pycolmap: SIFT features, matching, incremental mapping or known-pose triangulation.
+
+``run_sfm(image_dir, out_dir, options)`` → the largest COLMAP model written to ``out_dir`` plus an
+:class:`SfmReport`. ``triangulate_known_poses(cameras, image_dir, out_dir, options)`` keeps the given cameras
+fixed and only matches and triangulates, so dense fusion gets sparse points with tracks.
+
+Bad input: unreadable/corrupt images are listed and skipped (warning), fewer than two usable images or
+images that do not overlap raise :class:`core.errors` errors; images of different sizes get one camera each.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+
+from core.cameras import Cameras
+from core.errors import ConfigError, InputFileError, ReconstructionError
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+Progress = Callable[[str, int, int], None]
+
+
+class Matcher(str, Enum):
+    EXHAUSTIVE = "exhaustive"
+    SEQUENTIAL = "sequential"
+    SPATIAL = "spatial"
+    VOCABTREE = "vocabtree"
+
+
+@dataclass(frozen=True)
+class SfmOptions:
+    matcher: Matcher = Matcher.EXHAUSTIVE
+    max_image_size: int = 1600  # feature extraction works on images downscaled to this longer side (px)
+    max_num_features: int = 8192
+    camera_model: str = "SIMPLE_RADIAL"  # COLMAP model for unknown cameras
+    single_camera: bool = True  # one shared camera when all images have the same size
+    num_threads: int = -1
+    seed: int = 0  # mapper RANSAC / initialisation seed (determinism)
+    vocab_tree_path: str | None = None  # needed by the vocabtree matcher
+    mask_dir: str | None = None  # PNG masks NAME.png (0 = ignore features there), as COLMAP expects
+    database_path: str | None = None  # keep the feature database here (default: a temporary folder)
+
+
+@dataclass
+class ImageCheck:
+    """Images found in a folder: usable names, skipped names with the reason, and sizes (W, H)."""
+
+    valid: list[str]
+    skipped: dict[str, str]
+    sizes: dict[str, tuple[int, int]]
+
+    @property
+    def mixed_sizes(self) -> bool:
+        return len(set(self.sizes.values())) > 1
+
+
+@dataclass
+class SfmReport:
+    """What SfM did. Times in seconds, reprojection error in pixels."""
+
+    num_images: int
+    registered: list[str]
+    unregistered: dict[str, str]  # name -> reason
+    skipped: dict[str, str]  # unreadable images -> reason
+    num_points: int = 0
+    mean_reprojection_error: float = 0.0
+    mean_track_length: float = 0.0
+    num_models: int = 1
+    seconds_features: float = 0.0
+    seconds_matching: float = 0.0
+    seconds_mapping: float = 0.0
+    alignment: object | None = None  # recon.align.AlignmentResult when aligned
+    warnings: list[str] = field(default_factory=list)
+
+
+def check_images(image_dir: str | Path, names: list[str] | None = None) -> ImageCheck:
+    """Open every image fully; corrupt/unreadable ones are skipped with a reason (and a warning).
+
+    Raises :class:`InputFileError` when the folder is missing or fewer than two images are usable.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    image_dir = Path(image_dir)
+    if not image_dir.is_dir():
+        raise InputFileError("image folder does not exist", image_dir)
+    if names is None:
+        names = sorted(
+            str(p.relative_to(image_dir))
+            for p in image_dir.rglob("*")
+            if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
+        )
+    valid, skipped, sizes = [], {}, {}
+    for name in names:
+        try:
+            with Image.open(image_dir / name) as im:
+                im.load()
+                sizes[name] = (int(im.width), int(im.height))
+            valid.append(name)
+        except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+            skipped[name] = f"unreadable image ({type(err).__name__}: {err})"
+    for name, why in skipped.items():
+        warnings.warn(f"{image_dir / name}: skipped, {why}", stacklevel=2)
+    if len(valid) < 2:
+        raise InputFileError(
+            f"SfM needs at least 2 readable images, found {len(valid)}"
+            + (f" ({len(skipped)} unreadable: {', '.join(sorted(skipped))})" if skipped else ""),
+            image_dir,
+        )
+    if len(set(sizes.values())) > 1:
+        warnings.warn(
+            f"{image_dir}: images have {len(set(sizes.values()))} different sizes; using one camera per image",
+            stacklevel=2,
+        )
+    return ImageCheck(valid, skipped, sizes)
+
+
+def _extract_and_match(
+    db: Path, image_dir: Path, check: ImageCheck, options: SfmOptions, per_image: bool, report: SfmReport
+):
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = options.camera_model
+    if options.mask_dir:
+        mask_dir = Path(options.mask_dir)
+        if not mask_dir.is_dir():
+            raise InputFileError("mask folder does not exist", mask_dir)
+        reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = int(options.max_image_size)
+    extraction.num_threads = int(options.num_threads)
+    extraction.sift.max_num_features = int(options.max_num_features)
+    mode = pycolmap.CameraMode.PER_IMAGE if per_image else pycolmap.CameraMode.SINGLE
+    t0 = time.perf_counter()
+    pycolmap.extract_features(
+        db, image_dir, image_names=check.valid, camera_mode=mode, reader_options=reader, extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )  # fmt: skip
+    report.seconds_features = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = int(options.num_threads)
+    m = Matcher(options.matcher)
+    if m is Matcher.EXHAUSTIVE:
+        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+    elif m is Matcher.SEQUENTIAL:
+        pycolmap.match_sequential(db, matching_options=matching, device=pycolmap.Device.cpu)
+    elif m is Matcher.SPATIAL:
+        pycolmap.match_spatial(db, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        if not options.vocab_tree_path:
+            raise ConfigError("the vocabtree matcher needs vocab_tree_path (a COLMAP vocabulary tree file)")
+        pairing = pycolmap.VocabTreePairingOptions()
+        pairing.vocab_tree_path = str(options.vocab_tree_path)
+        pycolmap.match_vocabtree(db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    report.seconds_matching = time.perf_counter() - t1
+
+
+def _unregistered_reasons(
+    db: Path, names: list[str], registered: set[str], other_models: dict[str, int]
+) -> dict[str, str]:
+    """Why images did not register, from the database (features, verified matches) and the other models."""
+    import pycolmap
+
+    reasons: dict[str, str] = {}
+    with pycolmap.Database.open(str(db)) as database:
+        images = {im.name: im for im in database.read_all_images()}
+        pair_ids, counts = database.read_two_view_geometry_num_inliers()
+        inliers: dict[int, int] = {}
+        for pair_id, n in zip(pair_ids, counts, strict=True):
+            for i in pycolmap.pair_id_to_image_pair(int(pair_id)):
+                inliers[int(i)] = max(inliers.get(int(i), 0), int(n))
+        for name in names:
+            if name in registered:
+                continue
+            im = images.get(name)
+            if im is None:
+                reasons[name] = "not imported into the feature database"
+                continue
+            nk = database.num_keypoints_for_image(im.image_id)
+            best = inliers.get(int(im.image_id), 0)
+            if nk == 0:
+                reasons[name] = "no features detected (textureless or blank image)"
+            elif best == 0:
+                reasons[name] = f"{nk} features but no geometrically verified matches with any other image (no overlap)"
+            elif name in other_models:
+                reasons[name] = (
+                    f"registered in a separate model of {other_models[name]} images "
+                    "that does not connect to the largest"
+                )
+            else:
+                reasons[name] = f"at most {best} verified matches with another image; pose estimation failed"
+    return reasons
+
+
+def _fill_report(rec, report: SfmReport) -> None:
+    report.num_points = int(rec.num_points3D())
+    report.mean_reprojection_error = float(rec.compute_mean_reprojection_error()) if report.num_points else 0.0
+    report.mean_track_length = float(rec.compute_mean_track_length()) if report.num_points else 0.0
+
+
+def _write_model(rec, out_dir: Path) -> None:
+    """Write a model into ``out_dir`` atomically (temporary sibling folder, then rename)."""
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        rec.write(str(tmp))
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        tmp.rename(out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _db_path(options: SfmOptions, tmp: Path) -> Path:
+    db = Path(options.database_path) if options.database_path else tmp / "database.db"
+    db.parent.mkdir(parents=True, exist_ok=True)
+    if db.exists():
+        db.unlink()
+    return db
+
+
+def run_sfm(image_dir: str | Path, out_dir: str | Path, options: SfmOptions = SfmOptions()):
+    """Full SfM; writes the largest model to ``out_dir``. Returns (``pycolmap.Reconstruction``, :class:`SfmReport`).
+
+    Raises :class:`ReconstructionError` when no model can be built (images do not overlap).
+    """
+    import pycolmap
+
+    image_dir, out_dir = Path(image_dir), Path(out_dir)
+    check = check_images(image_dir)
+    report = SfmReport(len(check.valid) + len(check.skipped), [], {}, dict(check.skipped))
+    if check.mixed_sizes:
+        report.warnings.append("images have different sizes: one camera per image")
+    with tempfile.TemporaryDirectory(prefix="hybridsplat_sfm_") as tmpname:
+        tmp = Path(tmpname)
+        db = _db_path(options, tmp)
+        _extract_and_match(db, image_dir, check, options, check.mixed_sizes or not options.single_camera, report)
+        mapper = pycolmap.IncrementalPipelineOptions()
+        mapper.num_threads = int(options.num_threads)
+        mapper.random_seed = int(options.seed)
+        mapper.min_model_size = 2
+        t0 = time.perf_counter()
+        models = pycolmap.incremental_mapping(db, image_dir, tmp / "models", options=mapper)
+        report.seconds_mapping = time.perf_counter() - t0
+        if not models:
+            report.unregistered = _unregistered_reasons(db, check.valid, set(), {})
+            raise ReconstructionError(
+                "SfM built no model: the images do not overlap enough "
+                f"({sum('no geometrically verified' in r for r in report.unregistered.values())} of {len(check.valid)} "
+                "images have no verified match)",
+                image_dir,
+            )
+        order = sorted(models, key=lambda k: -models[k].num_reg_images())
+        rec = models[order[0]]
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        others = {}
+        for k in order[1:]:
+            for i in models[k].reg_image_ids():
+                others.setdefault(models[k].image(i).name, models[k].num_reg_images())
+        report.num_models = len(models)
+        report.registered = sorted(registered)
+        report.unregistered = _unregistered_reasons(db, check.valid, registered, others)
+        _fill_report(rec, report)
+        _write_model(rec, out_dir)
+    return rec, report
+
+
+def triangulate_known_poses(
+    cameras: Cameras, image_dir: str | Path, out_dir: str | Path, options: SfmOptions = SfmOptions()
+):
+    """Match features and triangulate with the given cameras fixed. Returns (Reconstruction, :class:`SfmReport`).
+
+    Images of ``cameras`` missing from or unreadable in ``image_dir`` are skipped with a reason; poses and
+    intrinsics are not refined.
+    """
+    import pycolmap
+
+    from recon.model import camera_to_pycolmap
+
+    image_dir, out_dir = Path(image_dir), Path(out_dir)
+    names = [v.name for v in cameras]
+    missing = {
+        n: "listed in the model but not found in the image folder" for n in names if not (image_dir / n).is_file()
+    }
+    check = check_images(image_dir, [n for n in names if n not in missing])
+    check.skipped.update(missing)
+    report = SfmReport(len(names), [], {}, dict(check.skipped))
+    with tempfile.TemporaryDirectory(prefix="hybridsplat_tri_") as tmpname:
+        tmp = Path(tmpname)
+        db = _db_path(options, tmp)
+        _extract_and_match(db, image_dir, check, options, True, report)
+        rec = pycolmap.Reconstruction()
+        with pycolmap.Database.open(str(db)) as database:
+            db_images = {im.name: im for im in database.read_all_images()}
+            for name in check.valid:  # one database camera per image (PER_IMAGE): give it the true intrinsics
+                im = db_images[name]
+                pc = camera_to_pycolmap(cameras.camera_of(cameras.by_name(name)))
+                pc.camera_id = int(im.camera_id)
+                pc.has_prior_focal_length = True
+                database.update_camera(pc)
+        for name in check.valid:
+            im = db_images[name]
+            view = cameras.by_name(name)
+            pc = camera_to_pycolmap(cameras.camera_of(view))
+            pc.camera_id = int(im.camera_id)
+            rec.add_camera_with_trivial_rig(pc)
+            image = pycolmap.Image(name=name, camera_id=int(im.camera_id), image_id=int(im.image_id))
+            rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(view.cam_from_world))
+        mapper = pycolmap.IncrementalPipelineOptions()
+        mapper.num_threads = int(options.num_threads)
+        mapper.random_seed = int(options.seed)
+        t0 = time.perf_counter()
+        rec = pycolmap.triangulate_points(rec, db, image_dir, tmp / "tri", options=mapper)
+        report.seconds_mapping = time.perf_counter() - t0
+        report.registered = sorted(rec.image(i).name for i in rec.reg_image_ids())
+        _fill_report(rec, report)
+        if report.num_points == 0:
+            raise ReconstructionError("no 3D point could be triangulated from the known poses (no overlap?)", image_dir)
+        _write_model(rec, out_dir)
+    return rec, report
+
+
+def centers_by_name(cameras: Cameras) -> dict[str, np.ndarray]:
+    """Camera centres (3,) float64 in the Cameras' local frame, by image name."""
+    return {v.name: v.center for v in cameras}

@@ -1,0 +1,96 @@
+"""fusion.knn: the column-grid k-NN is exact (brute force on small clouds, cKDTree on larger ones)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from core.errors import DataError
+from core.pointcloud import PointCloud
+from fusion.convert import ConvertOptions, _robust_spacing, knn_distances, points_to_gaussians
+from fusion.knn import knn_grid, knn_grid_summary, knn_kdtree
+
+_rng = np.random.default_rng(0)
+CASES = {
+    "plane": np.c_[_rng.random((600, 2)), np.zeros(600)],
+    "cube": _rng.random((600, 3)),
+    "vertical_line": np.c_[np.zeros(200), np.zeros(200), _rng.random(200)],
+    "diagonal_line": np.outer(_rng.random(200), [1.0, 2.0, -0.5]),
+    "outliers": np.r_[np.c_[_rng.random((500, 2)), 0.01 * _rng.random(500)], _rng.random((15, 3)) * 100],
+    "duplicates": np.repeat(_rng.random((80, 3)), 3, axis=0),
+    "wall": np.c_[_rng.random(500) * 10, 0.001 * _rng.random(500), _rng.random(500) * 3],
+    "two_clusters": np.r_[_rng.random((200, 3)) * 0.01, _rng.random((200, 3)) * 0.01 + 1000],
+    "tiny": _rng.random((60, 3)) * 1e-9,
+    "utm_offset_local": _rng.random((300, 3)) * 50 - 25,
+    "utm_world_not_shifted": _rng.random((400, 3)) * [0.5, 0.5, 0.001] + [512345.0, 5412345.0, 300.0],
+    "grid_ties": np.stack(np.meshgrid(np.arange(8.0), np.arange(8.0), np.arange(3.0)), -1).reshape(-1, 3),
+}
+
+
+def _brute(p: np.ndarray, k: int) -> np.ndarray:
+    d = np.sqrt(((p[:, None] - p[None]) ** 2).sum(-1))
+    np.fill_diagonal(d, np.inf)
+    return np.sort(d, axis=1)[:, :k]
+
+
+@pytest.mark.parametrize("k", [1, 3, 8])
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_grid_knn_equals_brute_force(name, k):
+    p = CASES[name]
+    dist, idx = knn_grid(p, k)
+    np.testing.assert_allclose(dist, _brute(p, k), rtol=1e-12, atol=1e-15)
+    # the indices point at neighbours at exactly those distances, never at the point itself
+    np.testing.assert_allclose(np.linalg.norm(p[idx] - p[:, None], axis=2), dist, rtol=1e-12, atol=1e-15)
+    assert not (idx == np.arange(len(p))[:, None]).any()
+
+
+def test_grid_knn_equals_kdtree_on_a_larger_surface():
+    rng = np.random.default_rng(1)
+    n = 60_000
+    uv = rng.random((n, 2)) * 30
+    p = np.c_[uv, np.sin(uv[:, 0]) + 0.01 * rng.normal(size=n)]
+    p[:100] = rng.random((100, 3)) * [30, 30, 10]
+    for k in (1, 8):
+        d_grid, _ = knn_grid(p, k)
+        d_tree, _ = knn_kdtree(p, k)
+        np.testing.assert_array_equal(d_grid, d_tree)
+        d_conv, _ = knn_distances(p, k, backend="kdtree", chunk_size=7_000)
+        np.testing.assert_array_equal(d_conv, d_tree)
+
+
+def test_knn_rejects_bad_input():
+    with pytest.raises(DataError):
+        knn_grid(np.zeros((2, 3)), 2)
+    with pytest.raises(DataError):
+        knn_grid(np.array([[0.0, 0, 0], [np.nan, 0, 0]]), 1)
+
+
+@pytest.mark.parametrize("name", ["duplicates", "outliers", "plane", "grid_ties"])
+def test_summary_equals_full_search_statistics(name):
+    p = CASES[name]
+    for k in (1, 4, 8):
+        dist, _ = knn_grid(p, k)
+        nearest, robust = knn_grid_summary(p, k)
+        np.testing.assert_array_equal(nearest, dist[:, 0])
+        np.testing.assert_allclose(robust, _robust_spacing(dist), rtol=1e-15, atol=0)
+    # all-duplicate neighbourhoods give 0 (the converter clamps and warns)
+    _, robust = knn_grid_summary(np.zeros((5, 3)), 3)
+    np.testing.assert_array_equal(robust, 0.0)
+
+
+def test_conversion_is_backend_independent():
+    rng = np.random.default_rng(3)
+    p = np.c_[rng.random((3000, 2)), 0.02 * rng.random(3000)]
+    p[5] = p[6]
+    normals = np.tile([0.0, 0.0, 1.0], (3000, 1))
+    for cloud in (PointCloud(p, normals=normals), PointCloud(p)):  # summary path and full path + PCA
+        for mode in ("paper", "adaptive"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                a = points_to_gaussians(cloud, mode, ConvertOptions(neighbor_backend="grid"))
+                b = points_to_gaussians(cloud, mode, ConvertOptions(neighbor_backend="kdtree"))
+            np.testing.assert_array_equal(a.log_scales, b.log_scales)
+            np.testing.assert_array_equal(a.logit_opacities, b.logit_opacities)
+            np.testing.assert_allclose(np.abs(a.quats), np.abs(b.quats), atol=1e-6)
