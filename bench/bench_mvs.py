@@ -105,6 +105,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--sfm", action="store_true", help="also run full SfM (no known poses) and align to the truth")
     ap.add_argument("--work", default="/tmp/hybridsplat_bench/work")
+    ap.add_argument("--reuse", action="store_true", help="reuse a known-pose model already in --work")
+    ap.add_argument("--no-mvs", action="store_true", help="skip the MVS sizes (with --sfm: SfM only)")
     args = ap.parse_args()
     import pycolmap
 
@@ -113,14 +115,19 @@ def main() -> None:
     work = Path(args.work)
     project = work / "known"
     t0 = time.perf_counter()
-    rep = sfm_stage(scene, project, known_poses=True, options=SfmOptions(num_threads=args.threads))
-    print(
-        f"known-pose triangulation: {len(rep.registered)} images, {rep.num_points} points, "
-        f"{rep.mean_reprojection_error:.3f} px, {time.perf_counter() - t0:.1f} s"
-    )
-    sizes = [320] if args.quick else [int(s) for s in args.sizes.split(",")]
+    if args.no_mvs:
+        pass
+    elif args.reuse and (project / "sparse" / "points3D.bin").is_file():
+        print(f"reusing the known-pose model in {project / 'sparse'}")
+    else:
+        rep = sfm_stage(scene, project, known_poses=True, options=SfmOptions(num_threads=args.threads))
+        print(
+            f"known-pose triangulation: {len(rep.registered)} images, {rep.num_points} points, "
+            f"{rep.mean_reprojection_error:.3f} px, {time.perf_counter() - t0:.1f} s"
+        )
+    sizes = [] if args.no_mvs else [320] if args.quick else [int(s) for s in args.sizes.split(",")]
     rows: list[tuple[int, MvsReport, list[MaterialScore]]] = []
-    gsd = float("nan")
+    gsd = float(json.loads((scene / "scene.json").read_text())["gsd_m"])
     for size in sizes:
         opts = MvsOptions(backend=MvsBackend.CPU, max_image_size=size, num_threads=args.threads, cpu=CpuMvsOptions())
         report = run_mvs(project / "sparse", scene / "images", work / f"dense_{size}", opts)

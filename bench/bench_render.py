@@ -11,6 +11,10 @@ set-up and a small warm-up render (numba JIT/cache load is kept out of the timin
 time of all threads together (less sensitive to other processes on a shared machine; ideal wall time on k idle
 cores is about CPU-ms / k for the parallel parts).
 Reference configurations whose estimated memory exceeds ``--ref-limit-gb`` are skipped.
+
+On a machine shared with other jobs, OpenMP threads that spin-wait (torch's default) lose their time slices and
+multi-threaded runs get several times slower; ``OMP_WAIT_POLICY=PASSIVE python bench/bench_render.py`` avoids it
+(the cpu backend's own kernels use blocking Python threads, not OpenMP).
 """
 
 from __future__ import annotations
@@ -27,17 +31,22 @@ from pathlib import Path
 CONFIGS_FULL = [(n, w, h) for (w, h) in [(256, 192), (512, 384)] for n in (10_000, 50_000, 200_000)]
 CONFIGS_QUICK = [(10_000, 256, 192), (50_000, 256, 192)]
 # Reference memory model: saved autograd tensors per (list entry × pixel) of every tile, float32, upper bound
-# (tiles stop early when all their pixels saturate). Calibrated on this machine: ~1.3 GB at 50k / 256×192.
-REF_BYTES_PER_ENTRY_PIXEL = 44.0
+# (tiles stop early when all their pixels saturate). Measured 57-75 bytes here (7.0 GB at 200k / 256×192).
+REF_BYTES_PER_ENTRY_PIXEL = 80.0
 
 
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def worker(n: int, width: int, height: int, backend: str, repeats: int, ref_limit_gb: float) -> dict:
+def worker(n: int, width: int, height: int, backend: str, repeats: int, ref_limit_gb: float, threads: int) -> dict:
+    import numba
     import numpy as np
     import torch
+
+    if threads > 0:
+        torch.set_num_threads(threads)
+        numba.set_num_threads(threads)
 
     from fusion.render import render
     from fusion.render.cpu import bin_gaussians
@@ -87,9 +96,9 @@ def worker(n: int, width: int, height: int, backend: str, repeats: int, ref_limi
     return result
 
 
-def run_one(n: int, width: int, height: int, backend: str, repeats: int, ref_limit_gb: float) -> dict:
+def run_one(n: int, width: int, height: int, backend: str, repeats: int, ref_limit_gb: float, threads: int) -> dict:
     cmd = [sys.executable, __file__, "--worker", str(n), str(width), str(height), backend, "--repeats", str(repeats)]
-    cmd += ["--ref-limit-gb", str(ref_limit_gb)]
+    cmd += ["--ref-limit-gb", str(ref_limit_gb), "--threads", str(threads)]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
     if proc.returncode != 0:
         return {"n": n, "width": width, "height": height, "backend": backend, "skipped": proc.stderr.strip()[-200:]}
@@ -108,11 +117,12 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="timed runs per configuration (median reported)")
     parser.add_argument("--ref-limit-gb", type=float, default=8.0, help="skip reference runs estimated above this")
     parser.add_argument("--backends", default="reference,cpu", help="comma-separated backends to run")
+    parser.add_argument("--threads", type=int, default=0, help="torch and numba threads (0: all cores)")
     parser.add_argument("--worker", nargs=4, metavar=("N", "W", "H", "BACKEND"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         n, w, h, backend = args.worker
-        print(json.dumps(worker(int(n), int(w), int(h), backend, args.repeats, args.ref_limit_gb)))
+        print(json.dumps(worker(int(n), int(w), int(h), backend, args.repeats, args.ref_limit_gb, args.threads)))
         return
 
     import numba
@@ -120,15 +130,19 @@ def main() -> None:
 
     backends = args.backends.split(",")
     configs = CONFIGS_QUICK if args.quick else CONFIGS_FULL
-    print(f"torch threads {torch.get_num_threads()}, numba threads {numba.get_num_threads()}, repeats {args.repeats}")
+    threads = args.threads or f"{torch.get_num_threads()} (torch) / {numba.get_num_threads()} (numba)"
+    print(f"threads {threads}, repeats {args.repeats}")
     print("note: wall-clock times; on a shared machine they vary run to run")
     head = f"{'N':>7} {'image':>8} {'isect':>8} | {'backend':>9} {'fwd ms':>8} {'fwd+bwd ms':>10} "
     head += f"{'f+b CPU-ms':>10} {'peak MB':>8} {'+peak MB':>8}"
     print(head + f" | {'fwd ratio':>9} {'f+b ratio':>9}")
     rows = []
     for n, w, h in configs:
-        results = {b: run_one(n, w, h, b, args.repeats if b == "cpu" else max(1, args.repeats // 3), args.ref_limit_gb)
-                   for b in backends}  # fmt: skip
+        results = {
+            b: run_one(n, w, h, b, args.repeats if b == "cpu" else max(1, args.repeats // 3), args.ref_limit_gb,
+                       args.threads)
+            for b in backends
+        }  # fmt: skip
         rows.append(results)
         ref, cpu = results.get("reference"), results.get("cpu")
         for b, r in results.items():

@@ -47,9 +47,9 @@ def run(preset: str, out: Path, **overrides: object) -> dict[str, object]:
     return {"preset": preset, "total_s": total, "cpu_s": cpu, "stages": stages, "meta": meta}
 
 
-def kind_summary(meta: dict) -> dict[str, tuple[float, float, float]]:
-    """Per material kind: mean exact cross-view std, mean image-sampled std, mean image gradient."""
-    out: dict[str, list[tuple[float, float, float]]] = {}
+def kind_summary(meta: dict) -> dict[str, tuple[float, ...]]:
+    """Per material kind: exact cross-view std, image-sampled std, mean and median image gradient (averaged)."""
+    out: dict[str, list[tuple[float, ...]]] = {}
     for m in meta["materials"]:
         name = m["name"]
         if name not in meta["cross_view_color_std"]:
@@ -58,9 +58,10 @@ def kind_summary(meta: dict) -> dict[str, tuple[float, float, float]]:
             meta["cross_view_color_std"][name],
             meta["cross_view_color_std_image"][name],
             meta["image_gradient"].get(name, float("nan")),
+            meta["image_gradient_median"].get(name, float("nan")),
         )
         out.setdefault(m["kind"], []).append(row)
-    return {k: tuple(sum(v[i] for v in rows) / len(rows) for i in range(3)) for k, rows in out.items()}
+    return {k: tuple(sum(v[i] for v in rows) / len(rows) for i in range(4)) for k, rows in out.items()}
 
 
 def main() -> None:
@@ -94,12 +95,13 @@ def main() -> None:
         print("\ncross-view colour std (8-bit; exact rays | image-sampled) and image gradient per material kind:")
         for r in results:
             summary = kind_summary(r["meta"])
-            tex = summary.get("textured", (float("nan"),) * 3)
-            for kind, (exact, image, grad) in sorted(summary.items()):
+            tex = summary.get("textured", (float("nan"),) * 4)
+            for kind, (exact, image, grad, grad_med) in sorted(summary.items()):
                 ratio = image / tex[1] if tex[1] > 0 else float("nan")
                 print(
                     f"  {r['preset']:9s} {kind:12s} exact {exact:6.2f} | image {image:6.2f} "
-                    f"(x{ratio:4.1f} of textured)  gradient {grad:6.2f} (x{grad / tex[2]:4.2f} of textured)"
+                    f"(x{ratio:4.1f} of textured)  gradient mean {grad:6.2f} (x{grad / tex[2]:4.2f}) "
+                    f"median {grad_med:6.2f} (x{grad_med / tex[3]:4.2f} of textured)"
                 )
     finally:
         if args.keep is None:

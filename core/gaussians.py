@@ -78,7 +78,13 @@ class GaussianSet:
         self.sh_dc = np.asarray(self.sh_dc, dtype=np.float32).reshape(n, 3)
         if self.sh_rest is None:
             self.sh_rest = np.zeros((n, 0, 3), dtype=np.float32)
-        self.sh_rest = np.asarray(self.sh_rest, dtype=np.float32).reshape(n, -1, 3)
+        rest = np.asarray(self.sh_rest, dtype=np.float32)
+        if rest.ndim == 3 and rest.shape[0] == n and rest.shape[2] == 3:
+            self.sh_rest = rest
+        elif n == 0:
+            raise DataError("an empty Gaussian set needs sh_rest of shape (0, K-1, 3) to fix its SH degree")
+        else:
+            self.sh_rest = rest.reshape(n, -1, 3)
         sh_degree_from_rest(self.sh_rest.shape[1])
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
         self.fields = {k: np.asarray(v).reshape(-1) for k, v in self.fields.items()}

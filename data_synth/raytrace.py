@@ -92,6 +92,15 @@ def camera_rays(camera: Camera, view: View, pixels: np.ndarray) -> tuple[np.ndar
     return origins, dirs, 1.0 / norm
 
 
+def _raycasting_scene(vertices: np.ndarray, faces: np.ndarray) -> o3d.t.geometry.RaycastingScene:
+    scene = o3d.t.geometry.RaycastingScene()
+    tmesh = o3d.t.geometry.TriangleMesh()
+    tmesh.vertex.positions = o3d.core.Tensor(vertices.astype(np.float32))
+    tmesh.triangle.indices = o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.int32))
+    scene.add_triangles(tmesh)
+    return scene
+
+
 def _rows_times(v: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``v @ m`` for (N, 3) @ (3, 3) by broadcasting: BLAS threads stall on busy cores and may round differently
     with the thread count; this is deterministic everywhere."""
@@ -130,14 +139,14 @@ class RayTracer:
         self.eps = eps if eps is not None else max(1e-6 * diag, 1e-7)
         self._normals = mesh.face_normals()
         self._v0 = mesh.triangles[:, 0]
-        self._scene = o3d.t.geometry.RaycastingScene()
-        tmesh = o3d.t.geometry.TriangleMesh()
-        tmesh.vertex.positions = o3d.core.Tensor(mesh.vertices.astype(np.float32))
-        tmesh.triangle.indices = o3d.core.Tensor(mesh.faces.astype(np.int32))
-        self._scene.add_triangles(tmesh)
         unknown = set(np.unique(mesh.face_material).tolist()) - set(self.materials)
         if unknown:
             raise DataError(f"mesh uses material ids without a legend entry: {sorted(unknown)}")
+        self._scene = _raycasting_scene(mesh.vertices, mesh.faces)
+        # Clear glass transmits most sunlight: it casts no shadow (caustics are not modelled).
+        glass_ids = [i for i, m in self.materials.items() if m.shading is Shading.GLASS]
+        opaque = ~np.isin(mesh.face_material, glass_ids)
+        self._shadow_scene = _raycasting_scene(mesh.vertices, mesh.faces[opaque]) if opaque.any() else None
 
     # -- intersection ---------------------------------------------------------------------------
     def cast(self, origins: np.ndarray, dirs: np.ndarray) -> Hits:
@@ -170,11 +179,13 @@ class RayTracer:
         return Hits(hit, t_all, points, face_all, material, normal)
 
     def occluded(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-        """(N,) bool: does anything lie along each ray (shadow test)."""
+        """(N,) bool: does an opaque (non-glass) surface lie along each ray (shadow test)."""
         out = np.zeros(len(origins), bool)
+        if self._shadow_scene is None:
+            return out
         for s in range(0, len(origins), _CHUNK):
             rays = np.concatenate([origins[s : s + _CHUNK], dirs[s : s + _CHUNK]], axis=1).astype(np.float32)
-            out[s : s + _CHUNK] = self._scene.test_occlusions(o3d.core.Tensor(rays)).numpy()
+            out[s : s + _CHUNK] = self._shadow_scene.test_occlusions(o3d.core.Tensor(rays)).numpy()
         return out
 
     # -- shading ----------------------------------------------------------------------------------

@@ -114,15 +114,25 @@ def color_spread(
     return ColorSpread(exact_out, image_out, count_out)
 
 
+@dataclass(frozen=True)
+class GradientStats:
+    """Per material name: mean and median Sobel gradient magnitude (grey levels per pixel, 0-255 scale).
+
+    The median ignores the few crease and shadow-edge pixels inside a region (a box's roof/wall edge has
+    the same label on both sides), so it reads ~0 for textureless surfaces."""
+
+    mean: dict[str, float]
+    median: dict[str, float]
+
+
 def gradient_by_material(
     images: Sequence[np.ndarray], labels: Sequence[np.ndarray], materials: Sequence[Material]
-) -> dict[str, float]:
-    """Mean Sobel gradient magnitude (grey levels per pixel, 0–255 scale) inside each material's regions.
+) -> GradientStats:
+    """Sobel gradient magnitude statistics inside each material's regions.
 
     Only pixels whose 5×5 neighbourhood carries the same label count, so object outlines do not enter.
     """
-    sums = {m.name: 0.0 for m in materials}
-    counts = {m.name: 0 for m in materials}
+    parts: dict[str, list[np.ndarray]] = {m.name: [] for m in materials}
     kernel = np.ones((5, 5), np.uint8)
     for image, lab in zip(images, labels, strict=True):
         grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32)
@@ -131,6 +141,11 @@ def gradient_by_material(
         mag = np.sqrt(gx * gx + gy * gy)
         for m in materials:
             interior = cv2.erode((lab == m.id).astype(np.uint8), kernel).astype(bool)
-            sums[m.name] += float(mag[interior].sum())
-            counts[m.name] += int(interior.sum())
-    return {name: sums[name] / counts[name] for name in sums if counts[name] > 0}
+            parts[m.name].append(mag[interior])
+    mean, median = {}, {}
+    for name, chunks in parts.items():
+        values = np.concatenate(chunks) if chunks else np.zeros(0, np.float32)
+        if len(values):
+            mean[name] = float(values.astype(np.float64).mean())
+            median[name] = float(np.median(values))
+    return GradientStats(mean, median)

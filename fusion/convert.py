@@ -45,7 +45,7 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError, DataError
 from core.gaussians import SH_C0, GaussianSet, logit
 from core.pointcloud import PointCloud
-from fusion.knn import knn_grid, knn_grid_summary
+from fusion.knn import drop_self, knn_grid, knn_grid_summary, median_nonzero
 
 
 class Source(IntEnum):
@@ -323,25 +323,16 @@ def knn_distances(
     for start in range(0, n, chunk_size):
         rows = order[start : start + chunk_size]
         d, i = tree.query(positions[rows], k=k + 1, workers=workers)
-        dist[rows] = d[:, 1:]
+        d, i = drop_self(d, i, rows)
+        dist[rows] = d
         if index is not None:
-            index[rows] = i[:, 1:]
+            index[rows] = i
     return dist, index
 
 
 def _robust_spacing(dist: np.ndarray) -> np.ndarray:
     """Median of each row's non-zero distances (rows are sorted ascending); 0 when every neighbour is a duplicate."""
-    n, k = dist.shape
-    zeros = np.count_nonzero(dist <= 0.0, axis=1)
-    valid = k - zeros
-    lo = zeros + (valid - 1) // 2  # lower and upper middle of the non-zero tail
-    hi = zeros + valid // 2
-    rows = np.arange(n)
-    lo_c = np.minimum(lo, k - 1)
-    hi_c = np.minimum(hi, k - 1)
-    med = 0.5 * (dist[rows, lo_c] + dist[rows, hi_c])
-    med[valid == 0] = 0.0
-    return med
+    return median_nonzero(dist)
 
 
 def _all_normals_valid(cloud: PointCloud) -> bool:

@@ -6,11 +6,15 @@ sampled at a roughly known spacing, so a column grid does better: points are buc
 side ``h`` (a counting sort, O(N)), sorted by z inside each column, and each point scans the 3×3 neighbouring columns
 within a z window of ±r. The search is exact: a point at distance ≤ r lies in a column within ⌈r/h⌉ and in the z
 window, so rings of columns are added (r = h, 2h, 3h, …) until the k-th best distance is ≤ r (isolated outliers just
-take more rings; the loop ends at the latest when the rings cover the whole grid). Memory: the column table
-(≤ ``max_columns_per_point`` · N int64) plus a sorted copy of the points, O(N).
+take more rings). Memory: the column table (≤ ``max_columns_per_point`` · N int64) plus a sorted copy of the
+points, O(N).
 
-``h`` is chosen from the bounding box and N assuming a 2.5-D surface, then refined once from the measured column
-occupancy; a bad guess only costs time, never exactness. Tests compare against brute force and ``cKDTree``.
+The grid covers a robust box (0.1–99.9 % per axis); points beyond it are clamped into the border columns, which
+keeps the search exact (the edge distance r only uses inner block edges). Points that would need more than
+``_RING_BUDGET`` rings (far outliers) are finished by a k-d tree, and a cloud whose columns would be badly
+overfilled (dense clusters far apart) goes to the k-d tree whole. ``h`` is chosen from the box and N assuming a
+2.5-D surface, then refined once from the measured column occupancy; a bad guess only costs time, never exactness.
+Tests compare against brute force and ``cKDTree``.
 """
 
 from __future__ import annotations
@@ -23,19 +27,34 @@ from core.errors import DataError
 
 
 def _target_per_column(k: int) -> float:
-    """Points per occupied column that minimised query time on surfaces (measured: 1.75 for k = 1, 3.5 for k = 8)."""
+    """Points per occupied column for a k-NN query (1.75 for k = 1, 3.5 for k = 8: fastest in a sweep on a terrain
+    cloud, measured on a loaded 2-core machine; flat between 2.5 and 3.5 for k = 8)."""
     return 1.5 + 0.25 * k
 
 
 def knn_kdtree(positions: np.ndarray, k: int, workers: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """Reference: (N, k) distances (float64, ascending) and indices (int64) of the k nearest other points."""
+    positions = np.asarray(positions, dtype=np.float64)
     tree = cKDTree(positions, leafsize=16, balanced_tree=False, compact_nodes=False)
     order = tree.indices  # leaf order: spatially coherent queries run ~4× faster than input order
     d, i = tree.query(positions[order], k=k + 1, workers=workers)
     dist = np.empty((len(positions), k))
     idx = np.empty((len(positions), k), dtype=np.int64)
-    dist[order], idx[order] = d[:, 1:], i[:, 1:]
+    dist[order], idx[order] = drop_self(d, i, order)
     return dist, idx
+
+
+def drop_self(d: np.ndarray, i: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """From (M, k+1) k-d tree results of the points ``rows``, the (M, k) neighbours other than the point itself.
+
+    With duplicates the point need not come first (all hits are at distance 0), so its own index is removed
+    wherever it appears (the last column when it does not appear at all)."""
+    m, k1 = i.shape
+    own = i == np.asarray(rows)[:, None]
+    drop = np.where(own.any(axis=1), own.argmax(axis=1), k1 - 1)
+    keep = np.ones((m, k1), dtype=bool)
+    keep[np.arange(m), drop] = False
+    return d[keep].reshape(m, k1 - 1), i[keep].reshape(m, k1 - 1)
 
 
 def knn_grid(positions: np.ndarray, k: int, max_columns_per_point: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
@@ -44,8 +63,14 @@ def knn_grid(positions: np.ndarray, k: int, max_columns_per_point: float = 4.0) 
     ``positions``: (N, 3) float64 local coordinates, N > k, finite. Exact duplicates appear at distance 0. Ties
     between equidistant neighbours may pick different indices than :func:`knn_kdtree`; distances are identical.
     """
-    grid = _build(positions, k, max_columns_per_point)
-    dist, idx, _ = _query(*grid.args(), k, True)
+    p = _checked(positions, k)
+    grid = _build(p, k, max_columns_per_point)
+    if grid is None:
+        return knn_kdtree(p, k)
+    dist, idx, _, unresolved = _query(*grid.args(), k, True, _RING_BUDGET)
+    rows = np.flatnonzero(unresolved)
+    if len(rows):
+        dist[rows], idx[rows] = _kdtree_rows(p, rows, k)
     return dist, idx
 
 
@@ -55,30 +80,81 @@ def knn_grid_summary(
     """Per point, without the (N, k) arrays: the nearest-other distance (N,) and the median of the k nearest
     distances that are not exact duplicates (N,; 0 when all k are duplicates), float64 metres. Same search as
     :func:`knn_grid` (exact); memory O(N)."""
-    grid = _build(positions, k, max_columns_per_point)
-    _, _, summary = _query(*grid.args(), k, False)
+    p = _checked(positions, k)
+    grid = _build(p, k, max_columns_per_point)
+    if grid is None:
+        dist, _ = knn_kdtree(p, k)
+        return dist[:, 0].copy(), median_nonzero(dist)
+    _, _, summary, unresolved = _query(*grid.args(), k, False, _RING_BUDGET)
+    rows = np.flatnonzero(unresolved)
+    if len(rows):
+        dist, _ = _kdtree_rows(p, rows, k)
+        summary[rows, 0] = dist[:, 0]
+        summary[rows, 1] = median_nonzero(dist)
     return summary[:, 0], summary[:, 1]
 
 
-def _build(positions: np.ndarray, k: int, max_columns_per_point: float) -> _Grid:
+def median_nonzero(dist: np.ndarray) -> np.ndarray:
+    """Median of each row's non-zero distances ((N, k), rows ascending); 0 where every entry is 0."""
+    n, k = dist.shape
+    zeros = np.count_nonzero(dist <= 0.0, axis=1)
+    valid = k - zeros
+    rows = np.arange(n)
+    lo = np.minimum(zeros + (valid - 1) // 2, k - 1)
+    hi = np.minimum(zeros + valid // 2, k - 1)
+    med = 0.5 * (dist[rows, lo] + dist[rows, hi])
+    med[valid == 0] = 0.0
+    return med
+
+
+_RING_BUDGET = 3
+"""Rings of columns a point may search before it is handed to the k-d tree (isolated outliers)."""
+
+_MAX_SCAN_FACTOR = 40.0
+"""Fall back to the k-d tree when the grid would scan more than this × the target candidates per point (clouds
+made of far-apart dense clusters, where no single column size suits all)."""
+
+
+def _checked(positions: np.ndarray, k: int) -> np.ndarray:
     p = np.asarray(positions, dtype=np.float64)
     n = len(p)
     if k < 1 or n <= k:
         raise DataError(f"{k} nearest neighbours need k >= 1 and more than k points, got {n}")
-    if n and not np.isfinite(p).all():
+    if not np.isfinite(p).all():
         raise DataError("k nearest neighbours need finite coordinates")
-    axes = np.argsort(-(p.max(axis=0) - p.min(axis=0)), kind="stable")  # columns span the two largest extents
-    p = np.ascontiguousarray(p if (axes == [0, 1, 2]).all() else p[:, axes])
-    lo = p.min(axis=0)
-    extent = np.maximum(p.max(axis=0) - lo, 1e-12)
+    return p
+
+
+def _kdtree_rows(p: np.ndarray, rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Exact k nearest others of the points ``rows`` from a k-d tree over all points."""
+    tree = cKDTree(p, leafsize=16, balanced_tree=False, compact_nodes=False)
+    d, i = tree.query(p[rows], k=k + 1, workers=-1)
+    return drop_self(d, i, rows)
+
+
+def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
+    """The column grid for ``p``, or None when a k-d tree will do better (see ``_MAX_SCAN_FACTOR``)."""
+    n = len(p)
+    # Grid geometry from a robust box (0.1–99.9 % per axis on a sample): far outliers are clamped into the
+    # border columns (still exact, see _query) instead of stretching the grid over empty space.
+    sample = p if n <= 100_000 else p[np.random.default_rng(0).integers(0, n, 100_000)]
+    lo_r, hi_r = np.percentile(sample, [0.1, 99.9], axis=0)
+    axes = np.argsort(-(hi_r - lo_r), kind="stable")  # columns span the two largest extents
+    if not (axes == [0, 1, 2]).all():
+        p = np.ascontiguousarray(p[:, axes])
+        lo_r, hi_r = lo_r[axes], hi_r[axes]
+    lo = lo_r
+    extent = np.maximum(hi_r - lo_r, 1e-12)
     h = _choose_cell(extent, n, k, max_columns_per_point)
     grid = _Grid(p, lo, extent, h)
-    occupancy = n / max(grid.occupied, 1)
     target = _target_per_column(k)
+    occupancy = n / max(grid.occupied, 1)
     if occupancy > 4 * target or occupancy < target / 4:  # refine once from the measured occupancy
         h2 = max(h * np.sqrt(target / occupancy), _min_cell(extent, n, max_columns_per_point))
         if not np.isclose(h2, h, rtol=0.25):
             grid = _Grid(p, lo, extent, h2)
+    if grid.scan_per_point > _MAX_SCAN_FACTOR * 9 * target:
+        return None
     return grid
 
 
@@ -103,11 +179,14 @@ class _Grid:
         self.h = float(h)
         self.nx = int(extent[0] // h) + 1
         self.ny = int(extent[1] // h) + 1
-        cx = np.minimum(((p[:, 0] - lo[0]) / h).astype(np.int64), self.nx - 1)
-        cy = np.minimum(((p[:, 1] - lo[1]) / h).astype(np.int64), self.ny - 1)
+        # border columns take every point beyond the box (the search stays exact: see _query)
+        cx = np.clip(np.floor((p[:, 0] - lo[0]) / h), 0, self.nx - 1).astype(np.int64)
+        cy = np.clip(np.floor((p[:, 1] - lo[1]) / h), 0, self.ny - 1).astype(np.int64)
         col = cx * self.ny + cy
         counts = np.bincount(col, minlength=self.nx * self.ny)
         self.occupied = int(np.count_nonzero(counts))
+        # rough candidates scanned per point: each point of a column scans ~9 columns like its own
+        self.scan_per_point = 9.0 * float(np.dot(counts, counts.astype(np.float64))) / max(len(p), 1)
         self.col_start = np.zeros(self.nx * self.ny + 1, dtype=np.int64)
         np.cumsum(counts, out=self.col_start[1:])
         self.order = _counting_order(col, self.col_start, p[:, 2])
@@ -182,10 +261,13 @@ def _query(
     guard: float,
     k: int,
     full: bool,
+    ring_budget: int,
 ):
     """Distances and input-order indices of the k nearest others (``full``), or per point the nearest distance and
-    the median non-duplicate distance (``summary``), written at each point's input position."""
+    the median non-duplicate distance (``summary``), written at each point's input position. Points that would need
+    more than ``ring_budget`` rings are flagged in ``unresolved`` (input order) and left for the caller."""
     n = len(xyz)
+    unresolved = np.zeros(n, dtype=np.bool_)
     dist = np.empty((n if full else 0, k))
     idx = np.empty((n if full else 0, k), dtype=np.int64)
     summary = np.empty((0 if full else n, 2))
@@ -259,7 +341,13 @@ def _query(
                         ring = max(ring + 1, need)
                     else:
                         ring = ring * 2
+                    ring = min(ring, max_ring)
+                    if ring > ring_budget:
+                        break
                 o = order[i]
+                if ring > ring_budget and not (best_d[k - 1] <= r * r):
+                    unresolved[o] = True
+                    continue
                 if full:
                     for j in range(k):
                         dist[o, j] = np.sqrt(best_d[j])
@@ -276,4 +364,4 @@ def _query(
                         lo_ = zeros + (valid - 1) // 2
                         hi_ = zeros + valid // 2
                         summary[o, 1] = 0.5 * (np.sqrt(best_d[lo_]) + np.sqrt(best_d[hi_]))
-    return dist, idx, summary
+    return dist, idx, summary, unresolved

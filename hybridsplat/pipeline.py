@@ -207,7 +207,7 @@ def run_pipeline(
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             result = convert_points(cloud, config.convert_mode)
-        write_gaussian_ply(mvs_gaussians, result.gaussians)
+        write_gaussian_ply(mvs_gaussians, result.gaussians, extra_fields=True)
         return StageOutcome(
             counts={
                 "gaussians": len(result.gaussians),

@@ -51,7 +51,7 @@ class CpuMvsOptions:
     num_planes: int = 64  # planes of the coarse sweep (uniform in inverse depth)
     refine_steps: int = 1  # perturbations ±k·step, k = 1..refine_steps, per refinement round
     median_radius: int = 2  # median filter of the coarse sweep result, pixels
-    refine_rounds: int = 4  # PatchMatch-style rounds per level (propagation + perturbation, step halves each round)
+    refine_rounds: int = 3  # PatchMatch-style rounds per level (propagation + perturbation, step halves each round)
     max_cost: float = 0.6  # 1 − NCC above this is invalid (NCC < 0.4)
     min_texture_std: float = 0.012  # intensity std (0–1 scale) in the window below this is textureless
     geom_max_reproj_px: float = 1.0
@@ -120,9 +120,8 @@ class _Level:
     ref: torch.Tensor  # (1, 1, H, W) reference sampled on its COLMAP grid
     srcs: torch.Tensor  # (S, 1, Hp, Wp) padded sources
     sizes: torch.Tensor  # (S, 2) (W, H) of each source
-    K_src: torch.Tensor  # (S, 3, 3)
-    R: torch.Tensor  # (S, 3, 3) source_from_ref rotation
-    t: torch.Tensor  # (S, 3)
+    P: torch.Tensor  # (S, 3, H, W) K_src · R · ray: homogeneous source pixel of each ray at unit inverse depth
+    q: torch.Tensor  # (S, 3) K_src · t
     radius: int
     best_k: int
 
@@ -143,17 +142,19 @@ def _make_level(ref_img, src_imgs, K_ref, K_srcs, src_from_ref, radius, best_k) 
     for i, s in enumerate(src_imgs):
         srcs[i, 0, : s.shape[0], : s.shape[1]] = torch.from_numpy(s)
     sizes = torch.tensor([[s.shape[1], s.shape[0]] for s in src_imgs], dtype=torch.float32)
-    m = np.stack(src_from_ref)
+    m = np.stack(src_from_ref).astype(np.float64)
+    Ksrc = np.stack(K_srcs).astype(np.float64)
+    KR = torch.as_tensor(Ksrc @ m[:, :3, :3], dtype=torch.float32)  # (S, 3, 3)
+    rays = pixel_rays(K_ref, h, w)
     return _Level(
-        rays=pixel_rays(K_ref, h, w),
+        rays=rays,
         ref_mu=mu,
         ref_std=var.sqrt(),
         ref=ref,
         srcs=srcs,
         sizes=sizes,
-        K_src=torch.as_tensor(np.stack(K_srcs), dtype=torch.float32),
-        R=torch.as_tensor(m[:, :3, :3], dtype=torch.float32),
-        t=torch.as_tensor(m[:, :3, 3], dtype=torch.float32),
+        P=torch.einsum("sij,hwj->sihw", KR, rays).contiguous(),
+        q=torch.as_tensor(np.einsum("sij,sj->si", Ksrc, m[:, :3, 3]), dtype=torch.float32),
         radius=radius,
         best_k=best_k,
     )
@@ -163,17 +164,16 @@ def _cost(level: _Level, inv_depth: torch.Tensor) -> torch.Tensor:
     """Aggregated matching cost (B, H, W) for per-pixel inverse-depth hypotheses (B, H, W)."""
     b, h, w = inv_depth.shape
     s = level.srcs.shape[0]
-    depth = 1.0 / inv_depth.clamp_min(1e-8)
-    X = level.rays[None] * depth[..., None]  # (B, H, W, 3) reference camera frame
-    Xs = torch.einsum("sij,bhwj->sbhwi", level.R, X) + level.t[:, None, None, None, :]
-    z = Xs[..., 2]
-    zc = z.clamp_min(1e-6)
-    K = level.K_src
-    u = K[:, 0, 0, None, None, None] * Xs[..., 0] / zc + K[:, 0, 2, None, None, None]
-    v = K[:, 1, 1, None, None, None] * Xs[..., 1] / zc + K[:, 1, 2, None, None, None]
+    inv = inv_depth.clamp_min(1e-8)[None]  # (1, B, H, W)
+    # homogeneous source pixel of X = ray / inv, scaled by inv (> 0): P·ray + q·inv
+    q = level.q[:, :, None, None, None]
+    z = level.P[:, 2, None] + q[:, 2] * inv  # (S, B, H, W), sign of the source depth
+    zc = z.clamp_min(1e-9)
+    u = (level.P[:, 0, None] + q[:, 0] * inv) / zc
+    v = (level.P[:, 1, None] + q[:, 1] * inv) / zc
     wlim = level.sizes[:, 0, None, None, None]
     hlim = level.sizes[:, 1, None, None, None]
-    valid = (z > 1e-6) & (u >= 0.5) & (v >= 0.5) & (u <= wlim - 0.5) & (v <= hlim - 0.5)
+    valid = (z > 1e-9) & (u >= 0.5) & (v >= 0.5) & (u <= wlim - 0.5) & (v <= hlim - 0.5)
     warped = _sample(level.srcs, u, v, level.sizes)  # (S, B, H, W)
     r = level.radius
     flat = warped.reshape(s * b, 1, h, w)

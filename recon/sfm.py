@@ -92,11 +92,8 @@ def check_images(image_dir: str | Path, names: list[str] | None = None) -> Image
     if not image_dir.is_dir():
         raise InputFileError("image folder does not exist", image_dir)
     if names is None:
-        names = sorted(
-            str(p.relative_to(image_dir))
-            for p in image_dir.rglob("*")
-            if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
-        )
+        # top level only: a masks/ or test/ subfolder must not be taken for photos
+        names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
     valid, skipped, sizes = [], {}, {}
     for name in names:
         try:

@@ -193,3 +193,15 @@ def test_point_cloud_sparse_points_written_and_read(tmp_path):
     _, back = read_model(tmp_path / "m")
     np.testing.assert_allclose(back.positions, pts.positions, atol=1e-12)
     assert (back.colors == 9).all()
+
+
+def test_empty_gaussian_set_round_trip(tmp_path):
+    empty = GaussianSet(
+        np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 8, 3))
+    )
+    assert len(empty) == 0 and empty.sh_degree == 2
+    write_gaussian_ply(tmp_path / "empty.ply", empty)
+    back = read_gaussian_ply(tmp_path / "empty.ply")
+    assert len(back) == 0 and back.sh_degree == 2
+    with pytest.raises(DataError, match="empty Gaussian set"):
+        GaussianSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros(0))

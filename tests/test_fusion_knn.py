@@ -60,6 +60,16 @@ def test_grid_knn_equals_kdtree_on_a_larger_surface():
         np.testing.assert_array_equal(d_conv, d_tree)
 
 
+def test_kdtree_reference_never_returns_the_point_itself():
+    p = np.repeat(np.random.default_rng(2).random((50, 3)), 4, axis=0)  # every point has 3 duplicates
+    for k in (2, 5):
+        d, i = knn_kdtree(p, k)
+        assert not (i == np.arange(len(p))[:, None]).any()
+        np.testing.assert_allclose(np.linalg.norm(p[i] - p[:, None], axis=2), d, atol=1e-15)
+        _, i2 = knn_distances(p, k, backend="kdtree", chunk_size=33, return_index=True)
+        assert not (i2 == np.arange(len(p))[:, None]).any()
+
+
 def test_knn_rejects_bad_input():
     with pytest.raises(DataError):
         knn_grid(np.zeros((2, 3)), 2)
@@ -94,3 +104,29 @@ def test_conversion_is_backend_independent():
             np.testing.assert_array_equal(a.log_scales, b.log_scales)
             np.testing.assert_array_equal(a.logit_opacities, b.logit_opacities)
             np.testing.assert_allclose(np.abs(a.quats), np.abs(b.quats), atol=1e-6)
+
+
+def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
+    """Far outliers are clamped into border columns and resolved by the k-d tree; far-apart dense clusters make
+    the grid hand the whole cloud to the k-d tree. Both exact (compared with cKDTree), both quick."""
+    from fusion import knn as knn_module
+
+    rng = np.random.default_rng(5)
+    n = 20_000
+    plane = np.c_[rng.random((n, 2)) * 10, 0.01 * rng.random(n)]
+    far = np.r_[plane, rng.random((5, 3)) * 1e4 - 5e3]  # 5 points up to 5 km away
+    clusters = np.r_[plane, plane[:5000] + [1e5, 0, 0]]
+    grid = knn_module._build(far, 8, 4.0)
+    assert grid is not None and grid.nx * grid.ny < 4 * len(far)
+    _, _, _, unresolved = knn_module._query(*grid.args(), 8, False, knn_module._RING_BUDGET)
+    assert 1 <= unresolved.sum() < 50  # the outliers (and maybe a few neighbours) go to the k-d tree
+    assert knn_module._build(clusters, 8, 4.0) is None
+    for p in (far, clusters):
+        for k in (1, 8):
+            d_grid, i_grid = knn_grid(p, k)
+            d_tree, _ = knn_kdtree(p, k)
+            np.testing.assert_array_equal(d_grid, d_tree)
+            np.testing.assert_allclose(np.linalg.norm(p[i_grid] - p[:, None], axis=2), d_tree, rtol=1e-12)
+            nearest, robust = knn_grid_summary(p, k)
+            np.testing.assert_array_equal(nearest, d_tree[:, 0])
+            np.testing.assert_allclose(robust, _robust_spacing(d_tree), rtol=1e-15)

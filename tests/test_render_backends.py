@@ -164,6 +164,26 @@ def test_deterministic(backend):
     assert torch.equal(a.colour, b.colour) and torch.equal(a.depth, b.depth)
 
 
+def test_cpu_threads_do_not_change_results():
+    """Each tile belongs to one thread and gradients are summed per intersection, so 1 and 2 threads agree bitwise."""
+    import numba
+
+    scene = random_scene(3000, 64, 48, seed=6, sh_degree=1)
+    outputs = []
+    before = numba.get_num_threads()
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            params = [p.clone().requires_grad_(True) for p in scene.params]
+            res = render(*params, *scene.camera, backend="cpu")
+            (res.colour.sum() + res.depth.sum()).backward()
+            outputs.append([res.colour, res.depth] + [p.grad for p in params])
+    finally:
+        numba.set_num_threads(before)
+    for a, b in zip(*outputs, strict=True):
+        assert torch.equal(a, b)
+
+
 def test_input_errors():
     scene = random_scene(5, 16, 16)
     with pytest.raises(DataError, match="quats"):

@@ -180,3 +180,13 @@ def test_compiled_noise_equals_the_numpy_reference() -> None:
     assert 0.0 <= fast.min() and fast.max() <= 1.0
     # Continuity across lattice cells: tiny steps give tiny changes.
     assert np.abs(table.noise(pts + 1e-7) - fast).max() < 1e-5
+
+
+def test_glass_casts_no_shadow_but_opaque_boxes_do() -> None:
+    for name, shadowed in (("glass", False), ("textureless_paint", True)):
+        b = MeshBuilder()
+        b.add(plane((4.0, 4.0)), material("textureless_paint").id)
+        b.add(box((0.2, 0.2, 1.0), (0.0, 0.0, 0.5)), material(name).id)
+        tracer = _tracer(b, Environment(sun_azimuth_deg=0.0, sun_elevation_deg=45.0))
+        p = np.array([[-0.5, 0.0, 1e-4]])  # on the ground, where the box's shadow falls
+        assert tracer.occluded(p, np.broadcast_to(tracer.env.sun_dir, (1, 3)).copy())[0] == shadowed

@@ -206,6 +206,7 @@ def test_scene_statistics_separate_collaborative_materials(tiny: Path) -> None:
     grad = meta["image_gradient"]
     textured_grad = [grad[m["name"]] for m in meta["materials"] if m["kind"] == "textured"]
     assert grad["textureless_paint"] < 0.25 * min(textured_grad)
+    assert meta["image_gradient_median"]["textureless_paint"] < 0.5  # grey levels per pixel
     image_std = meta["cross_view_color_std_image"]
     assert image_std["mirror"] > np.mean([image_std[m["name"]] for m in meta["materials"] if m["kind"] == "textured"])
 

@@ -55,7 +55,7 @@ def write_gaussian_ply(
     names = gaussian_property_names(degree)
     n = len(gs)
     # channel-major f_rest: (N, K-1, 3) -> (N, 3, K-1) -> flat
-    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, -1)  # type: ignore[union-attr]
+    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, 3 * gs.sh_rest.shape[1])  # type: ignore[union-attr]
     payload = np.concatenate(
         [
             gs.means.astype(np.float32),

@@ -80,6 +80,8 @@ def render(
     background: (3,) RGB blended behind the Gaussians (default black).
     backend: ``auto``, ``reference``, ``cpu`` or ``gsplat`` (see :class:`Backend`).
     near_plane: Gaussians with camera z below this are culled (metres).
+    tile_size: tile edge in pixels for binning (the ``cpu`` kernels are compiled for 16 only). Images do not
+        depend on it: the 3σ cut is per pixel.
 
     Returns a :class:`RenderResult`; gradients flow to means, quats, log_scales, logit_opacities and sh_coeffs.
     Computation runs in the dtype of ``means`` (float32 normally, float64 for gradient checks).

@@ -6,7 +6,8 @@ this module does the per-pixel work:
 
 1. binning: Gaussians sorted by depth once, then a counting sort by 16×16 tile keeps each tile's list in depth
    order (no per-tile sort);
-2. forward: one thread per tile at a time (tiles sorted by list length and dealt round-robin, both cores);
+2. forward: one thread per tile at a time (tiles sorted by list length and dealt round-robin to Python threads
+   running GIL-free kernels, both cores);
    Gaussian-major loops over the rows of each Gaussian's 3σ box, all 16 pixels of a row at once, branch-free
    so that LLVM vectorises them (hence the polynomial exp, the bitwise masks, the compile-time tile size and
    ``error_model="numpy"``: each of those alone blocked vectorisation, 3-10x slower); front-to-back compositing
@@ -22,12 +23,13 @@ Kernels are generic in the float type (float32 in production, float64 for gradie
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 import torch
-from numba import njit, prange
+from numba import njit
 
 from core.errors import ConfigError
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN, TILE_SIZE
@@ -149,91 +151,108 @@ def _row_span(m, e, y0, y1):  # pragma: no cover - numba
     return r0 - y0, r1 - y0
 
 
-@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
 def _forward_kernel(
-    means2d, conics, opacities, features, extents, offsets, ids, order, width, height, tile_size, tiles_x, n_threads
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    th,
+    n_threads,
+    out,
+    n_used,
 ):  # pragma: no cover - numba
+    """Tiles order[th], order[th + n_threads], ... into out (H, W, 5) and n_used (H, W) (disjoint per thread)."""
     ts = _TS  # compile-time 16: lets LLVM vectorise rows without remainder loops
     dt = means2d.dtype
-    out = np.zeros((height, width, 5), dt)
-    n_used = np.zeros((height, width), np.int32)
     n_tiles = offsets.shape[0] - 1
-    for th in prange(n_threads):
-        T = np.empty((ts, ts), dt)
-        acc = np.empty((4, ts, ts), dt)
-        used = np.empty((ts, ts), np.int32)
-        xs = np.empty(ts, dt)
-        ys = np.empty(ts, dt)
-        for j in range(th, n_tiles, n_threads):
-            t = order[j]
-            x0 = (t % tiles_x) * ts
-            y0 = (t // tiles_x) * ts
-            x1 = min(x0 + ts, width)
-            y1 = min(y0 + ts, height)
-            # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
-            # image start stopped.
-            n_done = 0
-            for r in range(ts):
-                for c in range(ts):
-                    inside = (x0 + c < width) and (y0 + r < height)
-                    T[r, c] = 1.0 if inside else -1.0
-                    n_done += 0 if inside else 1
-            acc[:] = 0.0
-            used[:] = 0
+    T = np.empty((ts, ts), dt)
+    acc = np.empty((4, ts, ts), dt)
+    used = np.empty((ts, ts), np.int32)
+    alive = np.empty(ts, np.int32)  # pixels of each tile row still compositing
+    xs = np.empty(ts, dt)
+    ys = np.empty(ts, dt)
+    for j in range(th, n_tiles, n_threads):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
+        # image start stopped.
+        n_done = 0
+        for r in range(ts):
+            alive[r] = 0
             for c in range(ts):
-                xs[c] = x0 + c + 0.5
-                ys[c] = y0 + c + 0.5
-            zero = xs[0] - xs[0]
-            start = offsets[t]
-            for k in range(start, offsets[t + 1]):
-                g = ids[k]
-                mx = means2d[g, 0]
-                my = means2d[g, 1]
-                a = conics[g, 0]
-                b = conics[g, 1]
-                cc = conics[g, 2]
-                op = opacities[g]
-                f0 = features[g, 0]
-                f1 = features[g, 1]
-                f2 = features[g, 2]
-                f3 = features[g, 3]
-                kk = np.int32(k - start + 1)
-                r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-                for r in range(r0, r1):
-                    dy = ys[r] - my
-                    stops = 0
-                    for c in range(ts):
-                        dx = xs[c] - mx
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        alpha = min(_ALPHA_MAX, op * _exp_neg(power))
-                        tp = T[r, c]
-                        # Bitwise & (no short-circuit branches) keeps the loop vectorisable.
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
-                        test_t = tp * (np.float32(1.0) - alpha)
-                        stop = ok & (test_t < _T_MIN)
-                        draw = ok & (test_t >= _T_MIN)
-                        w = alpha * tp if draw else zero
-                        acc[0, r, c] += w * f0
-                        acc[1, r, c] += w * f1
-                        acc[2, r, c] += w * f2
-                        acc[3, r, c] += w * f3
-                        T[r, c] = -tp if stop else (test_t if draw else tp)
-                        u = used[r, c]  # load first: a select on the store target blocks vectorisation
-                        used[r, c] = kk if draw else u
-                        stops += 1 if stop else 0
-                    n_done += stops
-                if n_done == ts * ts:
-                    break
-            for r in range(y1 - y0):
-                for c in range(x1 - x0):
-                    for f in range(4):
-                        out[y0 + r, x0 + c, f] = acc[f, r, c]
-                    out[y0 + r, x0 + c, 4] = 1.0 - abs(T[r, c])
-                    n_used[y0 + r, x0 + c] = used[r, c]
-    return out, n_used
+                inside = (x0 + c < width) and (y0 + r < height)
+                T[r, c] = 1.0 if inside else -1.0
+                n_done += 0 if inside else 1
+                alive[r] += 1 if inside else 0
+        acc[:] = 0.0
+        used[:] = 0
+        for c in range(ts):
+            xs[c] = x0 + c + 0.5
+            ys[c] = y0 + c + 0.5
+        zero = xs[0] - xs[0]
+        start = offsets[t]
+        for k in range(start, offsets[t + 1]):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            kk = np.int32(k - start + 1)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            for r in range(r0, r1):
+                if alive[r] == 0:
+                    continue
+                dy = ys[r] - my
+                stops = 0
+                for c in range(ts):
+                    dx = xs[c] - mx
+                    power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                    alpha = min(_ALPHA_MAX, op * _exp_neg(power))
+                    tp = T[r, c]
+                    # Bitwise & (no short-circuit branches) keeps the loop vectorisable.
+                    ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
+                    test_t = tp * (np.float32(1.0) - alpha)
+                    stop = ok & (test_t < _T_MIN)
+                    draw = ok & (test_t >= _T_MIN)
+                    w = alpha * tp if draw else zero
+                    acc[0, r, c] += w * f0
+                    acc[1, r, c] += w * f1
+                    acc[2, r, c] += w * f2
+                    acc[3, r, c] += w * f3
+                    T[r, c] = -tp if stop else (test_t if draw else tp)
+                    u = used[r, c]  # load first: a select on the store target blocks vectorisation
+                    used[r, c] = kk if draw else u
+                    stops += 1 if stop else 0
+                n_done += stops
+                alive[r] -= stops
+            if n_done == ts * ts:
+                break
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                for f in range(4):
+                    out[y0 + r, x0 + c, f] = acc[f, r, c]
+                out[y0 + r, x0 + c, 4] = 1.0 - abs(T[r, c])
+                n_used[y0 + r, x0 + c] = used[r, c]
 
 
-@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
 def _backward_kernel(
     means2d,
     conics,
@@ -245,131 +264,135 @@ def _backward_kernel(
     order,
     width,
     height,
-    tile_size,
     tiles_x,
+    th,
     n_threads,
     out,
     n_used,
     grad_out,
+    g_isect,
 ):  # pragma: no cover - numba
+    """One thread's tiles; writes g_isect (n_isect, 10) rows of its tiles' list entries: d/d(mx, my),
+    d/d(a, b, c), d/d(opacity), d/d(features 0..3)."""
     ts = _TS  # compile-time 16: lets LLVM vectorise rows without remainder loops
     dt = means2d.dtype
-    # Per intersection: d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3).
-    g_isect = np.zeros((ids.shape[0], 10), dt)
     n_tiles = offsets.shape[0] - 1
-    for th in prange(n_threads):
-        T = np.empty((ts, ts), dt)
-        rest = np.empty((5, ts, ts), dt)  # what is still to be composited behind the current entry
-        go = np.empty((5, ts, ts), dt)
-        used = np.empty((ts, ts), np.int32)
-        xs = np.empty(ts, dt)
-        ys = np.empty(ts, dt)
-        for j in range(th, n_tiles, n_threads):
-            t = order[j]
-            x0 = (t % tiles_x) * ts
-            y0 = (t // tiles_x) * ts
-            x1 = min(x0 + ts, width)
-            y1 = min(y0 + ts, height)
-            for c in range(ts):
-                xs[c] = x0 + c + 0.5
-                ys[c] = y0 + c + 0.5
-            zero = xs[0] - xs[0]
-            T[:] = 1.0
-            rest[:] = 0.0
-            go[:] = 0.0
-            used[:] = 0
-            max_used = 0
-            for r in range(y1 - y0):
-                for c in range(x1 - x0):
-                    used[r, c] = n_used[y0 + r, x0 + c]
-                    max_used = max(max_used, used[r, c])
-                    for f in range(5):
-                        rest[f, r, c] = out[y0 + r, x0 + c, f]
-                        go[f, r, c] = grad_out[y0 + r, x0 + c, f]
-            start = offsets[t]
-            for k in range(start, start + max_used):
-                g = ids[k]
-                mx = means2d[g, 0]
-                my = means2d[g, 1]
-                a = conics[g, 0]
-                b = conics[g, 1]
-                cc = conics[g, 2]
-                op = opacities[g]
-                f0 = features[g, 0]
-                f1 = features[g, 1]
-                f2 = features[g, 2]
-                f3 = features[g, 3]
-                kk = np.int32(k - start)
-                r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-                g_mx = zero
-                g_my = zero
-                g_a = zero
-                g_b = zero
-                g_c = zero
-                g_op = zero
-                g_f0 = zero
-                g_f1 = zero
-                g_f2 = zero
-                g_f3 = zero
-                for r in range(r0, r1):
-                    dy = ys[r] - my
-                    for c in range(ts):
-                        dx = xs[c] - mx
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        gauss = _exp_neg(power)
-                        raw = op * gauss
-                        alpha = min(_ALPHA_MAX, raw)
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[r, c])
-                        tp = T[r, c]
-                        w = alpha * tp if ok else zero
-                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
-                        r_0 = rest[0, r, c] - w * f0
-                        r_1 = rest[1, r, c] - w * f1
-                        r_2 = rest[2, r, c] - w * f2
-                        r_3 = rest[3, r, c] - w * f3
-                        r_4 = rest[4, r, c] - w
-                        rest[0, r, c] = r_0
-                        rest[1, r, c] = r_1
-                        rest[2, r, c] = r_2
-                        rest[3, r, c] = r_3
-                        rest[4, r, c] = r_4
-                        go0 = go[0, r, c]
-                        go1 = go[1, r, c]
-                        go2 = go[2, r, c]
-                        go3 = go[3, r, c]
-                        go4 = go[4, r, c]
-                        g_f0 += w * go0
-                        g_f1 += w * go1
-                        g_f2 += w * go2
-                        g_f3 += w * go3
-                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
-                        g_alpha = (
-                            go0 * (f0 * tp - r_0 * inv)
-                            + go1 * (f1 * tp - r_1 * inv)
-                            + go2 * (f2 * tp - r_2 * inv)
-                            + go3 * (f3 * tp - r_3 * inv)
-                            + go4 * (tp - r_4 * inv)
-                        )
-                        T[r, c] = tp * (np.float32(1.0) - alpha) if ok else tp
-                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
-                        g_op += g_alpha * gauss
-                        g_pow = g_alpha * alpha
-                        g_mx += g_pow * (a * dx + b * dy)
-                        g_my += g_pow * (cc * dy + b * dx)
-                        g_a -= np.float32(0.5) * g_pow * dx * dx
-                        g_b -= g_pow * dx * dy
-                        g_c -= np.float32(0.5) * g_pow * dy * dy
-                g_isect[k, 0] = g_mx
-                g_isect[k, 1] = g_my
-                g_isect[k, 2] = g_a
-                g_isect[k, 3] = g_b
-                g_isect[k, 4] = g_c
-                g_isect[k, 5] = g_op
-                g_isect[k, 6] = g_f0
-                g_isect[k, 7] = g_f1
-                g_isect[k, 8] = g_f2
-                g_isect[k, 9] = g_f3
-    return g_isect
+    T = np.empty((ts, ts), dt)
+    rest = np.empty((5, ts, ts), dt)  # what is still to be composited behind the current entry
+    go = np.empty((5, ts, ts), dt)
+    used = np.empty((ts, ts), np.int32)
+    row_used = np.empty(ts, np.int32)  # list entries the slowest pixel of each row composited
+    xs = np.empty(ts, dt)
+    ys = np.empty(ts, dt)
+    for j in range(th, n_tiles, n_threads):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        for c in range(ts):
+            xs[c] = x0 + c + 0.5
+            ys[c] = y0 + c + 0.5
+        zero = xs[0] - xs[0]
+        T[:] = 1.0
+        rest[:] = 0.0
+        go[:] = 0.0
+        used[:] = 0
+        max_used = 0
+        row_used[:] = 0
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                used[r, c] = n_used[y0 + r, x0 + c]
+                row_used[r] = max(row_used[r], used[r, c])
+                for f in range(5):
+                    rest[f, r, c] = out[y0 + r, x0 + c, f]
+                    go[f, r, c] = grad_out[y0 + r, x0 + c, f]
+            max_used = max(max_used, row_used[r])
+        start = offsets[t]
+        for k in range(start, start + max_used):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            kk = np.int32(k - start)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            g_mx = zero
+            g_my = zero
+            g_a = zero
+            g_b = zero
+            g_c = zero
+            g_op = zero
+            g_f0 = zero
+            g_f1 = zero
+            g_f2 = zero
+            g_f3 = zero
+            for r in range(r0, r1):
+                if kk >= row_used[r]:
+                    continue
+                dy = ys[r] - my
+                for c in range(ts):
+                    dx = xs[c] - mx
+                    power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                    gauss = _exp_neg(power)
+                    raw = op * gauss
+                    alpha = min(_ALPHA_MAX, raw)
+                    ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[r, c])
+                    tp = T[r, c]
+                    w = alpha * tp if ok else zero
+                    inv = np.float32(1.0) / (np.float32(1.0) - alpha)
+                    r_0 = rest[0, r, c] - w * f0
+                    r_1 = rest[1, r, c] - w * f1
+                    r_2 = rest[2, r, c] - w * f2
+                    r_3 = rest[3, r, c] - w * f3
+                    r_4 = rest[4, r, c] - w
+                    rest[0, r, c] = r_0
+                    rest[1, r, c] = r_1
+                    rest[2, r, c] = r_2
+                    rest[3, r, c] = r_3
+                    rest[4, r, c] = r_4
+                    go0 = go[0, r, c]
+                    go1 = go[1, r, c]
+                    go2 = go[2, r, c]
+                    go3 = go[3, r, c]
+                    go4 = go[4, r, c]
+                    g_f0 += w * go0
+                    g_f1 += w * go1
+                    g_f2 += w * go2
+                    g_f3 += w * go3
+                    # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
+                    g_alpha = (
+                        go0 * (f0 * tp - r_0 * inv)
+                        + go1 * (f1 * tp - r_1 * inv)
+                        + go2 * (f2 * tp - r_2 * inv)
+                        + go3 * (f3 * tp - r_3 * inv)
+                        + go4 * (tp - r_4 * inv)
+                    )
+                    T[r, c] = tp * (np.float32(1.0) - alpha) if ok else tp
+                    g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
+                    g_op += g_alpha * gauss
+                    g_pow = g_alpha * alpha
+                    g_mx += g_pow * (a * dx + b * dy)
+                    g_my += g_pow * (cc * dy + b * dx)
+                    g_a -= np.float32(0.5) * g_pow * dx * dx
+                    g_b -= g_pow * dx * dy
+                    g_c -= np.float32(0.5) * g_pow * dy * dy
+            g_isect[k, 0] = g_mx
+            g_isect[k, 1] = g_my
+            g_isect[k, 2] = g_a
+            g_isect[k, 3] = g_b
+            g_isect[k, 4] = g_c
+            g_isect[k, 5] = g_op
+            g_isect[k, 6] = g_f0
+            g_isect[k, 7] = g_f1
+            g_isect[k, 8] = g_f2
+            g_isect[k, 9] = g_f3
 
 
 @njit(cache=True)
@@ -380,6 +403,25 @@ def _sum_per_gaussian(g_isect, ids, n):  # pragma: no cover - numba
         for j in range(g_isect.shape[1]):
             grads[g, j] += g_isect[k, j]
     return grads
+
+
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _run_tiles(kernel, args: tuple, tail: tuple) -> None:
+    """Run ``kernel(*args, th, n, *tail)`` for th in 0..n-1 on n threads (n = numba.get_num_threads()).
+
+    Python threads on GIL-free kernels instead of numba's prange: waiting threads block instead of spinning, which
+    keeps the renderer fast when the cores are shared with other work (OpenMP spin-waits made it 3-5x slower).
+    """
+    n = numba.get_num_threads()
+    if n == 1:
+        kernel(*args, 0, 1, *tail)
+        return
+    if not _POOL or _POOL[0]._max_workers < n:
+        _POOL[:] = [ThreadPoolExecutor(max_workers=n, thread_name_prefix="splat")]
+    for future in [_POOL[0].submit(kernel, *args, th, n, *tail) for th in range(n)]:
+        future.result()
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -393,26 +435,21 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
-        tail = (
-            bins.offsets,
-            bins.ids,
-            bins.order,
-            width,
-            height,
-            bins.tile_size,
-            bins.tiles_x,
-            numba.get_num_threads(),
-        )
-        out, n_used = _forward_kernel(*args, *tail)
-        ctx.args, ctx.tail, ctx.out, ctx.n_used = args, tail, out, n_used
+        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
+        out = np.zeros((height, width, 5), m2.dtype)
+        n_used = np.zeros((height, width), np.int32)
+        _run_tiles(_forward_kernel, args, (out, n_used))
+        ctx.args, ctx.out, ctx.n_used = args, out, n_used
         return torch.from_numpy(out)
 
     @staticmethod
     def backward(ctx, grad_out):  # type: ignore[override]
-        args, tail = ctx.args, ctx.tail
+        args = ctx.args
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
-        g_isect = _backward_kernel(*args, *tail, ctx.out, ctx.n_used, go)
-        grads = torch.from_numpy(_sum_per_gaussian(g_isect, tail[1], args[0].shape[0])).to(grad_out.dtype)
+        ids = args[6]
+        g_isect = np.zeros((len(ids), 10), args[0].dtype)
+        _run_tiles(_backward_kernel, args, (ctx.out, ctx.n_used, go, g_isect))
+        grads = torch.from_numpy(_sum_per_gaussian(g_isect, ids, args[0].shape[0])).to(grad_out.dtype)
         return grads[:, 0:2], grads[:, 2:5], grads[:, 5], grads[:, 6:10], None, None, None, None
 
 
