@@ -1,5 +1,5 @@
 # The two commands of the README: `make demo` (main job on the built-in synthetic scene) and `make test`.
-.PHONY: setup demo test lint bench
+.PHONY: setup demo test test-slow lint
 PY := .venv/bin/python
 DEMO_DIR ?= demo_project
 
@@ -10,11 +10,11 @@ demo: setup
 	$(PY) -m hybridsplat demo --out $(DEMO_DIR)
 
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow
 
 lint: setup
 	$(PY) -m ruff check .
 	$(PY) -m ruff format --check .
-
-bench: setup
-	$(PY) bench/run_all.py

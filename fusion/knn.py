@@ -1,23 +1,29 @@
 """Exact k-nearest-neighbour distances for whole point clouds, fast on few cores.
 
 Why by hand: scipy's ``cKDTree`` (the reference, see :func:`knn_kdtree`) spends ~0.4–0.9 µs per point on 2 cores for
-k = 1–8 even when queried in leaf order, which caps the conversion at ~1 M points/s. MVS clouds are surfaces
-sampled at a roughly known spacing, so a column grid does better: points are bucketed into square (x, y) columns of
-side ``h`` (a counting sort, O(N)), sorted by z inside each column, and each point scans the 3×3 neighbouring columns
-within a z window of ±r. The search is exact: a point at distance ≤ r lies in a column within ⌈r/h⌉ and in the z
-window, so rings of columns are added (r = h, 2h, 3h, …) until the k-th best distance is ≤ r (isolated outliers just
-take more rings). Memory: the column table (≤ ``max_columns_per_point`` · N int64) plus a sorted copy of the
-points, O(N).
+k = 1–8 even when queried in leaf order, and its build alone takes seconds at 10 M points, which caps the conversion
+at ~1 M points/s. MVS clouds are surfaces sampled at a roughly known spacing, so a column grid does better: points
+are bucketed into square (x, y) columns of side ``h`` (a counting sort, O(N)), sorted by z inside each column, and
+each point scans the 3×3 neighbouring columns within a z window of ±r. The search is exact: a point at distance ≤ r
+lies in a column within ⌈r/h⌉ and in the z window, so rings of columns are added (r = h, 2h, 3h, …) until the k-th
+best distance is ≤ r. Points that would need more than ``_RING_BUDGET`` rings (isolated outliers) switch to a
+two-level search over blocks of ``_BLOCK``×``_BLOCK`` columns, each with its z range: blocks are visited ring by ring
+and pruned (with their columns) by the distance to their bounding box, which is exact and stays cheap however far
+the outlier is. Memory: the column table (≤ ``max_columns_per_point`` · N int64), a sorted copy of the points and
+one column key per point, O(N).
 
 The grid covers a robust box (0.1–99.9 % per axis); points beyond it are clamped into the border columns, which
-keeps the search exact (the edge distance r only uses inner block edges). Points that would need more than
-``_RING_BUDGET`` rings (far outliers) are finished by a k-d tree, and a cloud whose columns would be badly
+keeps the search exact (border columns and blocks are unbounded outwards). A cloud whose columns would be badly
 overfilled (dense clusters far apart) goes to the k-d tree whole. ``h`` is chosen from the box and N assuming a
 2.5-D surface, then refined once from the measured column occupancy; a bad guess only costs time, never exactness.
+Work is split over Python threads running GIL-free numba kernels on interleaved ranges of column rows (waiting
+threads block instead of spinning, which matters on shared cores; see ``fusion/render/cpu.py``).
 Tests compare against brute force and ``cKDTree``.
 """
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -67,10 +73,7 @@ def knn_grid(positions: np.ndarray, k: int, max_columns_per_point: float = 4.0) 
     grid = _build(p, k, max_columns_per_point)
     if grid is None:
         return knn_kdtree(p, k)
-    dist, idx, _, unresolved = _query(*grid.args(), k, True, _RING_BUDGET)
-    rows = np.flatnonzero(unresolved)
-    if len(rows):
-        dist[rows], idx[rows] = _kdtree_rows(p, rows, k)
+    dist, idx, _, _ = _query(grid, k, True)
     return dist, idx
 
 
@@ -85,12 +88,7 @@ def knn_grid_summary(
     if grid is None:
         dist, _ = knn_kdtree(p, k)
         return dist[:, 0].copy(), median_nonzero(dist)
-    _, _, summary, unresolved = _query(*grid.args(), k, False, _RING_BUDGET)
-    rows = np.flatnonzero(unresolved)
-    if len(rows):
-        dist, _ = _kdtree_rows(p, rows, k)
-        summary[rows, 0] = dist[:, 0]
-        summary[rows, 1] = median_nonzero(dist)
+    _, _, summary, _ = _query(grid, k, False)
     return summary[:, 0], summary[:, 1]
 
 
@@ -108,28 +106,29 @@ def median_nonzero(dist: np.ndarray) -> np.ndarray:
 
 
 _RING_BUDGET = 3
-"""Rings of columns a point may search before it is handed to the k-d tree (isolated outliers)."""
+"""Rings of columns a point may search before it switches to the block search (isolated outliers)."""
+
+_BLOCK = 8
+"""Columns per side of the blocks (with their z range) of the outliers' search."""
 
 _MAX_SCAN_FACTOR = 40.0
 """Fall back to the k-d tree when the grid would scan more than this × the target candidates per point (clouds
 made of far-apart dense clusters, where no single column size suits all)."""
 
+_CHUNKS_PER_THREAD = 16
+"""Interleaved work chunks per thread (balances uneven columns without a scheduler)."""
+
 
 def _checked(positions: np.ndarray, k: int) -> np.ndarray:
-    p = np.asarray(positions, dtype=np.float64)
+    p = np.ascontiguousarray(positions, dtype=np.float64)
     n = len(p)
     if k < 1 or n <= k:
         raise DataError(f"{k} nearest neighbours need k >= 1 and more than k points, got {n}")
-    if not np.isfinite(p).all():
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise DataError(f"k nearest neighbours need (N, 3) positions, got shape {p.shape}")
+    if not _all_finite(p):
         raise DataError("k nearest neighbours need finite coordinates")
     return p
-
-
-def _kdtree_rows(p: np.ndarray, rows: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Exact k nearest others of the points ``rows`` from a k-d tree over all points."""
-    tree = cKDTree(p, leafsize=16, balanced_tree=False, compact_nodes=False)
-    d, i = tree.query(p[rows], k=k + 1, workers=-1)
-    return drop_self(d, i, rows)
 
 
 def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
@@ -146,16 +145,19 @@ def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
     lo = lo_r
     extent = np.maximum(hi_r - lo_r, 1e-12)
     h = _choose_cell(extent, n, k, max_columns_per_point)
-    grid = _Grid(p, lo, extent, h)
+    col, counts, nx, ny = _columns(p, lo, extent, h)
     target = _target_per_column(k)
-    occupancy = n / max(grid.occupied, 1)
+    occupancy = n / max(int(np.count_nonzero(counts)), 1)
     if occupancy > 4 * target or occupancy < target / 4:  # refine once from the measured occupancy
         h2 = max(h * np.sqrt(target / occupancy), _min_cell(extent, n, max_columns_per_point))
         if not np.isclose(h2, h, rtol=0.25):
-            grid = _Grid(p, lo, extent, h2)
-    if grid.scan_per_point > _MAX_SCAN_FACTOR * 9 * target:
+            h = h2
+            col, counts, nx, ny = _columns(p, lo, extent, h)
+    # rough candidates scanned per point: each point of a column scans ~9 columns like its own
+    scan_per_point = 9.0 * float(np.dot(counts, counts.astype(np.float64))) / n
+    if scan_per_point > _MAX_SCAN_FACTOR * 9 * target:
         return None
-    return grid
+    return _Grid(p, lo, h, nx, ny, col, counts)
 
 
 def _choose_cell(extent: np.ndarray, n: int, k: int, max_columns_per_point: float) -> float:
@@ -172,45 +174,111 @@ def _min_cell(extent: np.ndarray, n: int, max_columns_per_point: float) -> float
     return max(np.sqrt(e0 * e1 / budget), (e0 + e1) / budget, 1e-12)
 
 
+def _columns(p: np.ndarray, lo: np.ndarray, extent: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Row-major column key (N,) int64 of each point (clamped into the border columns), counts per column, nx, ny."""
+    nx = int(extent[0] // h) + 1
+    ny = int(extent[1] // h) + 1
+    col, counts = _assign(p, float(lo[0]), float(lo[1]), float(h), nx, ny)
+    return col, counts, nx, ny
+
+
 class _Grid:
-    """Points counting-sorted into (x, y) columns of side h (row-major), z-sorted inside each column."""
+    """Points counting-sorted into (x, y) columns of side h (row-major), z-sorted inside each column, plus the z range
+    of each block of ``_BLOCK``×``_BLOCK`` columns."""
 
-    def __init__(self, p: np.ndarray, lo: np.ndarray, extent: np.ndarray, h: float) -> None:
+    def __init__(
+        self, p: np.ndarray, lo: np.ndarray, h: float, nx: int, ny: int, col: np.ndarray, counts: np.ndarray
+    ) -> None:
         self.h = float(h)
-        self.nx = int(extent[0] // h) + 1
-        self.ny = int(extent[1] // h) + 1
-        # border columns take every point beyond the box (the search stays exact: see _query)
-        cx = np.clip(np.floor((p[:, 0] - lo[0]) / h), 0, self.nx - 1).astype(np.int64)
-        cy = np.clip(np.floor((p[:, 1] - lo[1]) / h), 0, self.ny - 1).astype(np.int64)
-        col = cx * self.ny + cy
-        counts = np.bincount(col, minlength=self.nx * self.ny)
+        self.nx, self.ny = nx, ny
         self.occupied = int(np.count_nonzero(counts))
-        # rough candidates scanned per point: each point of a column scans ~9 columns like its own
-        self.scan_per_point = 9.0 * float(np.dot(counts, counts.astype(np.float64))) / max(len(p), 1)
-        self.col_start = np.zeros(self.nx * self.ny + 1, dtype=np.int64)
+        self.col_start = np.zeros(nx * ny + 1, dtype=np.int64)
         np.cumsum(counts, out=self.col_start[1:])
-        self.order = _counting_order(col, self.col_start, p[:, 2])
-        self.sorted_xyz = np.ascontiguousarray(p[self.order])
+        self.order = _scatter(col, self.col_start)
+        del col
+        z = np.ascontiguousarray(p[:, 2])
+        nth = numba.get_num_threads()
+        chunk = max(1, (nx * ny) // (nth * _CHUNKS_PER_THREAD) + 1)
+        _run(_zsort, (self.order, self.col_start, z, chunk), nth)
+        del z
+        self.sorted_xyz = p.take(self.order, axis=0)
         self.lo = (float(lo[0]), float(lo[1]))
+        self.nbx = (nx + _BLOCK - 1) // _BLOCK
+        self.nby = (ny + _BLOCK - 1) // _BLOCK
+        self.bzmin, self.bzmax = _block_bounds(self.sorted_xyz, self.col_start, nx, ny, _BLOCK, self.nbx, self.nby)
         # slack for the rounding of column assignment: relative to h and to the coordinates' magnitude
-        self.guard = 1e-9 * self.h + 16 * float(np.spacing(np.abs(p[:, :2]).max() + self.h * (self.nx + self.ny)))
-
-    def args(self) -> tuple:
-        return (
-            self.sorted_xyz,
-            self.order,
-            self.col_start,
-            self.nx,
-            self.ny,
-            self.h,
-            self.lo[0],
-            self.lo[1],
-            self.guard,
-        )
+        self.guard = 1e-9 * self.h + 16 * float(np.spacing(_max_abs_xy(p) + self.h * (nx + ny)))
 
 
-@numba.njit(cache=True)
-def _counting_order(col: np.ndarray, col_start: np.ndarray, z: np.ndarray) -> np.ndarray:
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _run(kernel, args: tuple, n: int) -> None:
+    """Run ``kernel(*args, th, n)`` for th in 0..n-1 on n Python threads (GIL-free kernels; blocking, not spinning,
+    when the cores are shared: the pattern of ``fusion/render/cpu.py``)."""
+    if n <= 1:
+        kernel(*args, 0, 1)
+        return
+    if not _POOL or _POOL[0]._max_workers < n:
+        _POOL[:] = [ThreadPoolExecutor(max_workers=n, thread_name_prefix="knn")]
+    for future in [_POOL[0].submit(kernel, *args, th, n) for th in range(n)]:
+        future.result()
+
+
+def _query(grid: _Grid, k: int, full: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Distances and input-order indices of the k nearest others (``full``: (N, k) each), or per point the nearest
+    distance and the median non-duplicate distance (``summary``: (N, 2)), at each point's input position; also the
+    number of points that needed the block search (outliers)."""
+    n = len(grid.sorted_xyz)
+    dist = np.empty((n if full else 0, k))
+    idx = np.empty((n if full else 0, k), dtype=np.int64)
+    summary = np.empty((0 if full else n, 2))
+    nth = numba.get_num_threads()
+    rows_per_chunk = max(1, grid.nx // (nth * _CHUNKS_PER_THREAD))
+    far = np.zeros(nth, dtype=np.int64)
+    zs = np.ascontiguousarray(grid.sorted_xyz[:, 2])
+    args = (grid.sorted_xyz, zs, grid.order, grid.col_start, grid.nx, grid.ny, grid.h, grid.lo[0], grid.lo[1])
+    args += (grid.guard, grid.bzmin, grid.bzmax, grid.nbx, grid.nby, _BLOCK, k, full, _RING_BUDGET)
+    args += (dist, idx, summary, far, rows_per_chunk)
+    _run(_query_rows, args, nth)
+    return dist, idx, summary, int(far.sum())
+
+
+# -- numba kernels ------------------------------------------------------------------------------------
+
+
+@numba.njit(nogil=True, cache=True)
+def _all_finite(p: np.ndarray) -> bool:
+    for v in p.ravel():
+        if not np.isfinite(v):
+            return False
+    return True
+
+
+@numba.njit(nogil=True, cache=True)
+def _max_abs_xy(p: np.ndarray) -> float:
+    m = 0.0
+    for i in range(len(p)):
+        m = max(m, abs(p[i, 0]), abs(p[i, 1]))
+    return m
+
+
+@numba.njit(nogil=True, cache=True)
+def _assign(p: np.ndarray, lox: float, loy: float, h: float, nx: int, ny: int):
+    n = len(p)
+    col = np.empty(n, dtype=np.int64)
+    counts = np.zeros(nx * ny, dtype=np.int64)
+    for i in range(n):
+        cx = min(max(np.floor((p[i, 0] - lox) / h), 0.0), nx - 1.0)
+        cy = min(max(np.floor((p[i, 1] - loy) / h), 0.0), ny - 1.0)
+        c = int(cx) * ny + int(cy)
+        col[i] = c
+        counts[c] += 1
+    return col, counts
+
+
+@numba.njit(nogil=True, cache=True)
+def _scatter(col: np.ndarray, col_start: np.ndarray) -> np.ndarray:
     n = len(col)
     fill = col_start[:-1].copy()
     order = np.empty(n, dtype=np.int64)
@@ -218,23 +286,44 @@ def _counting_order(col: np.ndarray, col_start: np.ndarray, z: np.ndarray) -> np
         c = col[i]
         order[fill[c]] = i
         fill[c] += 1
-    # insertion sort by z inside each column (columns hold a handful of points)
-    ncol = len(col_start) - 1
-    for c in range(ncol):
-        a, b = col_start[c], col_start[c + 1]
-        if b - a > 32:
-            seg = order[a:b].copy()
-            order[a:b] = seg[np.argsort(z[seg], kind="mergesort")]
-            continue
-        for j in range(a + 1, b):
-            v = order[j]
-            zv = z[v]
-            m = j - 1
-            while m >= a and z[order[m]] > zv:
-                order[m + 1] = order[m]
-                m -= 1
-            order[m + 1] = v
     return order
+
+
+@numba.njit(nogil=True, cache=True)
+def _zsort(order: np.ndarray, col_start: np.ndarray, z: np.ndarray, chunk: int, th: int, nth: int) -> None:
+    """Sort ``order`` by z inside each column of the chunks th, th + nth, … of ``chunk`` columns."""
+    ncol = len(col_start) - 1
+    for start in range(th * chunk, ncol, nth * chunk):
+        for c in range(start, min(start + chunk, ncol)):
+            a, b = col_start[c], col_start[c + 1]
+            if b - a > 32:
+                seg = order[a:b].copy()
+                order[a:b] = seg[np.argsort(z[seg], kind="mergesort")]
+                continue
+            for j in range(a + 1, b):  # insertion sort: columns hold a handful of points
+                v = order[j]
+                zv = z[v]
+                m = j - 1
+                while m >= a and z[order[m]] > zv:
+                    order[m + 1] = order[m]
+                    m -= 1
+                order[m + 1] = v
+
+
+@numba.njit(nogil=True, cache=True)
+def _block_bounds(xyz: np.ndarray, col_start: np.ndarray, nx: int, ny: int, bs: int, nbx: int, nby: int):
+    """z range of each block of bs×bs columns (min > max for an empty block), from the z-sorted columns."""
+    bzmin = np.full(nbx * nby, np.inf)
+    bzmax = np.full(nbx * nby, -np.inf)
+    for cx in range(nx):
+        for cy in range(ny):
+            c = cx * ny + cy
+            a, b = col_start[c], col_start[c + 1]
+            if a < b:
+                bb = (cx // bs) * nby + cy // bs
+                bzmin[bb] = min(bzmin[bb], xyz[a, 2])
+                bzmax[bb] = max(bzmax[bb], xyz[b - 1, 2])
+    return bzmin, bzmax
 
 
 @numba.njit(cache=True, inline="always")
@@ -248,9 +337,123 @@ def _lower_bound(zs: np.ndarray, a: int, b: int, value: float) -> int:
     return a
 
 
-@numba.njit(parallel=True, cache=True)
-def _query(
+@numba.njit(cache=True, inline="always")
+def _insert(best_d: np.ndarray, best_i: np.ndarray, d2: float, m: int) -> None:
+    q = len(best_d) - 1
+    while q > 0 and best_d[q - 1] > d2:
+        best_d[q] = best_d[q - 1]
+        best_i[q] = best_i[q - 1]
+        q -= 1
+    best_d[q] = d2
+    best_i[q] = m
+
+
+@numba.njit(cache=True, inline="always")
+def _gap(v: float, a: float, b: float, guard: float) -> float:
+    """Distance from v to the interval [a, b] less the rounding guard, ≥ 0."""
+    return max(a - v - guard, v - b - guard, 0.0)
+
+
+@numba.njit(nogil=True, cache=True)
+def _scan_block(xyz, zs, col_start, nx, ny, h, lox, loy, guard, bs, ux, uy, nbx, nby, i, best_d, best_i):
+    """Scan the columns of block (ux, uy) that may hold a point closer to point i than the current k-th best."""
+    k = len(best_d)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    c0x, c1x = ux * bs, min((ux + 1) * bs, nx)
+    c0y, c1y = uy * bs, min((uy + 1) * bs, ny)
+    for cx in range(c0x, c1x):
+        # border columns are unbounded outwards (points beyond the box are clamped into them)
+        xa = lox + cx * h if cx > 0 else -np.inf
+        xb = lox + (cx + 1) * h if cx < nx - 1 else np.inf
+        gx = _gap(x, xa, xb, guard)
+        if gx * gx >= best_d[k - 1]:
+            continue
+        for cy in range(c0y, c1y):
+            c = cx * ny + cy
+            a, b = col_start[c], col_start[c + 1]
+            if a == b:
+                continue
+            ya = loy + cy * h if cy > 0 else -np.inf
+            yb = loy + (cy + 1) * h if cy < ny - 1 else np.inf
+            gy = _gap(y, ya, yb, guard)
+            gz = _gap(z, zs[a], zs[b - 1], 0.0)
+            if gx * gx + gy * gy + gz * gz >= best_d[k - 1]:
+                continue
+            s = a
+            zhi = np.inf
+            if best_d[k - 1] < np.inf:
+                r = np.sqrt(best_d[k - 1]) * (1.0 + 1e-12)
+                s = _lower_bound(zs, a, b, z - r)
+                zhi = z + r
+            for m in range(s, b):
+                zm = zs[m]
+                if zm > zhi:
+                    break
+                if m == i:
+                    continue
+                dx = xyz[m, 0] - x
+                dy = xyz[m, 1] - y
+                dz = zm - z
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < best_d[k - 1]:
+                    _insert(best_d, best_i, d2, m)
+                    if best_d[k - 1] < np.inf:
+                        zhi = z + np.sqrt(best_d[k - 1]) * (1.0 + 1e-12)
+
+
+@numba.njit(nogil=True, cache=True)
+def _block_search(xyz, zs, col_start, nx, ny, h, lox, loy, guard, bzmin, bzmax, nbx, nby, bs, i, cx, cy, bd, bi):
+    """Exact k nearest others of point i (column cx, cy) into bd (squared, ascending) / bi (sorted indices): blocks
+    ring by ring around the point's block, each skipped when its bounding box is farther than the k-th best, until
+    everything outside the rings is provably farther."""
+    k = len(bd)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    for j in range(k):
+        bd[j] = np.inf
+        bi[j] = -1
+    bx, by = cx // bs, cy // bs
+    ring = 0
+    while True:
+        for ux in range(max(bx - ring, 0), min(bx + ring, nbx - 1) + 1):
+            side = ux == bx - ring or ux == bx + ring
+            for uy in range(max(by - ring, 0), min(by + ring, nby - 1) + 1):
+                if not side and uy != by - ring and uy != by + ring:
+                    continue  # inner blocks were visited in earlier rings
+                bb = ux * nby + uy
+                if bzmin[bb] > bzmax[bb]:
+                    continue
+                xa = lox + ux * bs * h if ux > 0 else -np.inf
+                xb = lox + (ux + 1) * bs * h if ux < nbx - 1 else np.inf
+                ya = loy + uy * bs * h if uy > 0 else -np.inf
+                yb = loy + (uy + 1) * bs * h if uy < nby - 1 else np.inf
+                gx = _gap(x, xa, xb, guard)
+                gy = _gap(y, ya, yb, guard)
+                gz = _gap(z, bzmin[bb], bzmax[bb], 0.0)
+                if gx * gx + gy * gy + gz * gz >= bd[k - 1]:
+                    continue
+                _scan_block(xyz, zs, col_start, nx, ny, h, lox, loy, guard, bs, ux, uy, nbx, nby, i, bd, bi)
+        # every point outside the rings is at least `edge` away (sides at the grid's border have nothing beyond)
+        edge = np.inf
+        if bx - ring > 0:
+            edge = min(edge, x - (lox + (bx - ring) * bs * h))
+        if bx + ring < nbx - 1:
+            edge = min(edge, lox + (bx + ring + 1) * bs * h - x)
+        if by - ring > 0:
+            edge = min(edge, y - (loy + (by - ring) * bs * h))
+        if by + ring < nby - 1:
+            edge = min(edge, loy + (by + ring + 1) * bs * h - y)
+        if edge == np.inf:
+            return
+        edge -= guard
+        if edge > 0 and bd[k - 1] <= edge * edge:
+            return
+        ring += 1
+
+
+@numba.njit(nogil=True, cache=True)
+def _query_rows(
     xyz: np.ndarray,
+    zs: np.ndarray,
     order: np.ndarray,
     col_start: np.ndarray,
     nx: int,
@@ -259,109 +462,104 @@ def _query(
     lox: float,
     loy: float,
     guard: float,
+    bzmin: np.ndarray,
+    bzmax: np.ndarray,
+    nbx: int,
+    nby: int,
+    bs: int,
     k: int,
     full: bool,
     ring_budget: int,
-):
-    """Distances and input-order indices of the k nearest others (``full``), or per point the nearest distance and
-    the median non-duplicate distance (``summary``), written at each point's input position. Points that would need
-    more than ``ring_budget`` rings are flagged in ``unresolved`` (input order) and left for the caller."""
-    n = len(xyz)
-    unresolved = np.zeros(n, dtype=np.bool_)
-    dist = np.empty((n if full else 0, k))
-    idx = np.empty((n if full else 0, k), dtype=np.int64)
-    summary = np.empty((0 if full else n, 2))
-    zs = np.ascontiguousarray(xyz[:, 2])
-    zext = zs.max() - zs.min() if n else 0.0
+    dist: np.ndarray,
+    idx: np.ndarray,
+    summary: np.ndarray,
+    far: np.ndarray,
+    rows_per_chunk: int,
+    th: int,
+    nth: int,
+) -> None:
+    """The k nearest others of the points in column rows [s, s + rows_per_chunk) for s = th·rows_per_chunk, then
+    every nth chunk; results at each point's input position (disjoint per thread)."""
+    best_d = np.empty(k)
+    best_i = np.empty(k, dtype=np.int64)
+    zext = zs.max() - zs.min() if len(zs) else 0.0
     max_ring = max(nx, ny, int(np.ceil(zext / h)) + 1)  # by then the window covers every point
-    for cx in numba.prange(nx):
-        best_d = np.empty(k)
-        best_i = np.empty(k, dtype=np.int64)
-        for cy in range(ny):
-            c = cx * ny + cy
-            for i in range(col_start[c], col_start[c + 1]):
-                x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-                for j in range(k):
-                    best_d[j] = np.inf
-                    best_i[j] = -1
-                ring = 1
-                scanned = 0  # rings fully scanned so far
-                while True:
-                    # rescan everything when the block grew (simple and still exact; most points need one pass)
-                    if scanned > 0:
+    for start in range(th * rows_per_chunk, nx, nth * rows_per_chunk):
+        for cx in range(start, min(start + rows_per_chunk, nx)):
+            for cy in range(ny):
+                c = cx * ny + cy
+                for i in range(col_start[c], col_start[c + 1]):
+                    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                    ring = 1
+                    while True:
+                        # rescan everything when the block grew (simple and still exact; most points need one pass)
                         for j in range(k):
                             best_d[j] = np.inf
                             best_i[j] = -1
-                    x0, x1 = max(cx - ring, 0), min(cx + ring, nx - 1)
-                    y0, y1 = max(cy - ring, 0), min(cy + ring, ny - 1)
-                    # r: distance from the point to the nearest edge of the block of columns (>= ring·h; sides
-                    # at the grid's edge have nothing beyond), less a hair for the rounding of column assignment.
-                    # Every point within r lies in the block; the z window is ±r as well.
-                    r = np.inf
-                    if x0 > 0:
-                        r = min(r, x - (lox + x0 * h))
-                    if x1 < nx - 1:
-                        r = min(r, lox + (x1 + 1) * h - x)
-                    if y0 > 0:
-                        r = min(r, y - (loy + y0 * h))
-                    if y1 < ny - 1:
-                        r = min(r, loy + (y1 + 1) * h - y)
-                    r = ring * h if r == np.inf else r - guard
-                    for ux in range(x0, x1 + 1):
-                        for uy in range(y0, y1 + 1):
-                            cc = ux * ny + uy
-                            a, b = col_start[cc], col_start[cc + 1]
-                            if a == b:
-                                continue
-                            s = _lower_bound(zs, a, b, z - r)
-                            for m in range(s, b):
-                                zm = zs[m]
-                                if zm > z + r:
-                                    break
-                                if m == i:
+                        x0, x1 = max(cx - ring, 0), min(cx + ring, nx - 1)
+                        y0, y1 = max(cy - ring, 0), min(cy + ring, ny - 1)
+                        # r: distance from the point to the nearest edge of the block of columns (>= ring·h; sides
+                        # at the grid's edge have nothing beyond), less a hair for the rounding of column
+                        # assignment. Every point within r lies in the block; the z window is ±r as well.
+                        r = np.inf
+                        if x0 > 0:
+                            r = min(r, x - (lox + x0 * h))
+                        if x1 < nx - 1:
+                            r = min(r, lox + (x1 + 1) * h - x)
+                        if y0 > 0:
+                            r = min(r, y - (loy + y0 * h))
+                        if y1 < ny - 1:
+                            r = min(r, loy + (y1 + 1) * h - y)
+                        r = ring * h if r == np.inf else r - guard
+                        for ux in range(x0, x1 + 1):
+                            for uy in range(y0, y1 + 1):
+                                cc = ux * ny + uy
+                                a, b = col_start[cc], col_start[cc + 1]
+                                if a == b:
                                     continue
-                                dx = xyz[m, 0] - x
-                                dy = xyz[m, 1] - y
-                                dz = zm - z
-                                d2 = dx * dx + dy * dy + dz * dz
-                                if d2 < best_d[k - 1]:
-                                    q = k - 1
-                                    while q > 0 and best_d[q - 1] > d2:
-                                        best_d[q] = best_d[q - 1]
-                                        best_i[q] = best_i[q - 1]
-                                        q -= 1
-                                    best_d[q] = d2
-                                    best_i[q] = m
-                    scanned = ring
-                    if best_d[k - 1] <= r * r or ring >= max_ring:
-                        break
-                    # jump straight to the ring that can hold the current k-th candidate (if any was found)
-                    if best_d[k - 1] < np.inf:
-                        need = int(np.ceil(np.sqrt(best_d[k - 1]) / h))
-                        ring = max(ring + 1, need)
+                                s = _lower_bound(zs, a, b, z - r)
+                                for m in range(s, b):
+                                    zm = zs[m]
+                                    if zm > z + r:
+                                        break
+                                    if m == i:
+                                        continue
+                                    dx = xyz[m, 0] - x
+                                    dy = xyz[m, 1] - y
+                                    dz = zm - z
+                                    d2 = dx * dx + dy * dy + dz * dz
+                                    if d2 < best_d[k - 1]:
+                                        _insert(best_d, best_i, d2, m)
+                        if best_d[k - 1] <= r * r or ring >= max_ring:
+                            break
+                        # jump straight to the ring that can hold the current k-th candidate (if any was found)
+                        if best_d[k - 1] < np.inf:
+                            ring = max(ring + 1, int(np.ceil(np.sqrt(best_d[k - 1]) / h)))
+                        else:
+                            ring = ring * 2
+                        ring = min(ring, max_ring)
+                        if ring > ring_budget:
+                            # an isolated point: the block search prunes whole blocks instead of scanning rings
+                            _block_search(
+                                xyz, zs, col_start, nx, ny, h, lox, loy, guard, bzmin, bzmax, nbx, nby, bs, i, cx,
+                                cy, best_d, best_i,
+                            )  # fmt: skip
+                            far[th] += 1
+                            break
+                    o = order[i]
+                    if full:
+                        for j in range(k):
+                            dist[o, j] = np.sqrt(best_d[j])
+                            idx[o, j] = order[best_i[j]]
                     else:
-                        ring = ring * 2
-                    ring = min(ring, max_ring)
-                    if ring > ring_budget:
-                        break
-                o = order[i]
-                if ring > ring_budget and not (best_d[k - 1] <= r * r):
-                    unresolved[o] = True
-                    continue
-                if full:
-                    for j in range(k):
-                        dist[o, j] = np.sqrt(best_d[j])
-                        idx[o, j] = order[best_i[j]]
-                else:
-                    zeros = 0
-                    while zeros < k and best_d[zeros] <= 0.0:
-                        zeros += 1
-                    summary[o, 0] = np.sqrt(best_d[0])
-                    if zeros == k:
-                        summary[o, 1] = 0.0
-                    else:
-                        valid = k - zeros
-                        lo_ = zeros + (valid - 1) // 2
-                        hi_ = zeros + valid // 2
-                        summary[o, 1] = 0.5 * (np.sqrt(best_d[lo_]) + np.sqrt(best_d[hi_]))
-    return dist, idx, summary, unresolved
+                        zeros = 0
+                        while zeros < k and best_d[zeros] <= 0.0:
+                            zeros += 1
+                        summary[o, 0] = np.sqrt(best_d[0])
+                        if zeros == k:
+                            summary[o, 1] = 0.0
+                        else:
+                            valid = k - zeros
+                            lo_ = zeros + (valid - 1) // 2
+                            hi_ = zeros + valid // 2
+                            summary[o, 1] = 0.5 * (np.sqrt(best_d[lo_]) + np.sqrt(best_d[hi_]))

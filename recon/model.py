@@ -1,15 +1,16 @@
-"""Conversion between :class:`core.cameras.Cameras` and ``pycolmap.Reconstruction``.
+"""Conversion between :class:`core.cameras.Cameras` and ``pycolmap.Reconstruction`` for recon.
 
-Local to recon until ``core.io.colmap`` offers the same (``to_reconstruction`` / ``from_reconstruction``).
-Poses are world-to-camera in both; the Cameras' float64 ``origin`` is not part of a COLMAP model and is
-carried separately by the callers (models are written in the local frame).
+Thin layer over :mod:`core.io.colmap` (the toolkit's COLMAP I/O): recon mostly needs cameras without points,
+and a model reader that accepts a folder with ``cameras.*`` as pycolmap does.
 """
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
-from core.cameras import Camera, CameraModel, Cameras, View
+from core.cameras import Camera, Cameras
+from core.errors import FormatError, InputFileError
+from core.io import colmap as colmap_io
 
 
 def camera_to_pycolmap(cam: Camera):  # -> pycolmap.Camera
@@ -22,43 +23,17 @@ def camera_to_pycolmap(cam: Camera):  # -> pycolmap.Camera
 
 def to_reconstruction(cameras: Cameras):  # -> pycolmap.Reconstruction
     """A reconstruction with every camera (trivial rigs) and every view registered at its pose, no points."""
-    import pycolmap
-
-    rec = pycolmap.Reconstruction()
-    for cam in cameras.cameras.values():
-        rec.add_camera_with_trivial_rig(camera_to_pycolmap(cam))
-    for view in cameras:
-        image = pycolmap.Image(name=view.name, camera_id=view.camera_id, image_id=view.image_id)
-        pose = pycolmap.Rigid3d(pycolmap.Rotation3d(_wxyz_to_xyzw(view.quat_wxyz)), view.translation)
-        rec.add_image_with_trivial_frame(image, pose)
-    return rec
+    return colmap_io.to_reconstruction(cameras)
 
 
 def from_reconstruction(rec) -> Cameras:
     """Cameras and registered views of a ``pycolmap.Reconstruction`` (points are not converted)."""
-    cams = {
-        int(cid): Camera(CameraModel(c.model.name), int(c.width), int(c.height), np.asarray(c.params), int(cid))
-        for cid, c in rec.cameras.items()
-    }
-    views = {}
-    for iid in rec.reg_image_ids():
-        im = rec.image(iid)
-        m = np.asarray(im.cam_from_world().matrix(), dtype=np.float64)
-        views[int(iid)] = View.from_matrix(int(iid), im.name, int(im.camera_id), m)
-    return Cameras(cams, views)
+    return colmap_io.from_reconstruction(rec)[0]
 
 
-def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
-    return np.array([q[1], q[2], q[3], q[0]], dtype=np.float64)
-
-
-def read_reconstruction(path):  # -> pycolmap.Reconstruction
+def read_reconstruction(path: str | Path):  # -> pycolmap.Reconstruction
     """Load a COLMAP model folder (binary or text), raising toolkit errors for missing/corrupt models."""
-    from pathlib import Path
-
     import pycolmap
-
-    from core.errors import FormatError, InputFileError
 
     path = Path(path)
     if not any((path / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
@@ -66,4 +41,4 @@ def read_reconstruction(path):  # -> pycolmap.Reconstruction
     try:
         return pycolmap.Reconstruction(str(path))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on corrupt files
-        raise FormatError(f"cannot read COLMAP model ({err})", path) from err
+        raise FormatError(f"cannot read COLMAP model ({' '.join(str(err).split())[:200]})", path) from err

@@ -107,7 +107,7 @@ def test_conversion_is_backend_independent():
 
 
 def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
-    """Far outliers are clamped into border columns and resolved by the k-d tree; far-apart dense clusters make
+    """Far outliers are clamped into border columns and resolved by the block search; far-apart dense clusters make
     the grid hand the whole cloud to the k-d tree. Both exact (compared with cKDTree), both quick."""
     from fusion import knn as knn_module
 
@@ -118,8 +118,8 @@ def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
     clusters = np.r_[plane, plane[:5000] + [1e5, 0, 0]]
     grid = knn_module._build(far, 8, 4.0)
     assert grid is not None and grid.nx * grid.ny < 4 * len(far)
-    _, _, _, unresolved = knn_module._query(*grid.args(), 8, False, knn_module._RING_BUDGET)
-    assert 1 <= unresolved.sum() < 50  # the outliers (and maybe a few neighbours) go to the k-d tree
+    _, _, _, n_far = knn_module._query(grid, 8, False)
+    assert 1 <= n_far < 50  # the outliers (and maybe a few neighbours) take the block search
     assert knn_module._build(clusters, 8, 4.0) is None
     for p in (far, clusters):
         for k in (1, 8):
