@@ -26,10 +26,13 @@ single point (no neighbour: ``fallback_spacing``), collinear points and huge or 
 each clamp that changes values emits a :class:`ConversionWarning` with the count.
 
 Neighbour search (``neighbor_backend``): ``"grid"`` (default), the exact column-grid search of :mod:`fusion.knn`
-(numba, all cores, O(N) memory: a sorted copy of the points and a column table), ~2× faster than the reference
-``"kdtree"``: one ``scipy.spatial.cKDTree`` over all points queried in chunks of ``chunk_size`` points in the tree's
-leaf order (4× faster than input order; memory beyond the outputs O(chunk_size · k)). Both give identical
-distances (tested).
+(numba kernels on ``numba.get_num_threads()`` Python threads, O(N) memory: a sorted copy of the points and a column
+table), 2–4× faster than the reference ``"kdtree"``: one ``scipy.spatial.cKDTree`` over all points queried in
+chunks of ``chunk_size`` points in the tree's leaf order (4× faster than input order; memory beyond the outputs
+O(chunk_size · k)). Both give identical distances (tested). Each mode computes only what it needs: ``paper`` the
+nearest distance of each point (for the global mean); ``adaptive`` with MVS normals everywhere the per-point
+median spacing straight from the search (no (N, k) arrays), and the (N, k) neighbours only when some points lack a
+normal (PCA of those points only); MVS normals become quaternions in one pass.
 """
 
 from __future__ import annotations
@@ -39,13 +42,14 @@ import warnings
 from dataclasses import dataclass, field
 from enum import Enum, IntEnum
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
 from core.gaussians import SH_C0, GaussianSet, logit
 from core.pointcloud import PointCloud
-from fusion.knn import drop_self, knn_grid, knn_grid_summary, median_nonzero
+from fusion.knn import drop_self, knn_grid, knn_grid_summary, median_nonzero, run_threads
 
 
 class Source(IntEnum):
@@ -77,8 +81,8 @@ class ConvertOptions:
     for a cloud of a single point. Adaptive: ``tangent_scale`` = 0.4 and ``view_saturation`` = 1 gave the best
     PSNR on data_synth scenes (``bench/bench_convert_quality.py``: 0.3 and 0.6 were worse, so was a saturation of
     2 views); ``thickness_ratio`` = 0.1 makes flat surfels (isotropic discs of the same size lose ~0.9 dB).
-    Execution: ``neighbor_backend`` ``"grid"`` (numba, threads from ``NUMBA_NUM_THREADS``) or ``"kdtree"`` (scipy,
-    ``workers`` threads, queried in chunks of ``chunk_size`` points).
+    Execution: ``neighbor_backend`` ``"grid"`` (numba, ``numba.get_num_threads()`` threads, default
+    ``NUMBA_NUM_THREADS``) or ``"kdtree"`` (scipy, ``workers`` threads, queried in chunks of ``chunk_size`` points).
     """
 
     opacity_logit_min: float = -5.0
@@ -242,8 +246,9 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
     positions = cloud.positions
     n = len(positions)
     k = min(options.k_neighbors, n - 1)
+    quats, missing = _quats_from_given_normals(cloud)
     t = time.perf_counter()
-    if k >= 1 and options.neighbor_backend == "grid" and _all_normals_valid(cloud):
+    if k >= 1 and options.neighbor_backend == "grid" and not missing.any():
         # no PCA needed: the per-point statistics come straight from the search, without (N, k) arrays
         idx = np.zeros((n, 0), dtype=np.int64)
         nearest, spacing = knn_grid_summary(positions, k)
@@ -278,8 +283,7 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
     log_scales[:, 1] = log_scales[:, 0]
     log_scales[:, 2] = np.log(sigma_n)
 
-    normals = _normals(cloud, idx, stats)
-    quats = quats_z_to(normals)
+    _fill_missing_normals(cloud.positions, quats, missing, idx, stats)
 
     conf = _view_confidence(cloud, options)
     ref = options.outlier_spacing_factor * stats.median_spacing
@@ -335,30 +339,52 @@ def _robust_spacing(dist: np.ndarray) -> np.ndarray:
     return median_nonzero(dist)
 
 
-def _all_normals_valid(cloud: PointCloud) -> bool:
-    if cloud.normals is None:
-        return False
-    norm = np.linalg.norm(cloud.normals, axis=1)
-    return bool(np.all(np.isfinite(norm) & (norm > 1e-6)))
-
-
-def _normals(cloud: PointCloud, idx: np.ndarray, stats: ConvertStats) -> np.ndarray:
-    """Unit normals (N, 3) float64: the cloud's where valid, else PCA of the neighbours, else +z."""
+def _quats_from_given_normals(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions (N, 4) float32 turning +z onto the cloud's normals (as :func:`quats_z_to` of the normalised
+    normals, in one pass without temporaries) and the (N,) bool mask of points whose normal is missing (absent,
+    non-finite or shorter than 1e-6); their quaternions are left for :func:`_fill_missing_normals`."""
     n = len(cloud)
-    normals = np.zeros((n, 3), dtype=np.float64)
-    have = np.zeros(n, dtype=bool)
+    quats = np.empty((n, 4), dtype=np.float32)
+    missing = np.ones(n, dtype=bool)
     if cloud.normals is not None:
-        given = cloud.normals.astype(np.float64)
-        norm = np.linalg.norm(given, axis=1)
-        have = np.isfinite(norm) & (norm > 1e-6)
-        normals[have] = given[have] / norm[have, None]
-    missing = np.flatnonzero(~have)
-    if len(missing) and idx.shape[1] >= 2:
-        normals[missing] = pca_normals(cloud.positions, missing, idx[missing])
-        stats.estimated_normals = len(missing)
-    elif len(missing):
-        normals[missing] = (0.0, 0.0, 1.0)
-    return normals
+        run_threads(
+            _normal_quats_kernel, (np.ascontiguousarray(cloud.normals), quats, missing), numba.get_num_threads()
+        )
+    return quats, missing
+
+
+@numba.njit(nogil=True, cache=True)
+def _normal_quats_kernel(normals: np.ndarray, quats: np.ndarray, missing: np.ndarray, th: int, nth: int) -> None:
+    n = len(normals)
+    for i in range(th * n // nth, (th + 1) * n // nth):  # the th-th of nth contiguous ranges
+        nx, ny, nz = np.float64(normals[i, 0]), np.float64(normals[i, 1]), np.float64(normals[i, 2])
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if not (np.isfinite(norm) and norm > 1e-6):
+            continue
+        missing[i] = False
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        qw, qx, qy = 1.0 + nz, -ny, nx
+        qn = np.sqrt(qw * qw + qx * qx + qy * qy)
+        if qn < 1e-9:  # n ≈ −z: a half turn about x
+            qw, qx, qy, qn = 0.0, 1.0, 0.0, 1.0
+        quats[i, 0] = qw / qn
+        quats[i, 1] = qx / qn
+        quats[i, 2] = qy / qn
+        quats[i, 3] = 0.0
+
+
+def _fill_missing_normals(
+    positions: np.ndarray, quats: np.ndarray, missing: np.ndarray, idx: np.ndarray, stats: ConvertStats
+) -> None:
+    """Quaternions of the points without a normal: PCA of their neighbours (``idx`` (N, k), k ≥ 2), else +z."""
+    rows = np.flatnonzero(missing)
+    if not len(rows):
+        return
+    if idx.shape[1] >= 2:
+        quats[rows] = quats_z_to(pca_normals(positions, rows, idx[rows]))
+        stats.estimated_normals = len(rows)
+    else:
+        quats[rows] = (1.0, 0.0, 0.0, 0.0)  # +z
 
 
 def pca_normals(positions: np.ndarray, rows: np.ndarray, neighbors: np.ndarray, chunk: int = 262_144) -> np.ndarray:
@@ -409,7 +435,8 @@ def _sh_dc_from_colors(colors: np.ndarray | None, n: int, stats: ConvertStats) -
         stats.missing_colors = True
         _warn(f"the cloud has no colours; {n} Gaussians get mid grey (128, 128, 128)")
         colors = np.full((n, 3), 128, dtype=np.uint8)
-    return ((colors.astype(np.float64) / 255.0 - 0.5) / SH_C0).astype(np.float32)
+    lut = ((np.arange(256, dtype=np.float64) / 255.0 - 0.5) / SH_C0).astype(np.float32)  # same values, no temporaries
+    return lut[colors]
 
 
 def _warn(message: str) -> None:

@@ -23,6 +23,7 @@ Tests compare against brute force and ``cKDTree``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -157,7 +158,11 @@ def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
     scan_per_point = 9.0 * float(np.dot(counts, counts.astype(np.float64))) / n
     if scan_per_point > _MAX_SCAN_FACTOR * 9 * target:
         return None
-    return _Grid(p, lo, h, nx, ny, col, counts)
+    col_start = np.zeros(nx * ny + 1, dtype=np.int64)
+    np.cumsum(counts, out=col_start[1:])
+    order = _scatter(col, col_start)
+    del col  # the keys are not needed any more (N int64)
+    return _Grid(p, lo, h, nx, ny, col_start, order)
 
 
 def _choose_cell(extent: np.ndarray, n: int, k: int, max_columns_per_point: float) -> float:
@@ -178,8 +183,9 @@ def _columns(p: np.ndarray, lo: np.ndarray, extent: np.ndarray, h: float) -> tup
     """Row-major column key (N,) int64 of each point (clamped into the border columns), counts per column, nx, ny."""
     nx = int(extent[0] // h) + 1
     ny = int(extent[1] // h) + 1
-    col, counts = _assign(p, float(lo[0]), float(lo[1]), float(h), nx, ny)
-    return col, counts, nx, ny
+    col = np.empty(len(p), dtype=np.int64)
+    run_threads(_assign, (p, float(lo[0]), float(lo[1]), float(h), nx, ny, col), numba.get_num_threads())
+    return col, np.bincount(col, minlength=nx * ny), nx, ny
 
 
 class _Grid:
@@ -187,21 +193,17 @@ class _Grid:
     of each block of ``_BLOCK``×``_BLOCK`` columns."""
 
     def __init__(
-        self, p: np.ndarray, lo: np.ndarray, h: float, nx: int, ny: int, col: np.ndarray, counts: np.ndarray
+        self, p: np.ndarray, lo: np.ndarray, h: float, nx: int, ny: int, col_start: np.ndarray, order: np.ndarray
     ) -> None:
         self.h = float(h)
         self.nx, self.ny = nx, ny
-        self.occupied = int(np.count_nonzero(counts))
-        self.col_start = np.zeros(nx * ny + 1, dtype=np.int64)
-        np.cumsum(counts, out=self.col_start[1:])
-        self.order = _scatter(col, self.col_start)
-        del col
-        z = np.ascontiguousarray(p[:, 2])
+        self.col_start = col_start  # (nx·ny + 1,) int64: column c holds sorted points col_start[c]:col_start[c+1]
+        self.order = order  # (N,) int64: input index of each sorted point (z-sorted below)
+        # gather the points column by column and sort each column by z (threads over interleaved column chunks)
+        self.sorted_xyz = np.empty_like(p)
         nth = numba.get_num_threads()
         chunk = max(1, (nx * ny) // (nth * _CHUNKS_PER_THREAD) + 1)
-        _run(_zsort, (self.order, self.col_start, z, chunk), nth)
-        del z
-        self.sorted_xyz = p.take(self.order, axis=0)
+        run_threads(_gather_sorted, (p, self.order, self.col_start, chunk, self.sorted_xyz), nth)
         self.lo = (float(lo[0]), float(lo[1]))
         self.nbx = (nx + _BLOCK - 1) // _BLOCK
         self.nby = (ny + _BLOCK - 1) // _BLOCK
@@ -213,7 +215,7 @@ class _Grid:
 _POOL: list[ThreadPoolExecutor] = []
 
 
-def _run(kernel, args: tuple, n: int) -> None:
+def run_threads(kernel: Callable[..., None], args: tuple, n: int) -> None:
     """Run ``kernel(*args, th, n)`` for th in 0..n-1 on n Python threads (GIL-free kernels; blocking, not spinning,
     when the cores are shared: the pattern of ``fusion/render/cpu.py``)."""
     if n <= 1:
@@ -227,8 +229,8 @@ def _run(kernel, args: tuple, n: int) -> None:
 
 def _query(grid: _Grid, k: int, full: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Distances and input-order indices of the k nearest others (``full``: (N, k) each), or per point the nearest
-    distance and the median non-duplicate distance (``summary``: (N, 2)), at each point's input position; also the
-    number of points that needed the block search (outliers)."""
+    distance and the median non-duplicate distance (``summary``: (N, 2)), at each point's input position; also
+    the number of points that needed the block search (outliers)."""
     n = len(grid.sorted_xyz)
     dist = np.empty((n if full else 0, k))
     idx = np.empty((n if full else 0, k), dtype=np.int64)
@@ -240,7 +242,11 @@ def _query(grid: _Grid, k: int, full: bool) -> tuple[np.ndarray, np.ndarray, np.
     args = (grid.sorted_xyz, zs, grid.order, grid.col_start, grid.nx, grid.ny, grid.h, grid.lo[0], grid.lo[1])
     args += (grid.guard, grid.bzmin, grid.bzmax, grid.nbx, grid.nby, _BLOCK, k, full, _RING_BUDGET)
     args += (dist, idx, summary, far, rows_per_chunk)
-    _run(_query_rows, args, nth)
+    run_threads(_query_rows, args, nth)
+    if not full:  # a separate scatter pass is cheaper than random writes inside the search
+        out = np.empty_like(summary)
+        run_threads(_scatter_rows, (summary, grid.order, out), nth)
+        summary = out
     return dist, idx, summary, int(far.sum())
 
 
@@ -264,17 +270,13 @@ def _max_abs_xy(p: np.ndarray) -> float:
 
 
 @numba.njit(nogil=True, cache=True)
-def _assign(p: np.ndarray, lox: float, loy: float, h: float, nx: int, ny: int):
+def _assign(p: np.ndarray, lox: float, loy: float, h: float, nx: int, ny: int, col: np.ndarray, th: int, nth: int):
+    """Column keys of the points of the th-th of nth contiguous ranges."""
     n = len(p)
-    col = np.empty(n, dtype=np.int64)
-    counts = np.zeros(nx * ny, dtype=np.int64)
-    for i in range(n):
+    for i in range(th * n // nth, (th + 1) * n // nth):
         cx = min(max(np.floor((p[i, 0] - lox) / h), 0.0), nx - 1.0)
         cy = min(max(np.floor((p[i, 1] - loy) / h), 0.0), ny - 1.0)
-        c = int(cx) * ny + int(cy)
-        col[i] = c
-        counts[c] += 1
-    return col, counts
+        col[i] = int(cx) * ny + int(cy)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -290,24 +292,33 @@ def _scatter(col: np.ndarray, col_start: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(nogil=True, cache=True)
-def _zsort(order: np.ndarray, col_start: np.ndarray, z: np.ndarray, chunk: int, th: int, nth: int) -> None:
-    """Sort ``order`` by z inside each column of the chunks th, th + nth, … of ``chunk`` columns."""
+def _gather_sorted(
+    p: np.ndarray, order: np.ndarray, col_start: np.ndarray, chunk: int, out: np.ndarray, th: int, nth: int
+) -> None:
+    """For the chunks th, th + nth, … of ``chunk`` columns: copy each column's points into ``out`` and sort them
+    (with ``order``) by z. Sorting the gathered copy keeps the sort's memory accesses local."""
     ncol = len(col_start) - 1
     for start in range(th * chunk, ncol, nth * chunk):
         for c in range(start, min(start + chunk, ncol)):
             a, b = col_start[c], col_start[c + 1]
             if b - a > 32:
                 seg = order[a:b].copy()
-                order[a:b] = seg[np.argsort(z[seg], kind="mergesort")]
+                seg = seg[np.argsort(p[seg, 2], kind="mergesort")]
+                order[a:b] = seg
+                for j in range(a, b):
+                    v = seg[j - a]
+                    out[j, 0], out[j, 1], out[j, 2] = p[v, 0], p[v, 1], p[v, 2]
                 continue
-            for j in range(a + 1, b):  # insertion sort: columns hold a handful of points
+            for j in range(a, b):  # insertion sort: columns hold a handful of points
                 v = order[j]
-                zv = z[v]
+                x, y, z = p[v, 0], p[v, 1], p[v, 2]
                 m = j - 1
-                while m >= a and z[order[m]] > zv:
+                while m >= a and out[m, 2] > z:
                     order[m + 1] = order[m]
+                    out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = out[m, 0], out[m, 1], out[m, 2]
                     m -= 1
                 order[m + 1] = v
+                out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = x, y, z
 
 
 @numba.njit(nogil=True, cache=True)
@@ -324,6 +335,16 @@ def _block_bounds(xyz: np.ndarray, col_start: np.ndarray, nx: int, ny: int, bs: 
                 bzmin[bb] = min(bzmin[bb], xyz[a, 2])
                 bzmax[bb] = max(bzmax[bb], xyz[b - 1, 2])
     return bzmin, bzmax
+
+
+@numba.njit(nogil=True, cache=True)
+def _scatter_rows(src: np.ndarray, order: np.ndarray, out: np.ndarray, th: int, nth: int) -> None:
+    """out[order[i]] = src[i] for the th-th of nth contiguous ranges of i."""
+    n = len(order)
+    for i in range(th * n // nth, (th + 1) * n // nth):
+        o = order[i]
+        for j in range(src.shape[1]):
+            out[o, j] = src[i, j]
 
 
 @numba.njit(cache=True, inline="always")
@@ -346,6 +367,30 @@ def _insert(best_d: np.ndarray, best_i: np.ndarray, d2: float, m: int) -> None:
         q -= 1
     best_d[q] = d2
     best_i[q] = m
+
+
+@numba.njit(cache=True, inline="always")
+def _scan_column(xyz, zs, a, b, i, wz, best_d, best_i) -> float:
+    """Offer the points of sorted range [a, b) within ±wz in z of point i (not i itself) to the k best; returns the
+    z window shrunk to the k-th best distance when that is smaller."""
+    k = len(best_d)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    s = _lower_bound(zs, a, b, z - wz)
+    for m in range(s, b):
+        zm = zs[m]
+        if zm > z + wz:
+            break
+        if m == i:
+            continue
+        dx = xyz[m, 0] - x
+        dy = xyz[m, 1] - y
+        dz = zm - z
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < best_d[k - 1]:
+            _insert(best_d, best_i, d2, m)
+            if best_d[k - 1] < wz * wz:
+                wz = np.sqrt(best_d[k - 1]) * (1.0 + 1e-12)
+    return wz
 
 
 @numba.njit(cache=True, inline="always")
@@ -489,7 +534,7 @@ def _query_rows(
             for cy in range(ny):
                 c = cx * ny + cy
                 for i in range(col_start[c], col_start[c + 1]):
-                    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+                    x, y = xyz[i, 0], xyz[i, 1]
                     ring = 1
                     while True:
                         # rescan everything when the block grew (simple and still exact; most points need one pass)
@@ -511,25 +556,36 @@ def _query_rows(
                         if y1 < ny - 1:
                             r = min(r, loy + (y1 + 1) * h - y)
                         r = ring * h if r == np.inf else r - guard
-                        for ux in range(x0, x1 + 1):
-                            for uy in range(y0, y1 + 1):
+                        # own column first, then outwards, nearer side first (a tight k-th best early, so fewer
+                        # insertions); a column is skipped when its (x, y) gap already exceeds the k-th best, and
+                        # the z window shrinks with the k-th best
+                        wz = _scan_column(xyz, zs, col_start[c], col_start[c + 1], i, r, best_d, best_i)
+                        sx = 1 if x - (lox + cx * h) > 0.5 * h else -1
+                        sy = 1 if y - (loy + cy * h) > 0.5 * h else -1
+                        for tx in range(2 * ring + 1):
+                            ux = cx + ((tx + 1) // 2) * (sx if tx % 2 == 1 else -sx)
+                            if ux < 0 or ux > nx - 1:
+                                continue
+                            xa = lox + ux * h if ux > 0 else -np.inf
+                            xb = lox + (ux + 1) * h if ux < nx - 1 else np.inf
+                            gx = _gap(x, xa, xb, guard)
+                            gx2 = gx * gx
+                            if gx2 >= best_d[k - 1]:
+                                continue
+                            for ty in range(2 * ring + 1):
+                                uy = cy + ((ty + 1) // 2) * (sy if ty % 2 == 1 else -sy)
+                                if uy < 0 or uy > ny - 1:
+                                    continue
                                 cc = ux * ny + uy
                                 a, b = col_start[cc], col_start[cc + 1]
-                                if a == b:
+                                if a == b or cc == c:
                                     continue
-                                s = _lower_bound(zs, a, b, z - r)
-                                for m in range(s, b):
-                                    zm = zs[m]
-                                    if zm > z + r:
-                                        break
-                                    if m == i:
-                                        continue
-                                    dx = xyz[m, 0] - x
-                                    dy = xyz[m, 1] - y
-                                    dz = zm - z
-                                    d2 = dx * dx + dy * dy + dz * dz
-                                    if d2 < best_d[k - 1]:
-                                        _insert(best_d, best_i, d2, m)
+                                ya = loy + uy * h if uy > 0 else -np.inf
+                                yb = loy + (uy + 1) * h if uy < ny - 1 else np.inf
+                                gy = _gap(y, ya, yb, guard)
+                                if gx2 + gy * gy >= best_d[k - 1]:
+                                    continue
+                                wz = _scan_column(xyz, zs, a, b, i, wz, best_d, best_i)
                         if best_d[k - 1] <= r * r or ring >= max_ring:
                             break
                         # jump straight to the ring that can hold the current k-th candidate (if any was found)
@@ -546,8 +602,8 @@ def _query_rows(
                             )  # fmt: skip
                             far[th] += 1
                             break
-                    o = order[i]
                     if full:
+                        o = order[i]
                         for j in range(k):
                             dist[o, j] = np.sqrt(best_d[j])
                             idx[o, j] = order[best_i[j]]
@@ -555,11 +611,11 @@ def _query_rows(
                         zeros = 0
                         while zeros < k and best_d[zeros] <= 0.0:
                             zeros += 1
-                        summary[o, 0] = np.sqrt(best_d[0])
+                        summary[i, 0] = np.sqrt(best_d[0])  # in sorted order: scattered by the caller
                         if zeros == k:
-                            summary[o, 1] = 0.0
+                            summary[i, 1] = 0.0
                         else:
                             valid = k - zeros
                             lo_ = zeros + (valid - 1) // 2
                             hi_ = zeros + valid // 2
-                            summary[o, 1] = 0.5 * (np.sqrt(best_d[lo_]) + np.sqrt(best_d[hi_]))
+                            summary[i, 1] = 0.5 * (np.sqrt(best_d[lo_]) + np.sqrt(best_d[hi_]))

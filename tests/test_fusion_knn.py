@@ -130,3 +130,48 @@ def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
             nearest, robust = knn_grid_summary(p, k)
             np.testing.assert_array_equal(nearest, d_tree[:, 0])
             np.testing.assert_allclose(robust, _robust_spacing(d_tree), rtol=1e-15)
+
+
+@pytest.mark.parametrize("k", [1, 3, 8])
+def test_block_search_alone_equals_brute_force(monkeypatch, k):
+    """With no ring budget every point not settled by its first ring of columns takes the block search (the outliers'
+    path): still exact on every case, including ties, duplicates, border clamping and huge coordinates."""
+    from fusion import knn as knn_module
+
+    monkeypatch.setattr(knn_module, "_RING_BUDGET", 0)
+    total_far = 0
+    for name, p in sorted(CASES.items()):
+        grid = knn_module._build(np.ascontiguousarray(p, dtype=np.float64), k, 4.0)
+        if grid is not None:
+            total_far += knn_module._query(grid, k, False)[3]
+        dist, idx = knn_grid(p, k)
+        np.testing.assert_allclose(dist, _brute(p, k), rtol=1e-12, atol=1e-15, err_msg=name)
+        np.testing.assert_allclose(np.linalg.norm(p[idx] - p[:, None], axis=2), dist, rtol=1e-12, atol=1e-15)
+        assert not (idx == np.arange(len(p))[:, None]).any()
+        nearest, robust = knn_grid_summary(p, k)
+        np.testing.assert_array_equal(nearest, dist[:, 0])
+        np.testing.assert_allclose(robust, _robust_spacing(dist), rtol=1e-15, atol=0)
+    assert total_far > 100  # the block search really ran
+
+
+def test_many_outliers_above_a_terrain_equal_kdtree():
+    """3 % outliers up to 4 m above and below a wavy terrain (the bench's cloud, denser in outliers): block search."""
+    from fusion import knn as knn_module
+
+    rng = np.random.default_rng(7)
+    n = 40_000
+    uv = rng.random((n, 2)) * 8
+    p = np.c_[uv, 2 * np.sin(uv[:, 0] / 2) + 0.002 * rng.normal(size=n)]
+    m = n * 3 // 100
+    p[:m] = rng.random((m, 3)) * [8, 8, 8] - [0, 0, 4]
+    grid = knn_module._build(p, 8, 4.0)
+    assert grid is not None and grid.nx * grid.ny < 4 * n  # columns over (x, y): same sums as the k-d tree
+    assert knn_module._query(grid, 8, False)[3] > m // 2
+    for k in (1, 8):
+        d_grid, i_grid = knn_grid(p, k)
+        d_tree, _ = knn_kdtree(p, k)
+        np.testing.assert_array_equal(d_grid, d_tree)
+        np.testing.assert_allclose(np.linalg.norm(p[i_grid] - p[:, None], axis=2), d_tree, rtol=1e-12)
+        nearest, robust = knn_grid_summary(p, k)
+        np.testing.assert_array_equal(nearest, d_tree[:, 0])
+        np.testing.assert_allclose(robust, _robust_spacing(d_tree), rtol=1e-15)
