@@ -1,4 +1,4 @@
-"""SfM: known-pose triangulation against synthetic truth, bad input, fountain-P11 (slow), CLI."""
+"""SfM: known-pose triangulation against synthetic truth, robust refinement, bad input, fountain-P11 (slow), CLI."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ from scipy.spatial import cKDTree
 from test_recon_scene import Scene, make_scene, write_scene
 
 from core.errors import InputFileError, ReconstructionError
+from recon.align import umeyama
 from recon.model import from_reconstruction, read_reconstruction
-from recon.sfm import SfmOptions, check_images, run_sfm, triangulate_known_poses
+from recon.sfm import SfmOptions, _refine_model, check_images, run_sfm, triangulate_known_poses
 
 REPO = Path(__file__).resolve().parents[1]
 FOUNTAIN = REPO.parent / "shared" / "data" / "real" / "fountain-P11"
@@ -143,3 +144,64 @@ def test_masks_remove_features(scene_dir, tmp_path: Path):
         counts = {im.name: database.num_keypoints_for_image(im.image_id) for im in database.read_all_images()}
     assert counts["img_000.png"] == 0
     assert min(n for name, n in counts.items() if name != "img_000.png") > 50
+
+
+def _orbit_model(seed: int = 0):
+    """16 cameras on two rings around 400 points; exact projections + 0.2 px noise, and on 4 cameras 15 % of
+    the observations shifted by (3, 2) px (consistent, view-dependent mismatches such as reflections).
+    Returns (pycolmap.Reconstruction started at the truth, true centres (16, 3))."""
+    import pycolmap
+
+    rng = np.random.default_rng(seed)
+    cam = pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=480, params=[700.0, 320.0, 240.0, 0.0], camera_id=1)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(cam)
+    pts = rng.uniform(-0.2, 0.2, (400, 3))
+    centers = []
+    for k in range(16):
+        a, el = 2 * np.pi * k / 16, np.radians(20 if k % 2 else 50)
+        c = np.array([np.cos(a) * np.cos(el), np.sin(a) * np.cos(el), np.sin(el)])
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])  # cam_from_world
+        t = -R @ c
+        uv = cam.img_from_cam(pts @ R.T + t) + rng.normal(0, 0.2, (len(pts), 2))
+        if k < 4:
+            uv[rng.random(len(uv)) < 0.15] += np.array([3.0, 2.0])
+        points2d = pycolmap.Point2DList([pycolmap.Point2D(p) for p in uv])
+        rec.add_image_with_trivial_frame(
+            pycolmap.Image(name=f"{k}.png", points2D=points2d, camera_id=1, image_id=k + 1),
+            pycolmap.Rigid3d(np.concatenate([R, t[:, None]], axis=1)),
+        )
+        centers.append(c)
+    for j, p in enumerate(pts):
+        track = pycolmap.Track()
+        for k in range(16):
+            track.add_element(k + 1, j)
+        rec.add_point3D(p, track, np.zeros(3, np.uint8))
+    return rec, np.array(centers)
+
+
+def _aligned_center_errors(rec, truth: np.ndarray) -> np.ndarray:
+    est = np.stack([rec.image(k + 1).projection_center() for k in range(len(truth))])
+    return np.linalg.norm(umeyama(est, truth).apply(est) - truth, axis=1)
+
+
+def test_robust_refinement_resists_biased_outliers():
+    import pycolmap
+
+    rec, truth = _orbit_model()
+    plain = pycolmap.Reconstruction(rec)
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = False
+    pycolmap.bundle_adjustment(plain, options)  # squared loss, as the mapper's global BA
+    robust = pycolmap.Reconstruction(rec)
+    _refine_model(robust, SfmOptions())
+    e_plain, e_robust = _aligned_center_errors(plain, truth), _aligned_center_errors(robust, truth)
+    # measured: plain max 1.7 mm, robust max 0.3 mm (noise floor of 0.2 px at 1 m)
+    assert e_robust.max() < 0.4 * e_plain.max()
+    assert e_robust.max() < 0.6e-3
+    off = pycolmap.Reconstruction(rec)
+    _refine_model(off, SfmOptions(refine_loss_px=0.0))  # disabled: untouched
+    assert np.allclose(_aligned_center_errors(off, truth), _aligned_center_errors(rec, truth))
