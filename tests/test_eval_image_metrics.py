@@ -134,17 +134,20 @@ def test_ms_ssim_matches_pytorch_msssim(fountain_pair, noisy_pair):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small convolutions: one thread avoids OpenMP spinning on shared cores
     try:
-        _compare_with_pytorch_msssim(pm, torch, (fountain_pair, noisy_pair))
+        compared = _compare_with_pytorch_msssim(pm, torch, (fountain_pair, noisy_pair))
     finally:
         torch.set_num_threads(threads)
+    assert compared == 2
 
 
 def _compare_with_pytorch_msssim(pm, torch, pairs):
+    """Asserts agreement pair by pair; returns how many pairs were compared."""
     for a, b in pairs:
         fa, fb = im.to_float_image(a), im.to_float_image(b)
         # float32 keeps torch on its fast convolution path; its rounding (~1e-6) is far below the tolerance
         ta, tb = (torch.from_numpy(x.astype(np.float32)).permute(2, 0, 1)[None] for x in (fa, fb))
         assert im.ms_ssim(a, b) == pytest.approx(float(pm.ms_ssim(ta, tb, data_range=1.0)), abs=1e-4)
+    return len(pairs)
 
 
 def test_ms_ssim_small_images_use_fewer_scales():

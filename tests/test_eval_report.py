@@ -165,8 +165,11 @@ def test_svg_plots_are_well_formed():
 
     from eval.plots import svg_bars, svg_histogram
 
-    ET.fromstring(svg_histogram([0.0, 0.1, 0.2], [3, 5], "h <&> title"))
-    ET.fromstring(svg_bars([("a", [1.0, 2.0]), ("b", [0.5, 0.0])], ["v<1>", "v2"], "t", "x", "y"))
+    # parsing raises on malformed XML (unescaped <, & in titles and labels)
+    hist = ET.fromstring(svg_histogram([0.0, 0.1, 0.2], [3, 5], "h <&> title"))
+    bars = ET.fromstring(svg_bars([("a", [1.0, 2.0]), ("b", [0.5, 0.0])], ["v<1>", "v2"], "t", "x", "y"))
+    assert hist.tag.endswith("svg") and bars.tag.endswith("svg")
+    assert "h <&> title" in "".join(hist.itertext())
 
 
 def test_registration_and_classes_reach_the_report(tmp_path):
