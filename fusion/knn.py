@@ -6,11 +6,14 @@ at ~1 M points/s. MVS clouds are surfaces sampled at a roughly known spacing, so
 are bucketed into square (x, y) columns of side ``h`` (a counting sort, O(N)), sorted by z inside each column, and
 each point scans the 3×3 neighbouring columns within a z window of ±r. The search is exact: a point at distance ≤ r
 lies in a column within ⌈r/h⌉ and in the z window, so rings of columns are added (r = h, 2h, 3h, …) until the k-th
-best distance is ≤ r. Points that would need more than ``_RING_BUDGET`` rings (isolated outliers) switch to a
-two-level search over blocks of ``_BLOCK``×``_BLOCK`` columns, each with its z range: blocks are visited ring by ring
-and pruned (with their columns) by the distance to their bounding box, which is exact and stays cheap however far
-the outlier is. Memory: the column table (≤ ``max_columns_per_point`` · N int64), a sorted copy of the points and
-one column key per point, O(N).
+best distance is ≤ r. Ring 1 is done per column: the 3×3 neighbourhood is gathered once (when it holds at most
+``_GATHER_CAP`` points; steep or dense spots keep the z-windowed per-point scan) and each point of the column takes
+its k best among the gathered points within its r (branch-free filter, then insertion); a point whose k-th best is
+not within r falls back to the per-point ring scan. Points that would need more than ``_RING_BUDGET`` rings
+(isolated outliers) switch to a two-level search over blocks of ``_BLOCK``×``_BLOCK`` columns, each with its z
+range: blocks are visited ring by ring and pruned (with their columns) by the distance to their bounding box,
+which is exact and stays cheap however far the outlier is. Memory: the column table (≤ ``max_columns_per_point`` ·
+N int64), a sorted copy of the points and one column key per point, O(N).
 
 The grid covers a robust box (0.1–99.9 % per axis); points beyond it are clamped into the border columns, which
 keeps the search exact (border columns and blocks are unbounded outwards). A cloud whose columns would be badly
@@ -495,6 +498,79 @@ def _block_search(xyz, zs, col_start, nx, ny, h, lox, loy, guard, bzmin, bzmax, 
         ring += 1
 
 
+_GATHER_CAP = 64
+"""Most candidates in a column's 3×3 neighbourhood for the gathered brute-force pass (steeper or denser spots use
+the z-windowed per-point scan)."""
+
+
+@numba.njit(cache=True, inline="always")
+def _gather_ring1(xyz, col_start, nx, ny, cx, cy, cap, gx, gy, gz, gi) -> int:
+    """Copy the points of the columns within one ring of (cx, cy), own column first, into gx, gy, gz (coordinates)
+    and gi (sorted indices); returns their count, or 0 when it exceeds ``cap``."""
+    x0, x1 = max(cx - 1, 0), min(cx + 1, nx - 1)
+    y0, y1 = max(cy - 1, 0), min(cy + 1, ny - 1)
+    total = 0
+    for ux in range(x0, x1 + 1):
+        total += col_start[ux * ny + y1 + 1] - col_start[ux * ny + y0]  # a row of columns is contiguous
+    if total > cap:
+        return 0
+    c = cx * ny + cy
+    ng = 0
+    for m in range(col_start[c], col_start[c + 1]):
+        gx[ng], gy[ng], gz[ng], gi[ng] = xyz[m, 0], xyz[m, 1], xyz[m, 2], m
+        ng += 1
+    for ux in range(x0, x1 + 1):
+        for m in range(col_start[ux * ny + y0], col_start[ux * ny + y1 + 1]):
+            if ux == cx and col_start[c] <= m < col_start[c + 1]:
+                continue
+            gx[ng], gy[ng], gz[ng], gi[ng] = xyz[m, 0], xyz[m, 1], xyz[m, 2], m
+            ng += 1
+    return ng
+
+
+@numba.njit(cache=True, inline="always")
+def _ring1_from_gathered(xyz, i, own, ng, gx, gy, gz, gi, g2, sel, cx, cy, nx, ny, h, lox, loy, guard, best_d, best_i):
+    """The k best of point i (at position ``own`` of the gathered set) among the gathered points; True when that is
+    provably exact, i.e. the k-th best is within r, the distance from the point to the edge of its 3×3 block (the
+    ring-1 test of the per-point scan, which then finds the same distances). Only candidates within r can then be
+    among the k best, so the others are dropped first (branch-free) and fewer than k of them means False."""
+    k = len(best_d)
+    x, y, z = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    x0, x1 = max(cx - 1, 0), min(cx + 1, nx - 1)
+    y0, y1 = max(cy - 1, 0), min(cy + 1, ny - 1)
+    r = np.inf
+    if x0 > 0:
+        r = min(r, x - (lox + x0 * h))
+    if x1 < nx - 1:
+        r = min(r, lox + (x1 + 1) * h - x)
+    if y0 > 0:
+        r = min(r, y - (loy + y0 * h))
+    if y1 < ny - 1:
+        r = min(r, loy + (y1 + 1) * h - y)
+    r = h if r == np.inf else r - guard
+    r2 = r * r
+    for m in range(ng):  # same arithmetic as _scan_column: identical distances
+        dx = gx[m] - x
+        dy = gy[m] - y
+        dz = gz[m] - z
+        g2[m] = dx * dx + dy * dy + dz * dz
+    g2[own] = np.inf
+    cnt = 0
+    for m in range(ng):
+        sel[cnt] = m
+        cnt += 1 if g2[m] <= r2 else 0
+    if cnt < k:
+        return False
+    for j in range(k):
+        best_d[j] = np.inf
+        best_i[j] = -1
+    for t in range(cnt):
+        m = sel[t]
+        if g2[m] < best_d[k - 1]:
+            _insert(best_d, best_i, g2[m], gi[m])
+    return best_d[k - 1] <= r2
+
+
 @numba.njit(nogil=True, cache=True)
 def _query_rows(
     xyz: np.ndarray,
@@ -529,14 +605,28 @@ def _query_rows(
     best_i = np.empty(k, dtype=np.int64)
     zext = zs.max() - zs.min() if len(zs) else 0.0
     max_ring = max(nx, ny, int(np.ceil(zext / h)) + 1)  # by then the window covers every point
+    cap = _GATHER_CAP
+    qx, qy, qz, q2 = np.empty(cap), np.empty(cap), np.empty(cap), np.empty(cap)
+    qi = np.empty(cap, dtype=np.int64)
+    qs = np.empty(cap, dtype=np.int64)
     for start in range(th * rows_per_chunk, nx, nth * rows_per_chunk):
         for cx in range(start, min(start + rows_per_chunk, nx)):
             for cy in range(ny):
                 c = cx * ny + cy
+                if col_start[c] == col_start[c + 1]:
+                    continue
+                # the column's 3×3 neighbourhood gathered once (own column first) for all its points, when small
+                ng = _gather_ring1(xyz, col_start, nx, ny, cx, cy, cap, qx, qy, qz, qi)
                 for i in range(col_start[c], col_start[c + 1]):
                     x, y = xyz[i, 0], xyz[i, 1]
                     ring = 1
-                    while True:
+                    done = False
+                    if ng > 0:
+                        done = _ring1_from_gathered(
+                            xyz, i, i - col_start[c], ng, qx, qy, qz, qi, q2, qs, cx, cy, nx, ny, h, lox, loy, guard,
+                            best_d, best_i,
+                        )  # fmt: skip
+                    while not done:
                         # rescan everything when the block grew (simple and still exact; most points need one pass)
                         for j in range(k):
                             best_d[j] = np.inf

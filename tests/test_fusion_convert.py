@@ -227,3 +227,45 @@ def test_quaternions_from_given_normals_equal_quats_z_to_and_flag_missing_normal
     n64 = normals[good].astype(np.float64)
     np.testing.assert_array_equal(quats[good], quats_z_to(n64 / np.linalg.norm(n64, axis=1, keepdims=True)))
     assert _quats_from_given_normals(PointCloud(rng.random((5, 3))))[1].all()
+
+
+@pytest.mark.parametrize("confidence", ["views", "field", "none"])
+def test_adaptive_matches_a_numpy_reference_of_the_formulas(confidence):
+    """The fused numba passes of the adaptive mode against the module docstring's formulas in plain numpy, with the
+    k-d tree for the spacing; duplicates (spacing clamped) and a confidence field with NaN/inf/out-of-range values."""
+    rng = np.random.default_rng(11)
+    pos = np.c_[rng.random((3000, 2)) * 2.0, 0.01 * rng.random(3000)]
+    pos[100:140] = pos[:40]  # exact duplicates
+    pos[140:160] = pos[0]  # 21 coincident points: all 8 neighbours at distance 0 -> spacing 0, clamped
+    cloud = PointCloud(
+        pos, colors=rng.integers(0, 256, (3000, 3), dtype=np.uint8), normals=np.tile([0, 0, 1.0], (3000, 1))
+    )
+    opts = ConvertOptions(opacity_logit_min=-50.0, opacity_logit_max=50.0)
+    if confidence == "views":
+        cloud.visibility = [np.arange(i % 5) for i in range(3000)]
+        conf = 1.0 - np.exp(-np.array([i % 5 for i in range(3000)], float) / opts.view_saturation)
+    elif confidence == "field":
+        c = rng.uniform(-0.5, 1.5, 3000).astype(np.float32)
+        c[:5] = [np.nan, np.inf, -np.inf, 0.0, 1.0]
+        cloud.fields["confidence"] = c
+        conf = np.clip(np.nan_to_num(c.astype(np.float64), nan=0.0), 0.0, 1.0)
+    else:
+        conf = np.ones(3000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConversionWarning)
+        res = convert_points(cloud, "adaptive", opts)
+    # logits are stored as float32: compared to 2 float32 ulps
+    dist, _ = knn_distances(pos, opts.k_neighbors, backend="kdtree")
+    nz = [row[row > 0] for row in dist]
+    s = np.array([np.median(r) if len(r) else 0.0 for r in nz])
+    assert res.stats.clamped_spacing == np.count_nonzero((s < opts.min_spacing) | (s > opts.max_spacing)) > 0
+    s = np.clip(s, opts.min_spacing, opts.max_spacing)
+    assert res.stats.median_spacing == pytest.approx(np.median(s), rel=1e-12)
+    sigma_t = np.maximum(opts.tangent_scale * s, opts.min_spacing)
+    sigma_n = np.maximum(opts.thickness_ratio * sigma_t, opts.min_spacing)
+    np.testing.assert_allclose(res.gaussians.log_scales, np.log(np.c_[sigma_t, sigma_t, sigma_n]), rtol=1e-6)
+    alpha = np.clip(
+        opts.max_opacity * conf * np.minimum(1.0, opts.outlier_spacing_factor * np.median(s) / s), 1e-6, 1 - 1e-6
+    )
+    np.testing.assert_allclose(res.gaussians.logit_opacities, np.log(alpha) - np.log1p(-alpha), rtol=3e-7, atol=1e-7)
+    np.testing.assert_array_equal(res.gaussians.sh_dc, ((cloud.colors / 255.0 - 0.5) / SH_C0).astype(np.float32))

@@ -175,3 +175,19 @@ def test_many_outliers_above_a_terrain_equal_kdtree():
         nearest, robust = knn_grid_summary(p, k)
         np.testing.assert_array_equal(nearest, d_tree[:, 0])
         np.testing.assert_allclose(robust, _robust_spacing(d_tree), rtol=1e-15)
+
+
+def test_gathered_and_per_point_scans_agree_on_steep_and_mixed_surfaces():
+    """Terrain (most columns take the gathered 3×3 pass), a vertical wall and a dense clump (columns over the
+    gather cap take the z-windowed per-point scan), and points on column edges: identical to the k-d tree."""
+    rng = np.random.default_rng(5)
+    terrain = np.c_[rng.random((20_000, 2)) * 10, 0.01 * rng.normal(size=20_000)]
+    wall = np.c_[np.full(5_000, 5.0) + 1e-4 * rng.normal(size=5_000), rng.random(5_000) * 10, rng.random(5_000) * 4]
+    clump = np.array([2.0, 2.0, 0.5]) + 1e-3 * rng.normal(size=(2_000, 3))
+    edges = np.c_[np.round(rng.random((1_000, 2)) * 100) / 10, np.zeros(1_000)]  # on multiples of 0.1
+    p = np.vstack([terrain, wall, clump, edges])
+    for k in (1, 8):
+        d_grid, idx = knn_grid(p, k)
+        np.testing.assert_array_equal(d_grid, knn_kdtree(p, k)[0])
+        np.testing.assert_allclose(np.linalg.norm(p[idx] - p[:, None], axis=2), d_grid, rtol=1e-12, atol=1e-15)
+        assert not (idx == np.arange(len(p))[:, None]).any()
