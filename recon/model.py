@@ -8,17 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from core.cameras import Camera, Cameras
+from core.cameras import Cameras
 from core.errors import FormatError, InputFileError
 from core.io import colmap as colmap_io
-
-
-def camera_to_pycolmap(cam: Camera):  # -> pycolmap.Camera
-    import pycolmap
-
-    return pycolmap.Camera(
-        model=cam.model.value, width=int(cam.width), height=int(cam.height), params=cam.params, camera_id=cam.camera_id
-    )
 
 
 def to_reconstruction(cameras: Cameras):  # -> pycolmap.Reconstruction

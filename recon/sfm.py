@@ -325,7 +325,7 @@ def triangulate_known_poses(
     """
     import pycolmap
 
-    from recon.model import camera_to_pycolmap
+    from core.io.colmap import camera_to_pycolmap
 
     image_dir, out_dir = Path(image_dir), Path(out_dir)
     names = [v.name for v in cameras]

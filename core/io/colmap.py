@@ -57,6 +57,13 @@ def from_reconstruction(rec: pycolmap.Reconstruction) -> tuple[Cameras, PointClo
     return Cameras(cameras, views), cloud
 
 
+def camera_to_pycolmap(cam: Camera) -> pycolmap.Camera:
+    """The pycolmap camera with the same model, size, parameters and id."""
+    return pycolmap.Camera(
+        model=cam.model.value, width=int(cam.width), height=int(cam.height), params=cam.params, camera_id=cam.camera_id
+    )
+
+
 def to_reconstruction(cameras: Cameras, points: PointCloud | None = None) -> pycolmap.Reconstruction:
     """A pycolmap reconstruction with the given cameras and posed images (trivial rigs and frames).
 
@@ -65,12 +72,7 @@ def to_reconstruction(cameras: Cameras, points: PointCloud | None = None) -> pyc
     """
     rec = pycolmap.Reconstruction()
     for cam_id in sorted(cameras.cameras):
-        cam = cameras.cameras[cam_id]
-        rec.add_camera_with_trivial_rig(
-            pycolmap.Camera(
-                model=cam.model.value, width=cam.width, height=cam.height, params=cam.params, camera_id=cam_id
-            )
-        )
+        rec.add_camera_with_trivial_rig(camera_to_pycolmap(cameras.cameras[cam_id]))
     for view in cameras:
         image = pycolmap.Image(name=view.name, camera_id=view.camera_id, image_id=view.image_id)
         q = view.quat_wxyz
