@@ -1,17 +1,20 @@
-"""The project's one JSON writer and reader.
+"""The project's one JSON reader and writer.
 
-``to_jsonable`` turns dataclasses, numpy scalars and arrays, paths and enums into plain JSON data, and NaN/±inf
-into ``null``: a bare ``NaN`` or ``Infinity`` is not JSON, and other tools refuse such files.
+Every JSON file the toolkit writes (metrics, reports, manifests, sidecars, scene descriptions) goes
+through :func:`write_json_atomic`, so that no file ever holds bare ``NaN``/``Infinity`` (invalid JSON
+for every other tool) and no reader ever sees a half-written file. :func:`read_json` turns bad JSON
+into a :class:`~core.errors.FormatError` naming the file.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import json
 import math
-from dataclasses import fields, is_dataclass
-from enum import Enum
+from collections.abc import Mapping
 from os import PathLike
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
@@ -20,56 +23,100 @@ from core.errors import FormatError, InputFileError
 from core.io.atomic import write_text_atomic
 
 
-def to_jsonable(value: Any) -> Any:
-    """Plain JSON data (dict, list, str, int, float, bool, None) from ``value``; non-finite floats become None."""
-    if isinstance(value, Enum):
-        return to_jsonable(value.value)
-    if isinstance(value, bool) or value is None or isinstance(value, str):
-        return value
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, np.ndarray):
-        return to_jsonable(value.tolist())
-    if isinstance(value, PathLike):
-        return str(value)
-    if is_dataclass(value) and not isinstance(value, type):
-        return {f.name: to_jsonable(getattr(value, f.name)) for f in fields(value)}
-    if isinstance(value, dict):
-        return {str(k.value if isinstance(k, Enum) else k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, set, frozenset)):
-        return [to_jsonable(v) for v in value]
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+def to_jsonable(obj: Any) -> Any:
+    """A copy of ``obj`` made of JSON types only (dict with str keys, list, str, int, float, bool, None).
+
+    Converts dataclasses (field by field), objects with an ``as_dict()`` method, mappings, lists,
+    tuples and sets, numpy scalars and arrays, paths (to ``str``), enums (to their value) and bytes
+    (UTF-8 text). Non-finite floats (NaN, ±inf) become ``None``: the written JSON is valid for every
+    reader, and a missing value is explicit. Raises :class:`TypeError` for anything else.
+    """
+    if obj is None or isinstance(obj, (bool, str)):
+        return obj
+    if isinstance(obj, enum.Enum):
+        return to_jsonable(obj.value)
+    if isinstance(obj, int):
+        return int(obj)
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, np.generic):
+        return to_jsonable(obj.item())
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, PurePath):
+        return str(obj)
+    if isinstance(obj, (bytes, bytearray)):
+        return bytes(obj).decode("utf-8", errors="replace")
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        as_dict = getattr(obj, "as_dict", None)
+        if callable(as_dict):
+            return to_jsonable(as_dict())
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, Mapping):
+        return {_key(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, (set, frozenset)):
+        return [to_jsonable(v) for v in sorted(obj, key=repr)]
+    as_dict = getattr(obj, "as_dict", None)
+    if callable(as_dict):
+        return to_jsonable(as_dict())
+    raise TypeError(f"cannot write {type(obj).__name__} as JSON")
 
 
-def dumps(value: Any, indent: int | None = 2) -> str:
-    """Strict JSON text of ``value`` (see :func:`to_jsonable`)."""
-    return json.dumps(to_jsonable(value), indent=indent, allow_nan=False)
+def _key(key: Any) -> str:
+    if isinstance(key, enum.Enum):
+        key = key.value
+    if isinstance(key, np.generic):
+        key = key.item()
+    return str(key)
 
 
-def write_json_atomic(path: str | PathLike[str], value: Any) -> Path:
-    """Write ``value`` as strict JSON to ``path`` atomically; returns the path."""
-    write_text_atomic(path, dumps(value) + "\n")
-    return Path(path)
+def dumps_json(obj: Any, indent: int | None = 2) -> str:
+    """``obj`` as strict JSON text (see :func:`to_jsonable`); never contains ``NaN`` or ``Infinity``."""
+    return json.dumps(to_jsonable(obj), indent=indent, allow_nan=False)
+
+
+def write_json_atomic(path: str | PathLike[str], obj: Any, indent: int | None = 2) -> Path:
+    """Write ``obj`` as strict JSON (plus a final newline) to ``path`` atomically. Returns the path."""
+    path = Path(path)
+    write_text_atomic(path, dumps_json(obj, indent=indent) + "\n")
+    return path
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not valid JSON")
 
 
 def read_json(path: str | PathLike[str]) -> Any:
-    """Parsed JSON of ``path``; a missing, unreadable or invalid file is an error naming it."""
-    path = Path(path)
+    """Read a JSON file (a dict or a list, usually).
+
+    Raises :class:`~core.errors.InputFileError` when the path is missing or is a folder, and
+    :class:`~core.errors.FormatError` when the content is not UTF-8 or not strict JSON (bare ``NaN``
+    and ``Infinity`` are refused); both name the file.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputFileError("is a folder, expected a JSON file", p)
+    if not p.is_file():
+        raise InputFileError("file does not exist", p)
     try:
-        text = path.read_text(encoding="utf-8")
-    except (FileNotFoundError, IsADirectoryError, NotADirectoryError) as err:
-        raise InputFileError("missing or not a file", path) from err
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputFileError(f"cannot read ({err})", path) from err
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise FormatError(f"not UTF-8 text (byte {err.start})", p) from err
+    except OSError as err:
+        raise InputFileError(f"cannot read ({err.strerror or err})", p) from err
     try:
         return json.loads(text, parse_constant=_reject_constant)
     except ValueError as err:
-        raise FormatError(f"not valid JSON ({err})", path) from err
+        raise FormatError(f"not valid JSON ({err})", p) from err
+    except RecursionError as err:
+        raise FormatError("JSON nested too deeply", p) from err
 
 
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not JSON")
+def read_json_object(path: str | PathLike[str]) -> dict[str, Any]:
+    """:func:`read_json`, and the top level must be an object."""
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise FormatError(f"expected a JSON object at the top level, found {type(data).__name__}", path)
+    return data
