@@ -69,3 +69,27 @@ def test_warning_summary_counts_repeats_and_skips_info():
         "COLMAP warning (sift.cc): Unable to read EXIF (x2)",
         "COLMAP error (mapper.cc): No good initial image pair found.",
     ]
+
+
+def test_mvs_sends_undistortion_and_fusion_output_to_the_log(tmp_path: Path, capfd):
+    from test_recon_scene import make_scene, write_scene
+
+    from recon.mvs import MvsBackend, MvsOptions, run_mvs
+    from recon.mvs_cpu import CpuMvsOptions
+
+    write_scene(make_scene(num_views=6, width=80, height=60), tmp_path, num_points=300)
+    capfd.readouterr()
+    small = MvsOptions(
+        backend=MvsBackend.CPU, max_image_size=80, cpu=CpuMvsOptions(coarse_size=40, geom_min_consistent=1)
+    )
+    log = tmp_path / "logs" / "mvs.log"
+    seen: list[tuple[str, int, int]] = []
+    report = run_mvs(
+        tmp_path / "sparse" / "0", tmp_path / "images", tmp_path / "dense", small, lambda *a: seen.append(a), log
+    )
+    out, err = capfd.readouterr()
+    text = log.read_text()
+    assert report.num_points > 0 and seen[-1][0] == "geometric"
+    assert "Undistort" in text or "undistort" in text  # pycolmap.undistort_images' chatter
+    assert "Fusing" in text or "fusion" in text.lower()  # pycolmap.stereo_fusion's chatter
+    assert "] " not in out + err  # no glog line reached the terminal
