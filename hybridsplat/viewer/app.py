@@ -238,7 +238,8 @@ class ViewerApp:
             f"/picks/ray_{n}",
             points=np.array([[centre, end]], np.float32),
             colors=np.array([255, 200, 0], np.uint8),
-            line_width=1.5,
+            thickness=1.5,
+            thickness_units="screen",
         )
         self._ray_handles.append(handle)
 
