@@ -1,0 +1,103 @@
+"""Driving the viewer in a headless browser: Debian's chromium through playwright, WebGL by SwiftShader.
+
+Used by the browser test and by ``bench/bench_measure.py`` (screenshots). Never ``playwright install``: the
+browser is the system's (``apt-get install chromium``, done by ``scripts/bootstrap.sh``).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.cameras import Cameras, View, rotmat_to_quat
+
+CHROMIUM = Path(os.environ.get("HYBRIDSPLAT_CHROMIUM", "/usr/bin/chromium"))
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-gl=angle",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+)
+
+
+def browser_missing() -> str | None:
+    """Why the headless browser cannot run here (None when it can)."""
+    if not CHROMIUM.is_file():
+        return f"no chromium at {CHROMIUM} (apt-get install chromium, or set HYBRIDSPLAT_CHROMIUM)"
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "the playwright package is not installed (pip install playwright)"
+    return None
+
+
+def wait_for(condition: Callable[[], Any], timeout: float, what: str) -> Any:
+    """Poll ``condition`` every 0.1 s until it returns a truthy value; TimeoutError after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
+
+
+def at_photo(client: Any, view: View, cameras: Cameras) -> bool:
+    """Whether a viser client's reported camera is the photo's: centre, orientation (±q), vertical fov."""
+    cam = client.camera
+    q = rotmat_to_quat(view.rotation.T)
+    intr = cameras.camera_of(view)
+    fov = 2 * np.arctan(0.5 * intr.height / intr.focal[1])
+    return bool(
+        np.allclose(cam.position, view.center, atol=1e-6)
+        and min(np.abs(cam.wxyz - q).max(), np.abs(cam.wxyz + q).max()) < 1e-5
+        and abs(cam.fov - fov) < 1e-6
+    )
+
+
+def settle_at_photo(client: Any, view: View, cameras: Cameras, timeout: float = 30.0, hold: float = 1.5) -> None:
+    """Wait until the client's reported camera has stayed at the photo for ``hold`` seconds.
+
+    The server's copy of the camera is set at once by a jump, then overwritten by the browser's own reports,
+    which can describe a half-applied jump (position moved, orientation not yet): only a state that holds is final.
+    """
+    end = time.monotonic() + timeout
+    since = None
+    while time.monotonic() < end:
+        if at_photo(client, view, cameras):
+            since = since or time.monotonic()
+            if time.monotonic() - since >= hold:
+                return
+        else:
+            since = None
+        time.sleep(0.1)
+    raise TimeoutError(f"the browser's camera did not settle at {view.name} within {timeout} s")
+
+
+def screen_position(client: Any, point_local: np.ndarray, box: dict) -> tuple[float, float]:
+    """Page coordinates (CSS pixels) where a local-frame point appears in the client's canvas ``box``."""
+    from hybridsplat.viewer.scene import virtual_camera
+
+    cam = client.camera
+    camera, view = virtual_camera(cam.position, cam.wxyz, cam.fov, cam.image_width, cam.image_height)
+    u, v = camera.project(view.world_to_camera(np.asarray(point_local, np.float64)[None]))[0]
+    return box["x"] + u * box["width"] / cam.image_width, box["y"] + v * box["height"] / cam.image_height
+
+
+def canvas_rgb(page: Any, box: dict) -> np.ndarray:
+    """(H, W, 3) int16 screenshot of the canvas region."""
+    from PIL import Image
+
+    png = page.screenshot(clip=box)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), np.int16)
