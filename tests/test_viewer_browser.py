@@ -20,6 +20,7 @@ from test_viewer_scene import ORIGIN, make_project
 from hybridsplat.viewer.browser import (
     CHROMIUM,
     FLAGS,
+    CameraReports,
     browser_missing,
     canvas_rgb,
     screen_position,
@@ -62,14 +63,16 @@ def test_page_renders_splats_and_a_click_measures(viewer, tmp_path) -> None:
             page.goto(f"http://127.0.0.1:{viewer.port}/")
             page.wait_for_selector("canvas")
             client = wait_for(lambda: next(iter(viewer.server.get_clients().values()), None), 60, "the page to connect")
+            reports = CameraReports(client)
             wait_for(lambda: client.camera.image_width > 0, 30, "the client camera")
             box = page.locator("canvas").first.bounding_box()
             views = list(viewer.scene.cameras)
 
             # -- the splats render: the canvas with splats differs from the canvas without, where they project.
-            viewer.jump_to(client, views[0])
             cams = viewer.scene.cameras
-            settle_at_photo(client, views[0], cams)
+            since = time.monotonic()
+            viewer.jump_to(client, views[0])
+            settle_at_photo(client, views[0], cams, reports, since)
             time.sleep(3.0)
             with_splats = canvas_rgb(page, box)
             viewer.layers["splats"].visible = False
@@ -84,8 +87,9 @@ def test_page_renders_splats_and_a_click_measures(viewer, tmp_path) -> None:
 
             # -- a scripted click in two photo cameras, then the GUI button: a measurement.
             for index in (0, 2):
+                since = time.monotonic()
                 viewer.jump_to(client, views[index])
-                settle_at_photo(client, views[index], cams)
+                settle_at_photo(client, views[index], cams, reports, since)
                 before = len(viewer.session.current)
                 page.mouse.click(*screen_position(client, TARGET, box))
                 wait_for(lambda b=before: len(viewer.session.current) > b, 30, "the click to reach the server")

@@ -122,12 +122,13 @@ class ViewerApp:
                     wxyz=_world_from_cam_wxyz(view),
                     position=view.center,
                 )
-                handle.on_click(lambda event, v=view, c=cams: self.jump_to(event.client, v, c))
+                # No on_click on frusta: a clickable frustum swallows the clicks meant for picking behind it.
                 self.frusta[f"{group}/{view.name}"] = handle
 
     # -- GUI --------------------------------------------------------------------------------------
     def _build_gui(self) -> None:
         gui, s = self.server.gui, self.scene
+        gui.main_panel.dock_right()  # beside the 3D view, not over it: every part of the scene can be clicked
         o = s.georef.origin
         gui.add_markdown(
             f"**{s.name}** — world = local + origin; unit **{s.georef.unit}**, CRS **{s.georef.crs or 'unknown'}**  \n"
@@ -147,6 +148,8 @@ class ViewerApp:
             self.camera_choice = gui.add_dropdown("photo", options=names or ["(none)"])
             jump = gui.add_button("Jump to camera")
             jump.on_click(lambda event: self._jump_by_name(event.client, self.camera_choice.value))
+            step = gui.add_button_group("step", options=("previous", "next"))
+            step.on_click(lambda event: self._step(event.client, -1 if step.value == "previous" else 1))
         with gui.add_folder("Measure"):
             gui.add_markdown(
                 "Click the same feature in 2+ views (jump to photos for photo picks), then *Finish point*."
@@ -186,6 +189,12 @@ class ViewerApp:
                 if view.name == name:
                     self.jump_to(client, view, cams)
                     return
+
+    def _step(self, client, delta: int) -> None:
+        names = list(self.camera_choice.options)
+        if self.camera_choice.value in names:
+            self.camera_choice.value = names[(names.index(self.camera_choice.value) + delta) % len(names)]
+            self._jump_by_name(client, self.camera_choice.value)
 
     def jump_to(self, client, view: View, cameras: Cameras | None = None) -> None:
         """Put a client's camera at a photo's pose with its vertical field of view."""

@@ -66,21 +66,34 @@ def at_photo(client: Any, view: View, cameras: Cameras) -> bool:
     )
 
 
-def settle_at_photo(client: Any, view: View, cameras: Cameras, timeout: float = 30.0, hold: float = 1.5) -> None:
-    """Wait until the client's reported camera has stayed at the photo for ``hold`` seconds.
+class CameraReports:
+    """Times (``time.monotonic()``) at which the browser reported its camera to the server."""
 
-    The server's copy of the camera is set at once by a jump, then overwritten by the browser's own reports,
-    which can describe a half-applied jump (position moved, orientation not yet): only a state that holds is final.
+    def __init__(self, client: Any) -> None:
+        self.times: list[float] = []
+        client.camera.on_update(lambda _camera: self.times.append(time.monotonic()))
+
+
+def settle_at_photo(
+    client: Any,
+    view: View,
+    cameras: Cameras,
+    reports: CameraReports,
+    since: float,
+    timeout: float = 60.0,
+    hold: float = 1.0,
+) -> None:
+    """Wait until the browser itself has reported a camera at the photo after ``since`` and then kept still.
+
+    The server's copy of the camera is set at once by a jump, before the browser has applied it, and the browser's
+    reports can describe a half-applied jump (position moved, orientation not yet). Only a report that came after
+    the jump, matches the photo, and is followed by ``hold`` seconds of quiet describes what a click will hit.
     """
     end = time.monotonic() + timeout
-    since = None
     while time.monotonic() < end:
-        if at_photo(client, view, cameras):
-            since = since or time.monotonic()
-            if time.monotonic() - since >= hold:
-                return
-        else:
-            since = None
+        last = reports.times[-1] if reports.times else -np.inf
+        if last > since and time.monotonic() - last >= hold and at_photo(client, view, cameras):
+            return
         time.sleep(0.1)
     raise TimeoutError(f"the browser's camera did not settle at {view.name} within {timeout} s")
 
