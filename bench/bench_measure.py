@@ -238,8 +238,8 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
         FLAGS,
         CameraReports,
         browser_missing,
+        jump_and_settle,
         screen_position,
-        settle_at_photo,
         wait_for,
     )
     from hybridsplat.viewer.project import ProjectFiles
@@ -266,9 +266,7 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
             box = page.locator("canvas").first.bounding_box()
             for name in truth.images[:2]:
                 view = sfm.by_name(name)
-                since = time.monotonic()
-                app.jump_to(client, view)
-                settle_at_photo(client, view, app.scene.cameras, reports, since)
+                jump_and_settle(app, client, view, reports)
                 page.mouse.click(*screen_position(client, truth.xyz, box))
                 try:
                     wait_for(lambda v=view: any(p.image == v.name for p in app.session.current), 30, "the click")

@@ -23,8 +23,8 @@ from hybridsplat.viewer.browser import (
     CameraReports,
     browser_missing,
     canvas_rgb,
+    jump_and_settle,
     screen_position,
-    settle_at_photo,
     wait_for,
 )
 from hybridsplat.viewer.project import ProjectFiles
@@ -69,10 +69,7 @@ def test_page_renders_splats_and_a_click_measures(viewer, tmp_path) -> None:
             views = list(viewer.scene.cameras)
 
             # -- the splats render: the canvas with splats differs from the canvas without, where they project.
-            cams = viewer.scene.cameras
-            since = time.monotonic()
-            viewer.jump_to(client, views[0])
-            settle_at_photo(client, views[0], cams, reports, since)
+            jump_and_settle(viewer, client, views[0], reports)
             time.sleep(3.0)
             with_splats = canvas_rgb(page, box)
             viewer.layers["splats"].visible = False
@@ -87,9 +84,7 @@ def test_page_renders_splats_and_a_click_measures(viewer, tmp_path) -> None:
 
             # -- a scripted click in two photo cameras, then the GUI button: a measurement.
             for index in (0, 2):
-                since = time.monotonic()
-                viewer.jump_to(client, views[index])
-                settle_at_photo(client, views[index], cams, reports, since)
+                jump_and_settle(viewer, client, views[index], reports)
                 before = len(viewer.session.current)
                 page.mouse.click(*screen_position(client, TARGET, box))
                 wait_for(lambda b=before: len(viewer.session.current) > b, 30, "the click to reach the server")

@@ -53,49 +53,78 @@ def wait_for(condition: Callable[[], Any], timeout: float, what: str) -> Any:
     raise TimeoutError(f"timed out after {timeout} s waiting for {what}")
 
 
-def at_photo(client: Any, view: View, cameras: Cameras) -> bool:
-    """Whether a viser client's reported camera is the photo's: centre, orientation (±q), vertical fov."""
-    cam = client.camera
+def _matches(position: np.ndarray, wxyz: np.ndarray, fov: float, view: View, cameras: Cameras) -> bool:
     q = rotmat_to_quat(view.rotation.T)
     intr = cameras.camera_of(view)
-    fov = 2 * np.arctan(0.5 * intr.height / intr.focal[1])
+    photo_fov = 2 * np.arctan(0.5 * intr.height / intr.focal[1])
     return bool(
-        np.allclose(cam.position, view.center, atol=1e-6)
-        and min(np.abs(cam.wxyz - q).max(), np.abs(cam.wxyz + q).max()) < 1e-5
-        and abs(cam.fov - fov) < 1e-6
+        np.allclose(position, view.center, atol=1e-6)
+        and min(np.abs(wxyz - q).max(), np.abs(wxyz + q).max()) < 1e-5
+        and abs(fov - photo_fov) < 1e-6
     )
 
 
+def at_photo(client: Any, view: View, cameras: Cameras) -> bool:
+    """Whether the server's copy of a client's camera is the photo's: centre, orientation (±q), vertical fov."""
+    cam = client.camera
+    return _matches(cam.position, cam.wxyz, cam.fov, view, cameras)
+
+
 class CameraReports:
-    """Times (``time.monotonic()``) at which the browser reported its camera to the server."""
+    """The cameras the browser reported to the server: (``time.monotonic()``, position, wxyz, fov) each."""
 
     def __init__(self, client: Any) -> None:
-        self.times: list[float] = []
-        client.camera.on_update(lambda _camera: self.times.append(time.monotonic()))
+        self.reports: list[tuple[float, np.ndarray, np.ndarray, float]] = []
+        client.camera.on_update(self._record)
+
+    def _record(self, camera: Any) -> None:
+        self.reports.append((time.monotonic(), camera.position.copy(), camera.wxyz.copy(), float(camera.fov)))
+
+    @property
+    def times(self) -> list[float]:
+        return [r[0] for r in self.reports]
 
 
 def settle_at_photo(
-    client: Any,
-    view: View,
-    cameras: Cameras,
-    reports: CameraReports,
-    since: float,
-    timeout: float = 60.0,
-    hold: float = 1.0,
+    client: Any, view: View, cameras: Cameras, reports: CameraReports, timeout: float = 60.0, hold: float = 1.0
 ) -> None:
-    """Wait until the browser itself has reported a camera at the photo after ``since`` and then kept still.
+    """Wait until the browser's own latest camera report is the photo's and ``hold`` seconds of quiet followed.
 
     The server's copy of the camera is set at once by a jump, before the browser has applied it, and the browser's
-    reports can describe a half-applied jump (position moved, orientation not yet). Only a report that came after
-    the jump, matches the photo, and is followed by ``hold`` seconds of quiet describes what a click will hit.
+    reports can describe a half-applied jump (position moved, orientation not yet). Only the browser's report,
+    followed by quiet, describes what a click will hit.
     """
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        last = reports.times[-1] if reports.times else -np.inf
-        if last > since and time.monotonic() - last >= hold and at_photo(client, view, cameras):
-            return
+        if reports.reports:
+            t, position, wxyz, fov = reports.reports[-1]
+            if time.monotonic() - t >= hold and _matches(position, wxyz, fov, view, cameras):
+                return
         time.sleep(0.1)
-    raise TimeoutError(f"the browser's camera did not settle at {view.name} within {timeout} s")
+    last = reports.reports[-1] if reports.reports else None
+    raise TimeoutError(
+        f"the browser's camera did not settle at {view.name} within {timeout} s: {len(reports.reports)} reports, "
+        f"last {last}; photo centre {view.center}, wxyz {rotmat_to_quat(view.rotation.T)}"
+    )
+
+
+def jump_and_settle(
+    app: Any, client: Any, view: View, reports: CameraReports, tries: int = 3, timeout: float = 20.0
+) -> None:
+    """Jump a client to a photo camera (``ViewerApp.jump_to``) and wait until the browser confirms it.
+
+    A jump sent while the page is still initialising its camera can be dropped by the page: it is sent again,
+    up to ``tries`` times.
+    """
+    wait_for(lambda: reports.reports, 60.0, "the browser's first camera report")
+    for attempt in range(tries):
+        app.jump_to(client, view)
+        try:
+            settle_at_photo(client, view, app.scene.cameras, reports, timeout=timeout)
+            return
+        except TimeoutError:
+            if attempt == tries - 1:
+                raise
 
 
 def screen_position(client: Any, point_local: np.ndarray, box: dict) -> tuple[float, float]:
