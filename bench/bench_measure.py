@@ -242,7 +242,7 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
         screen_position,
         wait_for,
     )
-    from hybridsplat.viewer.project import ProjectFiles
+    from hybridsplat.viewer.project import open_project
     from hybridsplat.viewer.scene import load_project
 
     reason = browser_missing()
@@ -252,7 +252,7 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
     app = ViewerApp(
         load_project(project),
         ViewerOptions(port=0, pick_sigma_px=SIGMA_PX, exaggeration=exaggeration),
-        ProjectFiles.of(project),
+        open_project(project),
     )
     try:
         with sync_playwright() as pw:

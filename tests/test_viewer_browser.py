@@ -27,7 +27,7 @@ from hybridsplat.viewer.browser import (
     screen_position,
     wait_for,
 )
-from hybridsplat.viewer.project import ProjectFiles
+from hybridsplat.viewer.project import open_project
 
 TARGET = np.array([0.05, -0.04, 0.0])
 VIEWPORT = {"width": 800, "height": 600}
@@ -42,7 +42,7 @@ def viewer(tmp_path):
 
     make_project(tmp_path)
     app = ViewerApp(
-        load_project(tmp_path), ViewerOptions(host="127.0.0.1", port=0, pick_sigma_px=1.0), ProjectFiles.of(tmp_path)
+        load_project(tmp_path), ViewerOptions(host="127.0.0.1", port=0, pick_sigma_px=1.0), open_project(tmp_path)
     )
     try:
         yield app

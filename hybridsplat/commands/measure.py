@@ -39,14 +39,13 @@ def measure_command(
     from eval.measure import TriangulationOptions, write_csv, write_geojson
     from eval.measure.picks import read_picks
     from eval.measure.project import measure_picks, read_cameras, read_georeference
-    from hybridsplat.viewer.project import ProjectFiles
+    from hybridsplat.viewer.project import cameras_origin, open_project
 
-    files = ProjectFiles.of(project)
+    layout = open_project(project)
     spec = read_picks(picks)
-    cameras = read_cameras(files.sparse)
-    georef = read_georeference(files.merged)
-    if crs:
-        georef = replace(georef, crs=crs)
+    cameras = read_cameras(layout.sparse)
+    georef = read_georeference(layout.merged_ply)
+    georef = replace(georef, origin=cameras_origin(layout, georef.origin), crs=crs or georef.crs)
     failed: list[str] = []
 
     def report(pid: str, err: Exception) -> None:
@@ -62,13 +61,13 @@ def measure_command(
         on_error=report if keep_going else None,
     )
     typer.echo(format_table(result))
-    out_dir = out or files.measurements_csv.parent
-    csv_path = out_dir / files.measurements_csv.name
-    dist_path = out_dir / files.distances_csv.name
+    out_dir = out or layout.measurements_csv.parent
+    csv_path = out_dir / layout.measurements_csv.name
+    dist_path = out_dir / layout.measurement_distances_csv.name
     write_csv(csv_path, result, dist_path if result.distances else None)
     typer.echo(f"wrote {csv_path}" + (f" and {dist_path}" if result.distances else ""))
     if result.crs:
-        geo_path = out_dir / files.geojson.name
+        geo_path = out_dir / layout.measurements_geojson.name
         write_geojson(geo_path, result)
         typer.echo(f"wrote {geo_path} (WGS84, from {result.crs})")
     else:

@@ -25,12 +25,12 @@ def view_command(
 
     from eval.measure.project import read_cameras
     from hybridsplat.viewer.app import ViewerApp, ViewerOptions
-    from hybridsplat.viewer.project import ProjectFiles
+    from hybridsplat.viewer.project import open_project
     from hybridsplat.viewer.scene import load_ply_alone, load_project
 
     if target.is_dir():
         scene = load_project(target, max_splats=max_splats, max_points=max_points)
-        files = ProjectFiles.of(target)
+        files = open_project(target)
     else:
         scene = load_ply_alone(target, max_splats=max_splats)
         files = None

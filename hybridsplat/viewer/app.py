@@ -17,7 +17,7 @@ from core.cameras import Cameras, View, rotmat_to_quat
 from core.errors import HybridSplatError
 from eval.measure import MeasuredPoint, write_csv, write_geojson
 from eval.measure.picks import write_picks
-from hybridsplat.viewer.project import ProjectFiles
+from hybridsplat.layout import ProjectLayout
 from hybridsplat.viewer.scene import ViewerScene
 from hybridsplat.viewer.session import ClientCamera, MeasureSession, pick_from_click
 
@@ -63,9 +63,11 @@ def _unit_sphere() -> tuple[np.ndarray, np.ndarray]:
 
 
 class ViewerApp:
-    """One viser server showing one scene. ``files`` (a project) enables exports."""
+    """One viser server showing one scene. ``files`` (a project's layout) enables exports."""
 
-    def __init__(self, scene: ViewerScene, options: ViewerOptions = ViewerOptions(), files: ProjectFiles | None = None):
+    def __init__(
+        self, scene: ViewerScene, options: ViewerOptions = ViewerOptions(), files: ProjectLayout | None = None
+    ):
         import viser
 
         self.scene = scene
@@ -323,11 +325,11 @@ class ViewerApp:
         with self.lock:
             m = self.session.measurements()
             f = self.files
-            write_csv(f.measurements_csv, m, f.distances_csv if m.distances else None)
-            written = [f.measurements_csv] + ([f.distances_csv] if m.distances else [])
+            write_csv(f.measurements_csv, m, f.measurement_distances_csv if m.distances else None)
+            written = [f.measurements_csv] + ([f.measurement_distances_csv] if m.distances else [])
             if m.crs:
-                write_geojson(f.geojson, m)
-                written.append(f.geojson)
+                write_geojson(f.measurements_geojson, m)
+                written.append(f.measurements_geojson)
             picks = self.session.picks_file()
             if picks.points:
                 write_picks(f.picks_json, picks)

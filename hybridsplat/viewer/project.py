@@ -1,52 +1,37 @@
-"""The files of a project that the viewer and ``hybridsplat measure`` read, and where measurements go.
-
-Paths follow DESIGN.md's project-folder contract. ``hybridsplat/layout.py`` (``ProjectLayout``) is to be the only
-code spelling them; until it is on this branch, this one place does, and is to be replaced by the layout's
-attributes (``sparse``, ``merged_ply``, ``fused_ply``, ``mesh_path(ext)``, ``export_dir``).
-"""
+"""The project folder as the viewer and ``hybridsplat measure`` see it: its layout and the cameras' frame."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 
-from core.errors import InputFileError
+import numpy as np
+
+from core.errors import FormatError, InputFileError
+from hybridsplat.layout import ProjectLayout
 
 
-@dataclass(frozen=True)
-class ProjectFiles:
-    """Inputs of the viewer / measurement in one project folder (any may be missing but ``sparse``).
+def open_project(project: str | PathLike[str]) -> ProjectLayout:
+    """The layout of an existing project folder; :class:`InputFileError` when there is none."""
+    root = Path(project)
+    if not root.is_dir():
+        raise InputFileError("project folder does not exist" if not root.exists() else "is not a folder", root)
+    return ProjectLayout(root)
 
-    sparse: COLMAP model (local frame). merged: merged 3DGS PLY (its ``.origin.json`` sidecar gives origin, unit,
-    CRS). fused: the MVS dense cloud. mesh: the exported mesh. test_sparse: held-out cameras, when the project
-    keeps them. measurements_csv / distances_csv / geojson: where measurements are written.
+
+def cameras_origin(layout: ProjectLayout, fallback: np.ndarray) -> np.ndarray:
+    """World coordinates of the COLMAP model's local frame: the SfM record's ``origin``, else ``fallback``.
+
+    ``fallback`` is the merged product's origin (its ``.origin.json`` sidecar), which equals the model's frame
+    whenever the products were made from this model.
     """
+    from core.io.json_io import read_json_object
 
-    root: Path
-    sparse: Path
-    merged: Path
-    fused: Path
-    mesh: Path
-    measurements_csv: Path
-    distances_csv: Path
-    geojson: Path
-    picks_json: Path
-
-    @classmethod
-    def of(cls, project: str | PathLike[str]) -> ProjectFiles:
-        root = Path(project)
-        if not root.is_dir():
-            raise InputFileError("project folder does not exist" if not root.exists() else "is not a folder", root)
-        export = root / "export"
-        return cls(
-            root=root,
-            sparse=root / "sparse",
-            merged=export / "merged.ply",
-            fused=root / "dense" / "fused.ply",
-            mesh=export / "mesh.ply",
-            measurements_csv=export / "measurements.csv",
-            distances_csv=export / "measurements_distances.csv",
-            geojson=export / "measurements.geojson",
-            picks_json=export / "picks.json",
-        )
+    record = layout.record("sfm")
+    if record.is_file():
+        origin = read_json_object(record).get("origin")
+        if origin is not None:
+            if not (isinstance(origin, list) and len(origin) == 3):
+                raise FormatError(f'"origin" must be three numbers, got {origin!r}', record)
+            return np.asarray(origin, np.float64).reshape(3)
+    return np.asarray(fallback, np.float64).reshape(3)

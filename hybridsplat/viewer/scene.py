@@ -7,7 +7,6 @@ before going to float32 for the browser.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -18,7 +17,7 @@ from core.cameras import Camera, Cameras, View
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import GaussianSet
 from eval.measure.project import Georeference, read_cameras, read_georeference
-from hybridsplat.viewer.project import ProjectFiles
+from hybridsplat.viewer.project import cameras_origin, open_project
 
 
 @dataclass(frozen=True)
@@ -156,33 +155,21 @@ def mesh_arrays(path: str | PathLike[str], frame_origin: np.ndarray) -> MeshArra
     return MeshArrays(local.astype(np.float32), np.asarray(mesh.faces, np.int32), colors)
 
 
-def cameras_origin(files: ProjectFiles, fallback: np.ndarray) -> np.ndarray:
-    """World coordinates of the COLMAP model's local frame: ``logs/sfm.json``'s origin, else ``fallback``."""
-    record = files.root / "logs" / "sfm.json"
-    if record.is_file():
-        try:
-            origin = json.loads(record.read_text(encoding="utf-8")).get("origin")
-        except ValueError as err:
-            raise FormatError(f"SfM record is not valid JSON ({err})", record) from err
-        if origin is not None:
-            return np.asarray(origin, np.float64).reshape(3)
-    return np.asarray(fallback, np.float64).reshape(3)
-
-
 def load_project(project: str | PathLike[str], max_splats: int = 2_000_000, max_points: int = 1_000_000) -> ViewerScene:
     """Read a project folder: cameras (sparse/), merged splats, MVS cloud and mesh when present."""
     from core.io.gaussian_ply import read_gaussian_ply
 
-    files = ProjectFiles.of(project)
-    cameras = read_cameras(files.sparse)
-    georef = read_georeference(files.merged)
-    origin = cameras_origin(files, georef.origin)
+    layout = open_project(project)
+    cameras = read_cameras(layout.sparse)
+    georef = read_georeference(layout.merged_ply)
+    origin = cameras_origin(layout, georef.origin)
     georef = Georeference(origin, georef.unit, georef.crs)
-    splats = splat_arrays(read_gaussian_ply(files.merged), origin, max_splats) if files.merged.is_file() else None
-    cloud = cloud_arrays(files.fused, origin, max_points) if files.fused.is_file() else None
-    mesh = mesh_arrays(files.mesh, origin) if files.mesh.is_file() else None
-    test = Cameras()
-    return ViewerScene(files.root.name, cameras, test, georef, splats, cloud, mesh)
+    merged = layout.merged_ply
+    splats = splat_arrays(read_gaussian_ply(merged), origin, max_splats) if merged.is_file() else None
+    cloud = cloud_arrays(layout.fused_ply, origin, max_points) if layout.fused_ply.is_file() else None
+    mesh_file = next((layout.mesh_path(f) for f in ("ply", "obj", "glb") if layout.mesh_path(f).is_file()), None)
+    mesh = mesh_arrays(mesh_file, origin) if mesh_file is not None else None
+    return ViewerScene(layout.root.resolve().name, cameras, Cameras(), georef, splats, cloud, mesh)
 
 
 def load_ply_alone(path: str | PathLike[str], max_splats: int = 2_000_000) -> ViewerScene:
