@@ -1,0 +1,49 @@
+"""Radiometric features: RGB, HSV and the local colour variance."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def rgb_hsv(colors: np.ndarray) -> dict[str, np.ndarray]:
+    """red, green, blue, hue, saturation, value (each (N,) float32 in [0, 1]) from colours (N, 3) uint8.
+
+    Hue is HSV hue / 360 and 0 for grey pixels (scikit-image's ``rgb2hsv`` convention).
+    """
+    from skimage.color import rgb2hsv
+
+    rgb = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
+    hsv = rgb2hsv(rgb[None])[0] if len(rgb) else np.zeros((0, 3), np.float32)
+    names = ("red", "green", "blue", "hue", "saturation", "value")
+    cols = (rgb[:, 0], rgb[:, 1], rgb[:, 2], hsv[:, 0], hsv[:, 1], hsv[:, 2])
+    return {n: np.ascontiguousarray(c, dtype=np.float32) for n, c in zip(names, cols, strict=True)}
+
+
+def color_variance(
+    colors: np.ndarray,
+    neighbours: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
+    k: int = 16,
+    chunk_size: int = 250_000,
+    workers: int = -1,
+) -> np.ndarray:
+    """Standard deviation of the colour over each point's neighbourhood, /255, averaged over R, G, B: (N,) float32.
+
+    neighbours: (N, k) int64 indices of each point's neighbours (the finest geometric level's); when None they
+    are found among ``positions`` (N, 3) with a k-NN query.
+    """
+    c = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
+    n = len(c)
+    out = np.empty(n, dtype=np.float32)
+    tree = None if neighbours is not None else cKDTree(np.asarray(positions, dtype=np.float64))
+    for start in range(0, n, chunk_size):
+        sl = slice(start, min(n, start + chunk_size))
+        if neighbours is not None:
+            idx = neighbours[sl]
+        else:
+            assert tree is not None and positions is not None
+            _, idx = tree.query(positions[sl], k=min(k, n), workers=workers)
+            idx = np.asarray(idx).reshape(sl.stop - sl.start, -1)
+        out[sl] = c[idx].std(axis=1).mean(axis=1)
+    return out
