@@ -20,11 +20,13 @@ from hybridsplat.stages.base import Stage, StageContext
 class MasksStageOptions:
     """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
 
-    footprint: point radius in spacings (1.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
+    footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
+    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
     holes: add MVS holes (True). hole_area: hull | below | enclosed (hull).
     """
 
     footprint: float = 1.5
+    hole_footprint: float = 2.5
     close_px: int = 3
     dilate_px: int = 2
     holes: bool = True
@@ -33,6 +35,7 @@ class MasksStageOptions:
     def mask_options(self) -> MaskOptions:
         return MaskOptions(
             footprint=self.footprint,
+            hole_footprint=self.hole_footprint,
             close_px=self.close_px,
             dilate_px=self.dilate_px,
             holes=self.holes,
