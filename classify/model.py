@@ -127,7 +127,7 @@ def scores(truth: np.ndarray, pred: np.ndarray, name: str) -> ClassScores:
 
 
 def _best_threshold(forest: object, x: np.ndarray, truth: np.ndarray, classes: ClassSet) -> float:
-    """The needs-splats probability threshold (0.3..0.8, step 0.05) with the best held-out binary F1.
+    """The needs-splats probability threshold (0.3..0.95, step 0.05) with the best held-out binary F1.
 
     The balanced class weights favour the rare needs-splats classes; this moves the decision back."""
     if len(x) == 0 or not truth.any():
@@ -135,7 +135,7 @@ def _best_threshold(forest: object, x: np.ndarray, truth: np.ndarray, classes: C
     p = forest.predict_proba(x)  # type: ignore[attr-defined]
     bad = classes.needs_splats_of(np.asarray(forest.classes_, dtype=np.uint8))  # type: ignore[attr-defined]
     pns = p[:, bad].sum(axis=1)
-    grid = np.round(np.arange(0.3, 0.801, 0.05), 2)
+    grid = np.round(np.arange(0.3, 0.951, 0.05), 2)
     f1 = [scores(truth, pns >= t, "t").f1 for t in grid]
     return float(grid[int(np.argmax(f1))])
 

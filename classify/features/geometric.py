@@ -168,7 +168,10 @@ def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, n
     Returns the :class:`Eigen` and the neighbour indices (N, k) int64 (the finest level's are reused for the
     colour variance)."""
     fn = eigen_backend(options.backend)
-    tree = cKDTree(points)
+    # Queries in the tree's leaf order are spatially coherent: ~3-4x faster than input order (scipy walks fewer
+    # nodes per query; the same trick as fusion.knn.knn_kdtree). Results are scattered back to input order.
+    tree = cKDTree(points, leafsize=16, balanced_tree=False, compact_nodes=False)
+    order = np.asarray(tree.indices)
     n = len(points)
     k = min(options.k, n)
     values = np.empty((n, 3))
@@ -176,11 +179,11 @@ def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, n
     radius = np.empty(n)
     neigh = np.empty((n, k), dtype=np.int64)
     for start in range(0, n, options.chunk_size):
-        sl = slice(start, min(n, start + options.chunk_size))
-        d, idx = knn(tree, points[sl], k, options.workers)
-        values[sl], normal[sl] = fn(points, idx)
-        radius[sl] = d[:, -1]
-        neigh[sl] = idx
+        rows = order[start : start + options.chunk_size]
+        d, idx = knn(tree, points[rows], k, options.workers)
+        values[rows], normal[rows] = fn(points, idx)
+        radius[rows] = d[:, -1]
+        neigh[rows] = idx
     return Eigen(values, normal, radius), neigh
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -35,6 +36,8 @@ def color_variance(
     """
     c = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
     n = len(c)
+    if neighbours is not None:
+        return _color_std_kernel(c, np.ascontiguousarray(neighbours, dtype=np.int64))
     out = np.empty(n, dtype=np.float32)
     tree = None if neighbours is not None else cKDTree(np.asarray(positions, dtype=np.float64))
     for start in range(0, n, chunk_size):
@@ -46,4 +49,24 @@ def color_variance(
             _, idx = tree.query(positions[sl], k=min(k, n), workers=workers)
             idx = np.asarray(idx).reshape(sl.stop - sl.start, -1)
         out[sl] = c[idx].std(axis=1).mean(axis=1)
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _color_std_kernel(c: np.ndarray, neighbours: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Per row of ``neighbours``: the population std of ``c`` (N, 3) over those rows, averaged over channels."""
+    n, k = neighbours.shape
+    out = np.empty(n, dtype=np.float32)
+    for i in numba.prange(n):
+        acc = 0.0
+        for ch in range(3):
+            s = 0.0
+            s2 = 0.0
+            for j in range(k):
+                v = c[neighbours[i, j], ch]
+                s += v
+                s2 += v * v
+            mean = s / k
+            acc += np.sqrt(max(s2 / k - mean * mean, 0.0))
+        out[i] = acc / 3.0
     return out
