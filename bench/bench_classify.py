@@ -203,7 +203,7 @@ def part_speed(args) -> dict:
     sample = FeatureTable(names, rng.normal(size=(20000, len(names))).astype(np.float32), 0.0)
     labels = rng.choice(classes.codes, 20000)
     model, _ = train(sample, labels, classes, FeatureOptions(groups=GEO_RAD), ForestOptions(n_jobs=threads))
-    for backend in ("numba", "numpy", "pgeof"):
+    for backend in args.backends.split(","):
         opts = FeatureOptions(groups=GEO_RAD, geometric=GeometricOptions(backend=backend, workers=threads))
         tracemalloc.start()
         t0 = time.perf_counter()
@@ -222,6 +222,8 @@ def part_speed(args) -> dict:
         print(f"{backend}: features {t1 - t0:.2f} s + prediction {t2 - t1:.2f} s = {args.n / (t2 - t0):,.0f} points/s "
               f"(peak traced {peak / 2**20:.0f} MiB)")  # fmt: skip
     try:
+        if args.no_jakteristics:
+            raise ImportError
         import jakteristics
 
         r = float(np.sqrt(16 / np.pi) * spacing * 1.1)  # ~16 neighbours on a surface, like k = 16
@@ -270,6 +272,8 @@ def main() -> None:
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--backends", default="numba,numpy,pgeof", help="eigen backends timed side by side")
+    ap.add_argument("--no-jakteristics", action="store_true")
     ap.add_argument("--mv-scene", default=None, help="project folder whose fused cloud is replicated for multi-view")
     ap.add_argument("--json", default=None, help="write the figures here")
     args = ap.parse_args()
