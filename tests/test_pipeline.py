@@ -102,7 +102,7 @@ def test_bad_input_leaves_no_project_behind(tmp_path, capsys):
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("hybridsplat: error:")]
-    assert len(errors) == 1 and "found 0 photos" in errors[0] and str(empty) in errors[0]
+    assert len(errors) == 1 and "found no photos" in errors[0] and str(empty) in errors[0]
     assert "Traceback" not in err
     assert not out.exists()
 
