@@ -37,7 +37,9 @@ class PoissonOptions:
     this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
     vertices farther than this many median point spacings from every point are trimmed (default 2; None: off).
     min_component_fraction: pieces with fewer triangles than this share of the trimmed mesh are dropped (default
-    0.01). threads: open3d threads (-1: all).
+    0.01). threads: open3d threads (default 1: deterministic; -1 uses all cores, faster, but the order of its
+    float reductions varies from run to run, vertices move by ~1e-7 m and decimation can turn that into a different
+    triangulation).
     """
 
     depth: int | None = None
@@ -50,7 +52,7 @@ class PoissonOptions:
     density_quantile: float = 0.0
     support_factor: float | None = 2.0
     min_component_fraction: float = 0.01
-    threads: int = -1
+    threads: int = 1
 
     def __post_init__(self) -> None:
         if self.depth is not None and not 2 <= self.depth <= 14:
