@@ -115,3 +115,16 @@ def test_bad_input():
         PoissonOptions(depth=1)
     with pytest.raises(ConfigError):
         PoissonOptions(density_quantile=1.0)
+
+
+def test_non_manifold_edge_repair():
+    """Three triangles on the edge (0, 1): one goes (the smallest), the other two stay; brute-force edge count."""
+    from fusion.mesh.poisson import repair_non_manifold_edges
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -2, 0], [0, 0, 0.5]], float)
+    t = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])
+    assert mesh_quality(TriangleMesh(v, t)).non_manifold_edges == 1
+    out, removed = repair_non_manifold_edges(TriangleMesh(v, t))
+    assert removed == 1 and mesh_quality(out).non_manifold_edges == 0
+    kept = {tuple(sorted(map(tuple, out.vertices[tri]))) for tri in out.triangles}
+    assert tuple(sorted(map(tuple, v[[0, 1, 4]]))) not in kept  # the smallest (area 0.25) is the one removed

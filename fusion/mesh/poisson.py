@@ -1,13 +1,16 @@
 """Screened Poisson reconstruction (open3d, Kazhdan & Hoppe 2013), low-density trimming, small-piece removal.
 
-The untrimmed Poisson surface is the zero set of an implicit function over the whole octree: closed (watertight),
-but it bulges over regions no point supports. Trimming removes two kinds of vertices, and the triangles
+The untrimmed Poisson surface is the zero set of an implicit function over the whole octree: closed (watertight)
+around closed samplings, but it bulges over regions no point supports, and around open scenes (a ground plane) it
+runs into the reconstruction cube and is open there. Trimming removes two kinds of vertices, and the triangles
 that use them: those whose Poisson density (the kernel density of the samples at the vertex, open3d's second return
 value) is below the ``density_quantile`` of all vertex densities (the usual low-density trim), and those farther than
 ``support_factor`` × the median point spacing from every oriented point (surface that no sample supports: Poisson's
 bridges over holes; a quantile alone cannot tell a hole from a well-sampled closed surface, where it would cut the
-lowest few percent regardless). Pieces that are left with fewer triangles than ``min_component_fraction`` of the
-whole are then dropped (floaters, extrapolated blobs).
+lowest few percent regardless). Edges shared by more than two triangles (PoissonRecon's iso-surface extraction
+emits a few at fine depths) are repaired with open3d's ``remove_non_manifold_edges`` (drops the smallest of the
+triangles on such an edge until two are left), so the trimmed mesh is edge-manifold. Pieces that are left with
+fewer triangles than ``min_component_fraction`` of the whole are then dropped (floaters, extrapolated blobs).
 
 Depth: the octree depth follows the sampling (``depth`` None): the finest cell is ``cell_factor`` × the median
 nearest-neighbour distance of the points, so depth = ceil(log2(1.1 · extent / cell)), clamped to
@@ -94,6 +97,7 @@ class TrimStats:
     triangles_in: int
     removed_low_density: int
     removed_unsupported: int
+    removed_non_manifold: int
     removed_small_pieces: int
     triangles_out: int
     pieces_kept: int
@@ -189,16 +193,47 @@ def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> t
             "removed every triangle"
         )
     trimmed = TriangleMesh(mesh.vertices, mesh.triangles[keep_tri], mesh.origin, mesh.vertex_colors).compact()
+    trimmed, removed_nm = repair_non_manifold_edges(trimmed)
     labels = triangle_components(trimmed.triangles, len(trimmed.vertices))
     sizes = np.bincount(labels)
     small = sizes < options.min_component_fraction * len(labels)
     keep = ~small[labels]
     out = TriangleMesh(trimmed.vertices, trimmed.triangles[keep], trimmed.origin, trimmed.vertex_colors).compact()
     stats = TrimStats(
-        t0, removed_low, removed_far, int((~keep).sum()), out.num_triangles, int((~small).sum()), int(small.sum()),
-        threshold, float(max_support),
-    )  # fmt: skip
+        triangles_in=t0,
+        removed_low_density=removed_low,
+        removed_unsupported=removed_far,
+        removed_non_manifold=removed_nm,
+        removed_small_pieces=int((~keep).sum()),
+        triangles_out=out.num_triangles,
+        pieces_kept=int((~small).sum()),
+        pieces_dropped=int(small.sum()),
+        density_threshold=threshold,
+        support_distance=float(max_support),
+    )
     return out, stats
+
+
+def repair_non_manifold_edges(mesh: TriangleMesh) -> tuple[TriangleMesh, int]:
+    """The mesh with no edge used by more than two triangles (open3d's repair; see the module docstring) and the
+    number of triangles removed; the mesh itself when it is already edge-manifold."""
+    import open3d as o3d
+
+    from fusion.mesh.quality import edge_use_counts
+
+    _, counts = edge_use_counts(mesh.triangles)
+    if not (counts > 2).any():
+        return mesh, 0
+    o3m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(mesh.vertices), o3d.utility.Vector3iVector(mesh.triangles.astype(np.int32))
+    )
+    if mesh.vertex_colors is not None:
+        o3m.vertex_colors = o3d.utility.Vector3dVector(mesh.vertex_colors.astype(np.float64))
+    o3m.remove_non_manifold_edges()
+    tris = np.asarray(o3m.triangles, dtype=np.int64)
+    # open3d keeps the vertex array as it is: same indices, so colours still line up
+    out = TriangleMesh(mesh.vertices, tris, mesh.origin, mesh.vertex_colors).compact()
+    return out, mesh.num_triangles - len(tris)
 
 
 def triangle_components(triangles: np.ndarray, num_vertices: int) -> np.ndarray:
