@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from core.cameras import Camera, Cameras, View
 from core.errors import FormatError
 from recon.reference import read_strecha_camera, read_strecha_cameras
 
@@ -48,3 +49,93 @@ def test_fountain_ground_truth_files_parse():
     cams = read_strecha_cameras(folder)
     assert len(cams) == 11
     assert all((c.width, c.height) == (3072, 2048) for c in cams.cameras.values())
+
+
+# -- reference camera centres (--reference) and units -------------------------------------------------------------
+def test_units_convert_and_format():
+    from core.errors import ConfigError
+    from core.units import Units
+
+    assert Units.parse("MM") is Units.MM and Units.parse("feet") is Units.FT and Units.parse(Units.CM) is Units.CM
+    assert Units.FT.to_metres(10.0) == pytest.approx(3.048, abs=1e-15)  # international foot, exact
+    assert Units.MM.from_metres(0.0123) == pytest.approx(12.3, abs=1e-12)
+    assert Units.MM.format(0.00123) == "1.23 mm" and Units.M.format(0.00123) == "0.00123 m"
+    assert Units.CM.format(12.3456) == "1235 cm"  # large values keep their integer digits
+    assert Units.M.format(0.0) == "0 m" and Units.M.format(float("nan")) == "n/a"
+    with pytest.raises(ConfigError, match="unknown length unit 'yd'"):
+        Units.parse("yd")
+
+
+def test_reference_text_in_millimetres_is_read_in_metres(tmp_path: Path):
+    from recon.reference import ReferenceKind, Units, read_reference
+
+    path = tmp_path / "ref.txt"
+    path.write_text(
+        "# GNSS camera centres\n\n"
+        "0000.jpg 500000123.5 5400000456.25 312125.0\n"
+        "my photo 1.jpg  -1.5\t2e3 0   # trailing comment\n"
+    )
+    ref = read_reference(path, "mm")
+    assert ref.kind is ReferenceKind.TEXT and ref.units is Units.MM
+    assert ref.names == ("0000.jpg", "my photo 1.jpg")
+    # float64 keeps the 0.1 mm digits of a 500 km coordinate: 500000123.5 mm = 500000.1235 m
+    np.testing.assert_array_equal(ref.centers["0000.jpg"], np.array([500000123.5, 5400000456.25, 312125.0]) * 1e-3)
+    np.testing.assert_allclose(ref.centers["my photo 1.jpg"], [-0.0015, 2.0, 0.0], atol=0, rtol=1e-15)
+    assert ref.centers["0000.jpg"].dtype == np.float64
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("a.jpg 1 2 3\nb.jpg 1 2\n", "line 2: expected 'NAME X Y Z'"),
+        ("a.jpg 1 2 3\n\nb.jpg 1 x 3\n", "line 3: coordinates must be numbers"),
+        ("a.jpg 1 nan 3\n", "line 1: coordinates must be finite"),
+        ("a.jpg 1 2 3\na.jpg 4 5 6\n", "line 2: image 'a.jpg' is listed twice \\(first on line 1\\)"),
+        ("# only a comment\n\n", "holds no 'NAME X Y Z' line"),
+    ],
+)
+def test_reference_text_errors_name_the_line(tmp_path: Path, content: str, message: str):
+    from recon.reference import read_reference
+
+    path = tmp_path / "ref.txt"
+    path.write_text(content)
+    with pytest.raises(FormatError, match=message) as err:
+        read_reference(path)
+    assert err.value.path == path
+
+
+def test_reference_missing_and_bad_unit(tmp_path: Path):
+    from core.errors import ConfigError, InputFileError
+    from recon.reference import read_reference
+
+    with pytest.raises(InputFileError, match="does not exist"):
+        read_reference(tmp_path / "nothing.txt")
+    (tmp_path / "r.txt").write_text("a 1 2 3\n")
+    with pytest.raises(ConfigError, match="unit"):
+        read_reference(tmp_path / "r.txt", "inch")
+
+
+def test_reference_from_colmap_model_and_text_round_trip(tmp_path: Path):
+    """A COLMAP model's centres equal the defining C of the cameras; written as text in ft and read back."""
+    from scipy.spatial.transform import Rotation
+
+    from core.io.colmap import write_model
+    from recon.reference import ReferenceKind, read_reference, write_reference_text
+
+    rng = np.random.default_rng(4)
+    cam = Camera.pinhole(500.0, 500.0, 320.0, 240.0, 640, 480, 1)
+    centers = rng.normal(scale=10.0, size=(5, 3))
+    views = {}
+    for i, C in enumerate(centers, start=1):
+        Rcw = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+        views[i] = View.from_matrix(i, f"{i:03d}.png", 1, np.c_[Rcw, -Rcw @ C])
+    write_model(tmp_path / "model", Cameras({1: cam}, views))
+    ref = read_reference(tmp_path / "model")
+    assert ref.kind is ReferenceKind.MODEL and ref.names == tuple(f"{i:03d}.png" for i in range(1, 6))
+    np.testing.assert_allclose(ref.positions(ref.names), centers, atol=1e-9)
+    in_cm = read_reference(tmp_path / "model", "cm")  # a model in centimetres: metres = cm / 100
+    np.testing.assert_allclose(in_cm.positions(in_cm.names), centers / 100, atol=1e-11)
+    write_reference_text(tmp_path / "ref_ft.txt", ref.centers, "ft")
+    back = read_reference(tmp_path / "ref_ft.txt", "ft")
+    np.testing.assert_allclose(back.positions(back.names), centers, atol=1e-12)
+    assert back.extent_m() == pytest.approx(float(np.linalg.norm(centers.max(0) - centers.min(0))))
