@@ -301,6 +301,30 @@ def truth_section(merged, snapshots, vp, gt: GroundTruth, tau: float, budget: in
     return results
 
 
+def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float, budget: int) -> dict:
+    from fusion.mesh.tsdf import tsdf_mesh
+
+    cams, _ = read_model(project / "sparse")
+    mvs = merged.subset(merged.fields["source"] == Source.MVS)
+    t = time.perf_counter()
+    raw = tsdf_mesh(mvs, cams)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", MeshWarning)
+        mesh, _ = decimate(raw, budget)
+    sec = time.perf_counter() - t
+    rows = mesh_vs_truth(mesh, gt, tau)
+    print(
+        f"-- TSDF of depth rendered from the MVS Gaussians at {len(cams)} cameras: {raw.num_triangles} raw, "
+        f"{mesh.num_triangles} triangles, {sec:.1f} s ({load()})"
+    )
+    for mat, row in rows.items():
+        print(
+            f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
+            f"{row['acc_n']:>7} {row['completeness']:>7.3f} {row['gt_n']:>7}"
+        )
+    return {"seconds": sec, "triangles_raw": raw.num_triangles, "materials": rows}
+
+
 def demo_section(scene: Path, project: Path) -> dict:
     merged = load_merged(project)
     vp = viewpoints(project, merged.origin)
@@ -320,8 +344,10 @@ def demo_section(scene: Path, project: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, required=True)
-    ap.add_argument("--project", type=Path, required=True)
+    ap.add_argument("--scene", type=Path)
+    ap.add_argument("--project", type=Path)
+    ap.add_argument("--sections", type=int, nargs="+", default=[1, 2, 3, 4], help="which sections to run")
+    ap.add_argument("--tsdf", action="store_true", help="section 3: also the TSDF mesh of rendered depth")
     ap.add_argument("--budgets", type=int, nargs="+", default=[1_000, 10_000, 100_000])
     ap.add_argument("--truth-budget", type=int, default=100_000)
     ap.add_argument("--tau-gsd", type=float, default=2.0, help="τ in units of the scene's GSD (default 2)")
@@ -337,31 +363,40 @@ def main() -> None:
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
 
-    merged = load_merged(args.project)
-    vp = viewpoints(args.project, merged.origin)
-    snaps = load_snapshots(args.project)
-    print(
-        f"{args.project}: {len(merged)} merged Gaussians (source counts {np.bincount(merged.fields['source'])}), "
-        f"{len(snaps)} snapshots, {len(vp)} cameras; {load()}"
-    )
-    from fusion.mesh.oriented_points import oriented_points_from_gaussians
-
-    _, st = oriented_points_from_gaussians(merged.subset(merged.fields["source"] == Source.MVS))
-    dense = MeshOptions(
-        budget=None,
-        source=MeshSource.MVS,
-        points=OrientedPointOptions(sample_spacing=args.dense_spacing * st.sample_spacing),
-        poisson=PoissonOptions(max_depth=11),
-    )
     report: dict[str, object] = {}
-    budgets = budget_section(merged, vp, args.budgets, dense)
-    raw = budgets.pop("raw_mesh")
-    report["budgets"] = budgets
-    report["decimators"] = decimator_section(raw, args.budgets)
-    gt = GroundTruth(args.scene, args.gt_samples)
-    report["truth"] = truth_section(merged, snaps, vp, gt, args.tau_gsd * gt.gsd, args.truth_budget)
-    report["tau_m"] = args.tau_gsd * gt.gsd
-    if args.demo_scene and args.demo_project:
+    if {1, 2, 3} & set(args.sections):
+        if args.scene is None or args.project is None:
+            raise SystemExit("sections 1-3 need --scene and --project")
+        merged = load_merged(args.project)
+        vp = viewpoints(args.project, merged.origin)
+        snaps = load_snapshots(args.project)
+        print(
+            f"{args.project}: {len(merged)} merged Gaussians (source counts {np.bincount(merged.fields['source'])}), "
+            f"{len(snaps)} snapshots, {len(vp)} cameras; {load()}"
+        )
+    if {1, 2} & set(args.sections):
+        from fusion.mesh.oriented_points import oriented_points_from_gaussians
+
+        _, st = oriented_points_from_gaussians(merged.subset(merged.fields["source"] == Source.MVS))
+        dense = MeshOptions(
+            budget=None,
+            source=MeshSource.MVS,
+            points=OrientedPointOptions(sample_spacing=args.dense_spacing * st.sample_spacing),
+            poisson=PoissonOptions(max_depth=11),
+        )
+        budgets = budget_section(merged, vp, args.budgets, dense)
+        raw = budgets.pop("raw_mesh")
+        report["budgets"] = budgets
+        if 1 in args.sections:
+            report["decimators"] = decimator_section(raw, args.budgets)
+    if 3 in args.sections:
+        gt = GroundTruth(args.scene, args.gt_samples)
+        tau = args.tau_gsd * gt.gsd
+        report["truth"] = truth_section(merged, snaps, vp, gt, tau, args.truth_budget)
+        if args.tsdf:
+            report["tsdf"] = tsdf_section(args.project, merged, gt, tau, args.truth_budget)
+        report["tau_m"] = tau
+    if 4 in args.sections and args.demo_scene and args.demo_project:
         report["demo"] = demo_section(args.demo_scene, args.demo_project)
     if args.json:
         args.json.write_text(json.dumps(report, indent=2, default=str) + "\n")

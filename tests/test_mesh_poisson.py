@@ -128,3 +128,15 @@ def test_non_manifold_edge_repair():
     assert removed == 1 and mesh_quality(out).non_manifold_edges == 0
     kept = {tuple(sorted(map(tuple, out.vertices[tri]))) for tri in out.triangles}
     assert tuple(sorted(map(tuple, v[[0, 1, 4]]))) not in kept  # the smallest (area 0.25) is the one removed
+
+
+def test_collinear_points_are_refused_and_do_not_crash_orientation():
+    from mesh_shapes import surfels
+
+    from fusion.mesh.pipeline import MeshOptions, mesh_from_gaussians
+
+    line = np.c_[np.linspace(0, 1, 50), np.zeros(50), np.zeros(50)]
+    for thickness in (0.1, 1.0):  # flat surfels, and spheres (PCA normals + qhull-based orientation)
+        g = surfels(line, np.tile([0, 0, 1.0], (50, 1)), 0.01, thickness=thickness)
+        with pytest.raises(DataError, match="one line"):
+            mesh_from_gaussians(g, MeshOptions(budget=100))

@@ -263,12 +263,18 @@ def orient_normals(
         return normals
     import open3d as o3d
 
+    outward_of = positions - positions.mean(axis=0)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(positions))
     pcd.normals = o3d.utility.Vector3dVector(normals)
-    if len(positions) > 3:
-        pcd.orient_normals_consistent_tangent_plane(int(min(k, len(positions) - 1)))
+    try:
+        if len(positions) > 3:
+            pcd.orient_normals_consistent_tangent_plane(int(min(k, len(positions) - 1)))
+    except RuntimeError:  # qhull refuses degenerate layouts (collinear, cospherical): orient each point on its own
+        flip = np.einsum("ij,ij->i", normals, outward_of) < 0
+        normals[flip] *= -1
+        return normals
     normals = np.asarray(pcd.normals, dtype=np.float64).copy()
-    outward = np.einsum("ij,ij->i", normals, positions - positions.mean(axis=0))
+    outward = np.einsum("ij,ij->i", normals, outward_of)
     if (outward > 0).sum() < (outward < 0).sum():
         normals *= -1
     return normals

@@ -147,6 +147,9 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     extent = points.positions.max(axis=0) - points.positions.min(axis=0)
     if float(extent.max()) <= 0:
         raise DataError(f"all {n} points coincide: there is no surface to reconstruct")
+    spread = np.linalg.svd(points.positions - points.positions.mean(axis=0), compute_uv=False)
+    if spread[1] <= 1e-9 * spread[0]:
+        raise DataError(f"all {n} points lie on one line: there is no surface to reconstruct")
     spacing = median_spacing(points.positions)
     depth = options.depth if options.depth is not None else auto_depth(points.positions, options, spacing)
     # centre before open3d: it works in float32 internally, so coordinates must be small
