@@ -40,7 +40,6 @@ from core.gaussians import GaussianSet  # noqa: E402
 from core.io.colmap import read_model  # noqa: E402
 from core.io.gaussian_ply import read_gaussian_ply  # noqa: E402
 from core.io.origin import read_origin  # noqa: E402
-from core.io.ply import read_ply  # noqa: E402
 from fusion.convert import Source  # noqa: E402
 from fusion.mesh import (  # noqa: E402
     DecimateOptions,
@@ -63,14 +62,10 @@ def load() -> str:
 
 # -- inputs ------------------------------------------------------------------------------------------------------
 def load_merged(project: Path) -> GaussianSet:
-    """export/merged.ply with the ``source`` field of export/merged_points.ply (same Gaussians, same order)."""
-    g = read_gaussian_ply(project / "export" / "merged.ply")
-    if "source" not in g.fields:
-        pts = read_ply(project / "export" / "merged_points.ply")
-        if len(pts) != len(g) or np.abs(pts.world_positions - g.world_means).max() > 1e-4:
-            raise SystemExit("merged_points.ply does not match merged.ply: cannot recover the source field")
-        g.fields["source"] = pts.fields["source"].astype(np.uint8)
-    return g
+    """export/merged.ply with its ``source`` field (from export/merged_points.ply when the PLY has none)."""
+    from hybridsplat.stages.mesh import load_merged_with_source
+
+    return load_merged_with_source(project / "export" / "merged.ply", project / "export" / "merged_points.ply")
 
 
 def load_snapshots(project: Path) -> list[GaussianSet]:
