@@ -130,3 +130,24 @@ def test_georeferenced_input_gives_the_same_mesh_shifted(scene):
     geo = mesh_from_gaussians(moved, MeshOptions(budget=2000), viewpoints=cams)
     assert np.array_equal(geo.mesh.origin, utm)
     assert np.allclose(geo.mesh.vertices, local.mesh.vertices, atol=1e-9)  # same local computation
+
+
+def test_splat_points_near_mvs_are_dropped_and_far_ones_kept():
+    """MVS grid points (spacing 1 cm) on z = 0 for x < 0.5; splat points 3 mm above it (within 2 spacings: dropped)
+    and over the MVS-free half x > 0.6 (kept). Brute force decides which is which."""
+    from fusion.mesh.pipeline import drop_splat_points_near_mvs
+    from fusion.mesh.types import OrientedPoints
+
+    g = np.stack(np.meshgrid(np.arange(0, 1, 0.01), np.arange(0, 1, 0.01)), -1).reshape(-1, 2)
+    mvs = np.c_[g[g[:, 0] < 0.5], np.zeros((g[:, 0] < 0.5).sum())]
+    near = np.c_[g[::7][g[::7, 0] < 0.45], np.full((g[::7, 0] < 0.45).sum(), 0.003)]
+    far = np.c_[g[::7][g[::7, 0] > 0.6], np.zeros((g[::7, 0] > 0.6).sum())]
+    pos = np.concatenate([mvs, near, far])
+    src = np.r_[np.full(len(mvs), Source.MVS), np.full(len(near) + len(far), Source.SPLAT)]
+    pts = OrientedPoints(pos, np.tile([0, 0, 1.0], (len(pos), 1)), np.zeros((len(pos), 3)), src, np.arange(len(pos)))
+    out, dropped = drop_splat_points_near_mvs(pts, 2.0)
+    brute = np.linalg.norm(pos[src == Source.SPLAT][:, None] - mvs[None], axis=2).min(axis=1) < 0.02
+    assert dropped == int(brute.sum()) == len(near)
+    assert len(out) == len(mvs) + len(far)
+    with pytest.raises(ConfigError, match="mvs_priority"):
+        MeshOptions(mvs_priority=-1.0)

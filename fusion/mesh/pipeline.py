@@ -42,12 +42,16 @@ class MeshSource(str, Enum):
 @dataclass(frozen=True)
 class MeshOptions:
     """budget: triangles of the result (None: no decimation). source: see :class:`MeshSource` (default all).
-    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True).
+    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; source all only).
+    mvs_priority: splat points (trained or snapshot) closer to an MVS point than this many median MVS point
+    spacings are left out (default 2; 0 keeps all): where MVS measured the surface, its metric points alone shape
+    it, and splats fill only where MVS has none (splats float around surfaces by a fraction of their σ).
     color_neighbors: Gaussians blended per vertex colour (default 8). Sub-options: see their classes."""
 
     budget: int | None = 10_000
     source: MeshSource = MeshSource.ALL
     use_snapshots: bool = True
+    mvs_priority: float = 2.0
     color_neighbors: int = 8
     points: OrientedPointOptions = field(default_factory=OrientedPointOptions)
     poisson: PoissonOptions = field(default_factory=PoissonOptions)
@@ -59,6 +63,8 @@ class MeshOptions:
         b = self.budget
         if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
             raise ConfigError(f"the triangle budget must be a positive integer (or None for no decimation), got {b!r}")
+        if not (np.isfinite(self.mvs_priority) and self.mvs_priority >= 0):
+            raise ConfigError(f"mvs_priority must be >= 0 (spacings), got {self.mvs_priority}")
         if self.color_neighbors < 1:
             raise ConfigError(f"color_neighbors must be >= 1, got {self.color_neighbors}")
 
@@ -89,6 +95,7 @@ class MeshResult:
     point_stats: OrientedPointStats
     snapshot_stats: SnapshotStats | None
     snapshot_points: int
+    splat_points_dropped_near_mvs: int
     poisson_depth: int
     trim_stats: TrimStats
     decimation: DecimationStats | None
@@ -102,6 +109,7 @@ class MeshResult:
         out: dict[str, object] = {
             "oriented_points": len(self.points),
             "snapshot_points": self.snapshot_points,
+            "splat_points_dropped_near_mvs": self.splat_points_dropped_near_mvs,
             "poisson_depth": self.poisson_depth,
             "triangles_untrimmed": self.quality_untrimmed.triangles,
             "untrimmed_watertight": self.quality_untrimmed.watertight,
@@ -119,6 +127,25 @@ class MeshResult:
             out["budget"] = self.decimation.budget
             out["within_budget_tolerance"] = self.decimation.within_tolerance
         return out
+
+
+def drop_splat_points_near_mvs(points: OrientedPoints, spacings: float) -> tuple[OrientedPoints, int]:
+    """The points without splat points (source 2) closer to an MVS point (source 1) than ``spacings`` × the median
+    nearest-neighbour distance of the MVS points; and how many were dropped. Unchanged without MVS or splat points."""
+    from scipy.spatial import cKDTree
+
+    from fusion.mesh.poisson import median_spacing
+
+    is_mvs = points.source == Source.MVS
+    is_splat = points.source == Source.SPLAT
+    if is_mvs.sum() < 2 or not is_splat.any():
+        return points, 0
+    mvs = points.positions[is_mvs]
+    radius = spacings * median_spacing(mvs)
+    d, _ = cKDTree(mvs).query(points.positions[is_splat], k=1, distance_upper_bound=radius)
+    near = np.zeros(len(points), dtype=bool)
+    near[np.flatnonzero(is_splat)[np.isfinite(d)]] = True
+    return points.subset(~near), int(near.sum())
 
 
 def mesh_from_gaussians(
@@ -156,6 +183,9 @@ def mesh_from_gaussians(
             extra.gaussian_index[:] = -1  # indices into the snapshot union, not into ``merged``
             n_snap = len(extra)
             points = OrientedPoints.concatenate([points, extra])
+    dropped_near_mvs = 0
+    if options.mvs_priority > 0:
+        points, dropped_near_mvs = drop_splat_points_near_mvs(points, options.mvs_priority)
     timings.points = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -184,6 +214,7 @@ def mesh_from_gaussians(
         point_stats=point_stats,
         snapshot_stats=snap_stats,
         snapshot_points=n_snap,
+        splat_points_dropped_near_mvs=dropped_near_mvs,
         poisson_depth=result.depth,
         trim_stats=trim_stats,
         decimation=dec,
