@@ -86,3 +86,30 @@ def test_budget_zero_skips_and_bad_options(project):
         MeshStageOptions(formats=("stl",))
     with pytest.raises(ConfigError):
         MeshStageOptions(method="marching")
+
+
+def test_tsdf_method_renders_at_the_project_cameras(project, tmp_path):
+    from test_mesh_tsdf import look_at_cameras
+
+    from core.io.colmap import write_model
+
+    photos, layout = project
+    cams = look_at_cameras(
+        np.array([[1.6, 0, 0.4], [0, 1.6, 0.4], [-1.6, 0, 0.4], [0, -1.6, 0.4], [0.1, 0, 1.7]]), size=48, origin=UTM
+    )
+    write_model(layout.sparse, cams)  # a model is local; its origin is what the sfm stage records
+    from core.io.json_io import write_json_atomic
+
+    write_json_atomic(layout.record("sfm"), {"origin": UTM.tolist()})
+    try:
+        record, _ = run_mesh(photos, layout, budget=1500, method="tsdf", formats=("ply",))
+        counts = record["counts"]
+        assert counts["method"] == "tsdf" and abs(counts["triangles"] - 1500) <= 15
+        mesh = read_mesh(layout.mesh_path("ply"))
+        local = mesh.world_vertices - UTM
+        assert np.median(np.abs(np.linalg.norm(local, axis=1) - R)) < 0.02  # within a voxel of the sphere
+    finally:
+        import shutil
+
+        shutil.rmtree(layout.sparse)
+        layout.record("sfm").unlink()

@@ -1,11 +1,11 @@
 """Stage ``mesh``: a triangle mesh with a polygon budget from the merged product (export/mesh.ply|obj|glb).
 
 Reads export/merged.ply (the ``source`` field from export/merged_points.ply when the 3DGS PLY carries none), the
-training snapshots in splats/snapshots/ (for transparent and reflective regions) and the cameras in sparse/ (to orient
-splat normals); calls :func:`fusion.mesh.pipeline.mesh_from_gaussians` (or TSDF fusion of rendered depth with
-``method = "tsdf"``) and writes each format through :func:`fusion.mesh.export.write_mesh`, with the origin sidecar
-export/mesh.origin.json (always written, zeros included). Skipped unless a budget is set (``run --mesh N``,
-``hybridsplat mesh PROJECT --budget N``).
+training snapshots in splats/snapshots/ (for transparent and reflective regions) and the cameras in sparse/ (a local
+frame at the origin recorded in logs/sfm.json; to orient splat normals); calls
+:func:`fusion.mesh.pipeline.mesh_from_gaussians` (or TSDF fusion of rendered depth with ``method = "tsdf"``) and writes
+each format through :func:`fusion.mesh.export.write_mesh`, with the origin sidecar export/mesh.origin.json (always
+written, zeros included). Skipped unless a budget is set (``run --mesh N``, ``hybridsplat mesh PROJECT --budget N``).
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ class MeshStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
-        return [layout.merged_ply, layout.merged_points_ply, layout.snapshots_dir, layout.sparse]
+        return [layout.merged_ply, layout.merged_points_ply, layout.snapshots_dir, layout.sparse, layout.record("sfm")]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         from core.io.origin import sidecar_path
@@ -93,7 +93,10 @@ class MeshStage(Stage):
         opts: MeshStageOptions = ctx.options(self)
         layout = ctx.layout
         merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
-        cameras = read_model(layout.sparse)[0] if layout.sparse.is_dir() else None
+        cameras = None
+        if layout.sparse.is_dir():
+            cameras = read_model(layout.sparse)[0]
+            cameras.origin = sparse_origin(layout)
         snapshots = []
         if opts.snapshots and layout.snapshots_dir.is_dir():
             snapshots = [read_gaussian_ply(p) for p in sorted(layout.snapshots_dir.glob("*.ply"))]
@@ -128,6 +131,16 @@ class MeshStage(Stage):
 
     def summary(self, counts: dict[str, Any]) -> str:
         return f"{counts['triangles']} triangles ({counts['method']}), {', '.join(counts['formats'])}"
+
+
+def sparse_origin(layout: Any) -> np.ndarray:
+    """World coordinates of the sparse model's local frame: the ``origin`` the sfm stage recorded (zeros if none)."""
+    from core.io.json_io import read_json
+
+    record = layout.record("sfm")
+    if not record.is_file():
+        return np.zeros(3)
+    return np.asarray(read_json(record).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
 
 
 def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianSet
