@@ -8,6 +8,7 @@ from hybridsplat.stages.convert import ConvertStage
 from hybridsplat.stages.evaluate import EvalStage
 from hybridsplat.stages.masks import MasksStage
 from hybridsplat.stages.merge import MergeStage
+from hybridsplat.stages.mesh import MeshStage
 from hybridsplat.stages.mvs import MvsStage
 from hybridsplat.stages.report import ReportStage
 from hybridsplat.stages.sfm import SfmStage
@@ -19,6 +20,7 @@ STAGES: tuple[Stage, ...] = (
     MasksStage(),
     ConvertStage(),
     MergeStage(),
+    MeshStage(),
     EvalStage(),
     ReportStage(),
 )
