@@ -297,6 +297,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
     ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
     ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
+    ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
@@ -363,6 +364,15 @@ def main(argv: list[str] | None = None) -> None:
                 indent=2,
             )
         )
+    if args.picks_out:
+        from eval.measure.picks import ImagePick, PicksFile, PointPicks, write_picks
+
+        points = tuple(
+            PointPicks(f"T{i}", tuple(ImagePick(n, float(px[0]), float(px[1]), SIGMA_PX) for n, px in p.items()))
+            for i, p in enumerate(noisy)
+        )
+        write_picks(args.picks_out, PicksFile(points, tuple((f"T{i}", f"T{i + 1}") for i in range(len(points) - 1))))
+        print(f"wrote {args.picks_out}: run `hybridsplat measure {args.picks_out} --project {args.project}`")
     if args.screenshot:
         # The point whose first two projections are the most central (clear of notifications at the corners).
         def off_centre(t: Truth) -> float:

@@ -156,3 +156,16 @@ def test_load_project_puts_everything_in_the_cameras_frame(tmp_path) -> None:
     assert len(scene.cameras) == 4 and scene.splats is not None and scene.cloud is None and scene.mesh is None
     assert np.abs(scene.splats.centers).max() <= 0.3 + 1e-6  # local, not UTM, in float32
     np.testing.assert_allclose(scene.centre, [0.0, 0.0, 0.0], atol=0.02)
+
+
+def test_view_command_serves_a_project_and_a_bare_ply(tmp_path, capsys) -> None:
+    from hybridsplat.cli import main
+
+    make_project(tmp_path)
+    for target, cameras in ((tmp_path, "4 cameras"), (tmp_path / "export" / "merged.ply", "0 cameras")):
+        try:
+            main(["view", str(target), "--port", "0", "--seconds", "0.2"])
+        except SystemExit as exc:
+            assert not exc.code
+        out = capsys.readouterr().out
+        assert "http://127.0.0.1:" in out and "(splats;" in out and cameras in out, out
