@@ -25,6 +25,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scene", type=Path, help="a data_synth scene folder (default: generate the tiny preset)")
     ap.add_argument("--preset", default="tiny")
+    ap.add_argument("--images", type=Path, help="a folder of photos instead of a scene (full SfM only)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--threads", type=int, default=None, help="SfmOptions.num_threads (default: the option's)")
     ap.add_argument("--seed", type=int, default=0)
@@ -37,13 +38,20 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench_sfm_det_") as tmpname:
         tmp = Path(tmpname)
-        scene = args.scene or generate_scene(args.preset, tmp / "scene", seed=0)
+        if args.images:
+            import shutil
+
+            scene = tmp / "photos"
+            shutil.copytree(args.images, scene / "images")  # a private copy: nothing is written next to the data
+        else:
+            scene = args.scene or generate_scene(args.preset, tmp / "scene", seed=0)
         kw = {"seed": args.seed, "deterministic": not args.nondeterministic}
         kw |= {"num_threads": args.threads} if args.threads is not None else {}
         options = SfmOptions(**kw)
         print(f"scene {scene}  options {options}")
-        cams = from_reconstruction(read_reconstruction(Path(scene) / "sparse" / "0"))
-        for mode in ("full", "known"):
+        known = (Path(scene) / "sparse" / "0").is_dir()
+        cams = from_reconstruction(read_reconstruction(Path(scene) / "sparse" / "0")) if known else None
+        for mode in ("full", "known") if known else ("full",):
             runs = []
             for r in range(args.repeats):
                 out = tmp / f"{mode}_{r}" / "sparse"

@@ -193,6 +193,15 @@ class ProjectLayout:
     def report_html(self) -> Path:
         return self.report_dir / "report.html"
 
+    @property
+    def report_md(self) -> Path:
+        return self.report_dir / "report.md"
+
+    @property
+    def report_json(self) -> Path:
+        """The report's stable schema (``hybridsplat.report/1``)."""
+        return self.report_dir / "report.json"
+
     # -- the documented contract ----------------------------------------------------------------
     def documented_paths(self) -> dict[str, Path]:
         """Every user-facing path, relative to the root, as listed in docs/conventions.md."""

@@ -42,7 +42,7 @@ class Source:
     @property
     def training_names(self) -> tuple[str, ...]:
         held = set(self.holdout_names)
-        return tuple(n for n in self.spec.images if n not in held)
+        return tuple(n for n in self.spec.image_names if n not in held)
 
 
 def resolve_source(options: InputOptions) -> Source:
@@ -52,6 +52,6 @@ def resolve_source(options: InputOptions) -> Source:
     spec = resolve_input(options.path, model=options.model)
     known = Path(options.cameras) if options.cameras else None
     if known is None and options.use_scene_cameras:
-        known = spec.cameras_model
+        known = spec.known_cameras
     holdout = choose_holdout(spec, None if options.holdout == -1 else options.holdout)
     return Source(spec=spec, known_cameras=known, holdout=holdout)

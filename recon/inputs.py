@@ -30,44 +30,49 @@ DEFAULT_HOLDOUT_EVERY = 8  # every 8th photo in name order is held out by defaul
 class InputKind(str, enum.Enum):
     PHOTOS = "photos"
     COLMAP = "colmap"
-    SYNTH = "synth"
+    SYNTH = "synthetic"
 
 
 @dataclass(frozen=True)
 class InputSpec:
-    """A resolved INPUT. All paths are absolute-or-as-given :class:`Path` objects; names are file names.
+    """A resolved INPUT. Paths are None where the input has no such thing; names are file names.
 
-    image_dir / images: the photos (sorted names, supported extensions only).
-    cameras_model: a COLMAP model of known cameras for these photos (a scene's ``sparse/0``, the selected model
+    image_dir / image_names: the photos (sorted names, supported extensions only).
+    known_cameras: a COLMAP model of known cameras for these photos (a scene's ``sparse/0``, the selected model
     of a workspace), or None. models: every model a workspace holds (``sparse`` or ``sparse/N``).
     dense_dir: a workspace's ``dense/`` folder, or None.
-    holdout_dir / holdout_model / holdout_images: held-out views the input brings (a scene's ``test/`` photos and
-    ``sparse/test`` cameras), or None / (). They are never part of ``images``.
-    reference_cloud / test_labels: ground truth (a scene's ``gt/lidar.ply``, ``gt/labels/test``), or None.
+    test_photos / test_model / test_names: held-out views the input brings (a scene's ``test/`` photos and
+    ``sparse/test`` cameras), or None / (). They are never part of ``image_names``.
+    reference_cloud / test_labels / train_labels: ground truth (a scene's ``gt/lidar.ply``, ``gt/labels/*``).
+    scene_json / description: the scene description and its parsed content, or None.
     origin: float64 world coordinates (metres) of the local frame; gsd_m: metres per pixel, or None.
+    non_collaborative_ids: material ids MVS cannot be trusted on (from the scene description).
     """
 
-    kind: InputKind
     root: Path
+    kind: InputKind
     image_dir: Path
-    images: tuple[str, ...]
-    cameras_model: Path | None = None
+    image_names: tuple[str, ...]
+    known_cameras: Path | None = None
     models: tuple[Path, ...] = ()
     dense_dir: Path | None = None
-    holdout_dir: Path | None = None
-    holdout_model: Path | None = None
-    holdout_images: tuple[str, ...] = ()
-    reference_cloud: Path | None = None
+    test_model: Path | None = None
+    test_photos: Path | None = None
+    test_names: tuple[str, ...] = ()
     test_labels: Path | None = None
+    train_labels: Path | None = None
+    reference_cloud: Path | None = None
+    scene_json: Path | None = None
     gsd_m: float | None = None
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    non_collaborative_ids: tuple[int, ...] = ()
     crs: str | None = None
     description: SceneDescription | None = None
 
     @property
-    def non_collaborative_ids(self) -> tuple[int, ...]:
-        """Material ids MVS cannot be trusted on (from the scene description; empty without one)."""
-        return self.description.non_collaborative_ids if self.description else ()
+    def has_own_holdout(self) -> bool:
+        """True when the input brings held-out views (photos and their cameras) of its own."""
+        return self.test_model is not None and self.test_photos is not None
 
 
 @dataclass(frozen=True)
@@ -161,23 +166,26 @@ def _resolve_synth(root: Path) -> InputSpec:
     if not images:
         raise _no_photos(image_dir)
     test_dir, test_model = root / "test", root / "sparse" / "test"
-    holdout_images = list_images(test_dir) if test_dir.is_dir() else ()
-    has_test = bool(holdout_images) and _is_model(test_model)
-    lidar, labels = root / "gt" / "lidar.ply", root / "gt" / "labels" / "test"
+    test_names = list_images(test_dir) if test_dir.is_dir() else ()
+    has_test = bool(test_names) and _is_model(test_model)
+    lidar, labels = root / "gt" / "lidar.ply", root / "gt" / "labels"
     return InputSpec(
-        kind=InputKind.SYNTH,
         root=root,
+        kind=InputKind.SYNTH,
         image_dir=image_dir,
-        images=images,
-        cameras_model=root / "sparse" / "0",
+        image_names=images,
+        known_cameras=root / "sparse" / "0",
         models=(root / "sparse" / "0",),
-        holdout_dir=test_dir if has_test else None,
-        holdout_model=test_model if has_test else None,
-        holdout_images=holdout_images if has_test else (),
+        test_model=test_model if has_test else None,
+        test_photos=test_dir if has_test else None,
+        test_names=test_names if has_test else (),
+        test_labels=labels / "test" if (labels / "test").is_dir() else None,
+        train_labels=labels / "train" if (labels / "train").is_dir() else None,
         reference_cloud=lidar if lidar.is_file() else None,
-        test_labels=labels if labels.is_dir() else None,
+        scene_json=desc.path,
         gsd_m=desc.gsd_m,
         origin=desc.origin,
+        non_collaborative_ids=desc.non_collaborative_ids,
         crs=desc.crs,
         description=desc,
     )
@@ -200,11 +208,11 @@ def _resolve_colmap(root: Path, model: int | None) -> InputSpec:
     if not images:
         raise _no_photos(image_dir)
     return InputSpec(
-        kind=InputKind.COLMAP,
         root=root,
+        kind=InputKind.COLMAP,
         image_dir=image_dir,
-        images=images,
-        cameras_model=chosen,
+        image_names=images,
+        known_cameras=chosen,
         models=models,
         dense_dir=dense_dir,
     )
@@ -237,7 +245,7 @@ def resolve_input(path: str | Path, model: int | None = None) -> InputSpec:
         images = list_images(image_dir)
     if not images:
         raise _no_photos(root, root / "images" if (root / "images").is_dir() else None)
-    return InputSpec(kind=InputKind.PHOTOS, root=root, image_dir=image_dir, images=images)
+    return InputSpec(root=root, kind=InputKind.PHOTOS, image_dir=image_dir, image_names=images)
 
 
 def select_holdout(names: Sequence[str], every: int = DEFAULT_HOLDOUT_EVERY) -> tuple[str, ...]:
@@ -247,7 +255,7 @@ def select_holdout(names: Sequence[str], every: int = DEFAULT_HOLDOUT_EVERY) -> 
     every = 0: none. Raises ConfigError for every < 0 or every = 1 (nothing would be left to train on).
     """
     if every < 0 or every == 1:
-        raise ConfigError(f"holdout must be 0 (none) or >= 2 (every N-th photo), got {every}")
+        raise ConfigError(f"holdout must be 0 (none) or N >= 2 (every N-th photo), got {every}")
     if every == 0:
         return ()
     ordered = sorted(names)
@@ -256,10 +264,10 @@ def select_holdout(names: Sequence[str], every: int = DEFAULT_HOLDOUT_EVERY) -> 
 
 def choose_holdout(spec: InputSpec, every: int | None = None) -> Holdout:
     """The held-out views of a run: ``every`` None = the input's own held-out views when it brings some (a scene's
-    ``test/``), otherwise every 8th photo; 0 = none; N = every N-th photo of ``spec.images``."""
+    ``test/``), otherwise every 8th photo; 0 = none; N = every N-th photo of ``spec.image_names``."""
     if every is None:
-        if spec.holdout_images:
-            return Holdout(spec.holdout_images, "input", spec.holdout_dir, spec.holdout_model)
+        if spec.has_own_holdout:
+            return Holdout(spec.test_names, "input", spec.test_photos, spec.test_model)
         every = DEFAULT_HOLDOUT_EVERY
-    names = select_holdout(spec.images, every)
+    names = select_holdout(spec.image_names, every)
     return Holdout(names, "every" if names else "none", spec.image_dir if names else None, None)

@@ -36,7 +36,9 @@ __all__ = [
     "ReferenceKind",
     "Units",
     "read_reference",
+    "read_reference_centers",
     "read_reference_text",
+    "metres_per_unit",
     "read_strecha_camera",
     "read_strecha_cameras",
     "write_reference_text",
@@ -182,3 +184,22 @@ def read_strecha_cameras(folder: str | Path) -> Cameras:
         cam, view = read_strecha_camera(f, i, i)
         cams[i], views[i] = cam, view
     return Cameras(cams, views)
+
+
+METRES_PER_UNIT = {u.value: u.metres for u in Units}
+
+
+def metres_per_unit(units: str) -> float:
+    """Metres per one ``units`` (m, mm, cm, ft); ConfigError for anything else."""
+    return Units.parse(units).metres
+
+
+def read_reference_centers(path: str | Path, units: str = "m") -> dict[str, np.ndarray]:
+    """Camera centres by image name in metres (float64 (3,)), from a text file or a COLMAP model folder.
+
+    As :func:`read_reference`, and at least 3 centres are required (a similarity needs them): FormatError otherwise.
+    """
+    ref = read_reference(path, units)
+    if len(ref.centers) < 3:
+        raise FormatError(f"needs at least 3 camera centres to align, found {len(ref.centers)}", ref.path)
+    return {name: np.array(c) for name, c in ref.centers.items()}

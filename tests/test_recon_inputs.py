@@ -32,15 +32,15 @@ def test_photos_directly_sorted_case_insensitive(tmp_path: Path):
     _touch_photos(tmp_path / "sub", ["z.jpg"])  # sub-folders are not searched
     spec = resolve_input(tmp_path)
     assert spec.kind is InputKind.PHOTOS and spec.image_dir == tmp_path
-    assert spec.images == ("a.jpeg", "b.JPG", "c.Png", "d.tif")
-    assert spec.cameras_model is None and spec.holdout_images == () and spec.reference_cloud is None
+    assert spec.image_names == ("a.jpeg", "b.JPG", "c.Png", "d.tif")
+    assert spec.known_cameras is None and spec.test_names == () and spec.reference_cloud is None
 
 
 def test_photos_one_level_down_in_images(tmp_path: Path):
     _touch_photos(tmp_path / "images", ["0001.jpg", "0000.jpg"])
     spec = resolve_input(tmp_path)
     assert spec.kind is InputKind.PHOTOS and spec.image_dir == tmp_path / "images"
-    assert spec.images == ("0000.jpg", "0001.jpg")
+    assert spec.image_names == ("0000.jpg", "0001.jpg")
 
 
 def test_no_photos_and_bad_folders(tmp_path: Path):
@@ -82,9 +82,9 @@ def test_colmap_workspace_picks_largest_model_or_the_asked_one(tmp_path: Path):
     (tmp_path / "sparse" / "notes").mkdir()  # not a numbered model: ignored
     spec = resolve_input(tmp_path)
     assert spec.kind is InputKind.COLMAP and spec.image_dir == tmp_path / "images"
-    assert spec.cameras_model == tmp_path / "sparse" / "1"
+    assert spec.known_cameras == tmp_path / "sparse" / "1"
     assert [m.name for m in spec.models] == ["0", "1", "2"] and spec.dense_dir is None
-    assert resolve_input(tmp_path, model=2).cameras_model == tmp_path / "sparse" / "2"
+    assert resolve_input(tmp_path, model=2).known_cameras == tmp_path / "sparse" / "2"
     with pytest.raises(InputFileError, match=r"model 7 does not exist \(models here: 0, 1, 2\)"):
         resolve_input(tmp_path, model=7)
 
@@ -94,8 +94,8 @@ def test_colmap_workspace_model_directly_in_sparse_with_dense(tmp_path: Path):
     _model(tmp_path / "sparse", 1)
     (tmp_path / "dense").mkdir()
     spec = resolve_input(tmp_path)
-    assert spec.cameras_model == tmp_path / "sparse" and spec.dense_dir == tmp_path / "dense"
-    assert resolve_input(tmp_path, model=0).cameras_model == tmp_path / "sparse"
+    assert spec.known_cameras == tmp_path / "sparse" and spec.dense_dir == tmp_path / "dense"
+    assert resolve_input(tmp_path, model=0).known_cameras == tmp_path / "sparse"
 
 
 def test_colmap_dense_only_workspace(tmp_path: Path):
@@ -103,7 +103,7 @@ def test_colmap_dense_only_workspace(tmp_path: Path):
     _model(tmp_path / "dense" / "sparse", 2)
     spec = resolve_input(tmp_path)
     assert spec.kind is InputKind.COLMAP and spec.image_dir == tmp_path / "dense" / "images"
-    assert spec.cameras_model == tmp_path / "dense" / "sparse"
+    assert spec.known_cameras == tmp_path / "dense" / "sparse"
 
 
 def test_colmap_workspace_errors(tmp_path: Path):
@@ -128,20 +128,22 @@ def test_data_synth_scene(tiny_scene: Path):
     spec = resolve_input(tiny_scene)
     meta = json.loads((tiny_scene / "scene.json").read_text())
     assert spec.kind is InputKind.SYNTH
-    assert list(spec.images) == sorted(meta["views"]["train"])
-    assert list(spec.holdout_images) == sorted(meta["views"]["test"])
-    assert spec.cameras_model == tiny_scene / "sparse" / "0"
-    assert spec.holdout_model == tiny_scene / "sparse" / "test" and spec.holdout_dir == tiny_scene / "test"
+    assert list(spec.image_names) == sorted(meta["views"]["train"])
+    assert list(spec.test_names) == sorted(meta["views"]["test"])
+    assert spec.known_cameras == tiny_scene / "sparse" / "0"
+    assert spec.test_model == tiny_scene / "sparse" / "test" and spec.test_photos == tiny_scene / "test"
     assert spec.reference_cloud == tiny_scene / "gt" / "lidar.ply"
     assert spec.test_labels == tiny_scene / "gt" / "labels" / "test"
+    assert spec.train_labels == tiny_scene / "gt" / "labels" / "train" and spec.kind == "synthetic"
+    assert spec.has_own_holdout and spec.scene_json == tiny_scene / "scene.json"
     assert spec.gsd_m == meta["gsd_m"] and spec.origin == tuple(meta["origin"])
     expected = tuple(m["id"] for m in meta["materials"] if not m["collaborative"])
     assert spec.non_collaborative_ids == expected and expected
     # the default holdout is the scene's own test views; an explicit N picks from the training photos
     hold = choose_holdout(spec)
-    assert hold.source == "input" and hold.names == spec.holdout_images and hold.model == spec.holdout_model
+    assert hold.source == "input" and hold.names == spec.test_names and hold.model == spec.test_model
     hold = choose_holdout(spec, 4)
-    assert hold.source == "every" and hold.names == (spec.images[3], spec.images[7]) and hold.model is None
+    assert hold.source == "every" and hold.names == (spec.image_names[3], spec.image_names[7]) and hold.model is None
     assert choose_holdout(spec, 0).names == ()
 
 

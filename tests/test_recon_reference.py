@@ -43,7 +43,10 @@ def test_bad_camera_file(tmp_path: Path):
 
 
 def test_fountain_ground_truth_files_parse():
-    folder = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "fountain-P11" / "gt_dense_cameras"
+    import os
+
+    data = Path(os.environ.get("HYBRIDSPLAT_SHARED_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
+    folder = data / "real" / "fountain-P11" / "gt_dense_cameras"
     if not folder.is_dir():
         pytest.skip(f"{folder} is absent")
     cams = read_strecha_cameras(folder)
@@ -139,3 +142,46 @@ def test_reference_from_colmap_model_and_text_round_trip(tmp_path: Path):
     back = read_reference(tmp_path / "ref_ft.txt", "ft")
     np.testing.assert_allclose(back.positions(back.names), centers, atol=1e-12)
     assert back.extent_m() == pytest.approx(float(np.linalg.norm(centers.max(0) - centers.min(0))))
+
+
+def test_align_to_a_georeferenced_reference_in_millimetres(tmp_path: Path):
+    """SfM-like model (arbitrary frame and scale) + GNSS centres in mm at UTM coordinates → aligned in a local
+    frame whose origin restores the UTM coordinates to 1e-6 m; a wrong centre (0.5 m off) is an outlier."""
+    from scipy.spatial.transform import Rotation
+
+    from recon.align import Similarity, align_to_reference
+    from recon.model import to_reconstruction
+    from recon.reference import read_reference, write_reference_text
+
+    rng = np.random.default_rng(8)
+    utm = np.array([512_345.678, 5_401_234.567, 412.345])
+    true_centers = utm + rng.uniform(-40, 40, (12, 3)) * [1, 1, 0.1]  # a 80 m block of GNSS-tagged photos
+    to_model = Similarity(0.05, Rotation.random(random_state=3).as_matrix(), np.array([1.0, -2.0, 0.5]))
+    model_centers = to_model.apply(true_centers - utm)  # what SfM would give: its own frame and scale
+    cams = Cameras({1: Camera.pinhole(500.0, 500.0, 320.0, 240.0, 640, 480, 1)}, {})
+    for i, c in enumerate(model_centers, start=1):
+        R = Rotation.random(random_state=100 + i).as_matrix()
+        cams.views[i] = View.from_matrix(i, f"{i:04d}.jpg", 1, np.c_[R, -R @ c])
+    rec = to_reconstruction(cams)
+    reported = {f"{i:04d}.jpg": c.copy() for i, c in enumerate(true_centers, start=1)}
+    reported["0005.jpg"] = reported["0005.jpg"] + [0.5, 0.0, 0.0]  # one bad GNSS fix
+    write_reference_text(tmp_path / "gnss_mm.txt", reported, "mm")
+    ref = read_reference(tmp_path / "gnss_mm.txt", "mm")
+    aligned = align_to_reference(rec, ref.centers, threshold_m=0.1)
+    np.testing.assert_array_equal(aligned.origin, np.round(true_centers[:, :].mean(axis=0)))
+    assert aligned.result.num_inliers == 11 and not aligned.result.inliers[4]
+    got = np.stack([np.asarray(rec.image(i).projection_center()) for i in range(1, 13)]) + aligned.origin
+    np.testing.assert_allclose(got, true_centers, atol=1e-6, rtol=0)
+    assert aligned.result.residuals[4] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_read_reference_centers_needs_three(tmp_path: Path):
+    from recon.reference import metres_per_unit, read_reference_centers
+
+    (tmp_path / "r.txt").write_text("a 1 2 3\nb 4 5 6\n")
+    with pytest.raises(FormatError, match="at least 3 camera centres"):
+        read_reference_centers(tmp_path / "r.txt")
+    (tmp_path / "r.txt").write_text("a 1000 2000 3000\nb 4 5 6\nc 7 8 9\n")
+    centers = read_reference_centers(tmp_path / "r.txt", "mm")
+    np.testing.assert_allclose(centers["a"], [1.0, 2.0, 3.0], rtol=1e-15)
+    assert metres_per_unit("ft") == 0.3048

@@ -41,12 +41,12 @@ def test_fountain_photos_register_with_default_options(tmp_path: Path):
     for p in sorted((fountain / "images").glob("*.jpg")):
         shutil.copy2(p, photos / p.name)
     spec = resolve_input(tmp_path / "photos")
-    assert spec.images == tuple(f"{i:04d}.jpg" for i in range(11)) and spec.cameras_model is None
+    assert spec.image_names == tuple(f"{i:04d}.jpg" for i in range(11)) and spec.known_cameras is None
     log = tmp_path / "logs" / "colmap.log"
     rec, report = run_sfm(
-        spec.image_dir, tmp_path / "sparse", SfmOptions(), log_path=log, image_names=list(spec.images)
+        spec.image_dir, tmp_path / "sparse", SfmOptions(), log_path=log, image_names=list(spec.image_names)
     )
-    assert report.registered == list(spec.images) and not report.unregistered
+    assert report.registered == list(spec.image_names) and not report.unregistered
     assert rec.num_cameras() == 1  # one camera shared by all photos (default)
     assert report.mean_reprojection_error < 1.0 and log.stat().st_size > 0
     # independent truth: LiDAR-registered camera centres, compared after a similarity alignment

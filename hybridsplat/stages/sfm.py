@@ -82,7 +82,7 @@ class SfmStage(Stage):
             cameras = from_reconstruction(read_reconstruction(src.known_cameras))
             rec, report = triangulate_known_poses(cameras, src.image_dir, layout.sparse, sfm_options)
         else:
-            rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.images))
+            rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.image_names))
             reference = _reference_centers(ctx)
             if reference:
                 c = np.stack(list(reference.values()))
@@ -127,9 +127,9 @@ def _reference_centers(ctx: StageContext) -> dict[str, np.ndarray]:
 
     reference = ctx.config.input.reference
     if reference is None:
-        if ctx.source.spec.cameras_model is None:
+        if ctx.source.spec.known_cameras is None:
             return {}
-        return {v.name: v.center for v in from_reconstruction(read_reconstruction(ctx.source.spec.cameras_model))}
+        return {v.name: v.center for v in from_reconstruction(read_reconstruction(ctx.source.spec.known_cameras))}
     from recon.reference import read_reference
 
     return dict(read_reference(reference, ctx.config.input.units).centers)
