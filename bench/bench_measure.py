@@ -40,6 +40,7 @@ from core.errors import DataError  # noqa: E402
 from core.io.colmap import read_model  # noqa: E402
 from core.io.images import read_image  # noqa: E402
 from eval.measure import CHI2_3_95, MeasuredPoint, Pick, triangulate  # noqa: E402
+from hybridsplat.layout import ProjectLayout  # noqa: E402
 
 SIGMA_PX = 0.5
 
@@ -185,7 +186,7 @@ def render_views(project: Path, sfm: Cameras, names: set[str]) -> dict[str, np.n
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.render import render_gaussian_set
 
-    gs = read_gaussian_ply(project / "export" / "merged.ply")
+    gs = read_gaussian_ply(ProjectLayout(project).merged_ply)
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -302,7 +303,7 @@ def main(argv: list[str] | None = None) -> None:
 
     t0 = time.perf_counter()
     true_cams, _ = read_model(args.scene / "sparse" / "0")
-    sfm, _ = read_model(args.project / "sparse")
+    sfm, _ = read_model(ProjectLayout(args.project).sparse)
     sfm_names = {v.name for v in sfm}
     truths = sample_truth(args.scene, true_cams, sfm_names, args.points, args.seed)
     rng = np.random.default_rng(args.seed + 1)
