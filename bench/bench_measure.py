@@ -237,10 +237,10 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
     from hybridsplat.viewer.browser import (
         CHROMIUM,
         FLAGS,
-        CameraReports,
         browser_missing,
         jump_and_settle,
         screen_position,
+        track_camera_reports,
         wait_for,
     )
     from hybridsplat.viewer.project import open_project
@@ -260,10 +260,11 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
             browser = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=list(FLAGS))
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.set_default_timeout(60_000)
+            tracked = track_camera_reports(app.server)
             page.goto(f"http://127.0.0.1:{app.port}/")
             page.wait_for_selector("canvas")
             client = wait_for(lambda: next(iter(app.server.get_clients().values()), None), 60, "the page")
-            reports = CameraReports(client)
+            reports = wait_for(lambda: tracked.get(client.client_id), 30, "camera tracking")
             box = page.locator("canvas").first.bounding_box()
             for name in truth.images[:2]:
                 view = sfm.by_name(name)
