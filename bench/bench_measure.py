@@ -40,6 +40,7 @@ from core.errors import DataError  # noqa: E402
 from core.io.colmap import read_model  # noqa: E402
 from core.io.images import read_image  # noqa: E402
 from eval.measure import CHI2_3_95, MeasuredPoint, Pick, triangulate  # noqa: E402
+from hybridsplat.layout import ProjectLayout  # noqa: E402
 
 SIGMA_PX = 0.5
 
@@ -185,7 +186,7 @@ def render_views(project: Path, sfm: Cameras, names: set[str]) -> dict[str, np.n
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.render import render_gaussian_set
 
-    gs = read_gaussian_ply(project / "export" / "merged.ply")
+    gs = read_gaussian_ply(ProjectLayout(project).merged_ply)
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -236,10 +237,10 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
     from hybridsplat.viewer.browser import (
         CHROMIUM,
         FLAGS,
-        CameraReports,
         browser_missing,
         jump_and_settle,
         screen_position,
+        track_camera_reports,
         wait_for,
     )
     from hybridsplat.viewer.project import open_project
@@ -259,10 +260,11 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
             browser = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=list(FLAGS))
             page = browser.new_page(viewport={"width": 1280, "height": 800})
             page.set_default_timeout(60_000)
+            tracked = track_camera_reports(app.server)
             page.goto(f"http://127.0.0.1:{app.port}/")
             page.wait_for_selector("canvas")
             client = wait_for(lambda: next(iter(app.server.get_clients().values()), None), 60, "the page")
-            reports = CameraReports(client)
+            reports = wait_for(lambda: tracked.get(client.client_id), 30, "camera tracking")
             box = page.locator("canvas").first.bounding_box()
             for name in truth.images[:2]:
                 view = sfm.by_name(name)
@@ -297,11 +299,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
     ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
     ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
+    ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
     args = ap.parse_args(argv)
 
     t0 = time.perf_counter()
     true_cams, _ = read_model(args.scene / "sparse" / "0")
-    sfm, _ = read_model(args.project / "sparse")
+    sfm, _ = read_model(ProjectLayout(args.project).sparse)
     sfm_names = {v.name for v in sfm}
     truths = sample_truth(args.scene, true_cams, sfm_names, args.points, args.seed)
     rng = np.random.default_rng(args.seed + 1)
@@ -363,6 +366,15 @@ def main(argv: list[str] | None = None) -> None:
                 indent=2,
             )
         )
+    if args.picks_out:
+        from eval.measure.picks import ImagePick, PicksFile, PointPicks, write_picks
+
+        points = tuple(
+            PointPicks(f"T{i}", tuple(ImagePick(n, float(px[0]), float(px[1]), SIGMA_PX) for n, px in p.items()))
+            for i, p in enumerate(noisy)
+        )
+        write_picks(args.picks_out, PicksFile(points, tuple((f"T{i}", f"T{i + 1}") for i in range(len(points) - 1))))
+        print(f"wrote {args.picks_out}: run `hybridsplat measure {args.picks_out} --project {args.project}`")
     if args.screenshot:
         # The point whose first two projections are the most central (clear of notifications at the corners).
         def off_centre(t: Truth) -> float:

@@ -20,11 +20,11 @@ from test_viewer_scene import ORIGIN, make_project
 from hybridsplat.viewer.browser import (
     CHROMIUM,
     FLAGS,
-    CameraReports,
     browser_missing,
     canvas_rgb,
     jump_and_settle,
     screen_position,
+    track_camera_reports,
     wait_for,
 )
 from hybridsplat.viewer.project import open_project
@@ -60,10 +60,11 @@ def test_page_renders_splats_and_a_click_measures(viewer, tmp_path) -> None:
         try:
             page = browser.new_page(viewport=VIEWPORT)
             page.set_default_timeout(60_000)
+            tracked = track_camera_reports(viewer.server)
             page.goto(f"http://127.0.0.1:{viewer.port}/")
             page.wait_for_selector("canvas")
             client = wait_for(lambda: next(iter(viewer.server.get_clients().values()), None), 60, "the page to connect")
-            reports = CameraReports(client)
+            reports = wait_for(lambda: tracked.get(client.client_id), 30, "camera tracking")
             wait_for(lambda: client.camera.image_width > 0, 30, "the client camera")
             box = page.locator("canvas").first.bounding_box()
             views = list(viewer.scene.cameras)

@@ -156,3 +156,36 @@ def test_load_project_puts_everything_in_the_cameras_frame(tmp_path) -> None:
     assert len(scene.cameras) == 4 and scene.splats is not None and scene.cloud is None and scene.mesh is None
     assert np.abs(scene.splats.centers).max() <= 0.3 + 1e-6  # local, not UTM, in float32
     np.testing.assert_allclose(scene.centre, [0.0, 0.0, 0.0], atol=0.02)
+
+
+def test_view_command_serves_a_project_and_a_bare_ply(tmp_path, capsys) -> None:
+    from hybridsplat.cli import main
+
+    make_project(tmp_path)
+    for target, cameras in ((tmp_path, "4 cameras"), (tmp_path / "export" / "merged.ply", "0 cameras")):
+        try:
+            main(["view", str(target), "--port", "0", "--seconds", "0.2"])
+        except SystemExit as exc:
+            assert not exc.code
+        out = capsys.readouterr().out
+        assert "http://127.0.0.1:" in out and "(splats;" in out and cameras in out, out
+
+
+def test_cloud_and_mesh_layers_are_shifted_into_the_cameras_frame(tmp_path) -> None:
+    import trimesh
+
+    from core.io.ply import write_ply
+    from core.pointcloud import PointCloud
+    from hybridsplat.viewer.scene import cloud_arrays, mesh_arrays
+
+    world = ORIGIN + np.array([[0.1, 0.2, 0.3], [-0.1, 0.0, 0.05]])
+    write_ply(tmp_path / "fused.ply", PointCloud.from_world(world, colors=np.array([[255, 0, 0], [0, 255, 0]])))
+    cloud = cloud_arrays(tmp_path / "fused.ply", ORIGIN)
+    np.testing.assert_allclose(cloud.points, world - ORIGIN, atol=1e-6)
+    assert cloud.colors.tolist() == [[255, 0, 0], [0, 255, 0]] and cloud.total == 2
+    box = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
+    box.export(tmp_path / "mesh.ply")
+    write_origin(tmp_path / "mesh.ply", ORIGIN + 1.0)
+    mesh = mesh_arrays(tmp_path / "mesh.ply", ORIGIN)
+    np.testing.assert_allclose(mesh.vertices, np.asarray(box.vertices) + 1.0, atol=1e-6)
+    assert mesh.faces.shape == (12, 3)

@@ -14,7 +14,10 @@ import typer
 
 
 def measure_command(
-    picks: Path = typer.Argument(..., help="PICKS.json: points picked as pixels in named images (see the docs)."),
+    picks: Path = typer.Argument(
+        ...,
+        help="PICKS.json: per point an id and picks {image, u, v} in COLMAP pixels (format: eval/measure/picks.py).",
+    ),
     project: Path = typer.Option(
         ..., "--project", "-p", help="Project folder (cameras from sparse/, origin from export/merged.ply)."
     ),

@@ -274,9 +274,23 @@ class ViewerApp:
                 self._say(f"not measured: {err.one_line()}")
                 return None
             self._clear_rays()
+            note = self._auto_exaggeration(point)
             self._redraw_points()
-            self._say(f"measured {point.name}; picks: 0")
+            self._say(f"measured {point.name}; picks: 0{note}")
             return point
+
+    def _auto_exaggeration(self, point: MeasuredPoint) -> str:
+        """On the first point: a power-of-ten ellipsoid scale that makes it visible (≥ 0.5 % of the scene)."""
+        if len(self.session.points) != 1 or float(self.exaggeration.value) != self.options.exaggeration:
+            return ""
+        axes, _ = point.ellipsoid(self.options.probability)
+        visible = 0.005 * self.scene.extent
+        largest = float(axes.max()) * self.options.exaggeration
+        if largest <= 0 or largest >= visible:
+            return ""
+        factor = float(min(10 ** np.ceil(np.log10(visible / largest)), 1000.0))
+        self.exaggeration.value = self.options.exaggeration * factor
+        return f" (ellipsoids drawn ×{self.exaggeration.value:g}: see the slider)"
 
     def _undo(self) -> None:
         with self.lock:
@@ -298,7 +312,7 @@ class ViewerApp:
                     vertices=v.astype(np.float32),
                     faces=faces,
                     color=POINT_COLOUR,
-                    opacity=0.6,
+                    opacity=None,  # opaque: splats are drawn over transparent meshes and hid them
                 )
             )
             self._point_handles.append(

@@ -85,6 +85,17 @@ class CameraReports:
         return [r[0] for r in self.reports]
 
 
+def track_camera_reports(server: Any) -> dict[int, CameraReports]:
+    """Camera reports of every client that connects from now on, by client id.
+
+    Call before the page loads: a page's first reports come right after it connects, and a camera that never
+    moves again never reports again.
+    """
+    reports: dict[int, CameraReports] = {}
+    server.on_client_connect(lambda client: reports.setdefault(client.client_id, CameraReports(client)))
+    return reports
+
+
 def settle_at_photo(
     client: Any, view: View, cameras: Cameras, reports: CameraReports, timeout: float = 60.0, hold: float = 1.0
 ) -> None:
@@ -116,7 +127,6 @@ def jump_and_settle(
     A jump sent while the page is still initialising its camera can be dropped by the page: it is sent again,
     up to ``tries`` times.
     """
-    wait_for(lambda: reports.reports, 60.0, "the browser's first camera report")
     for attempt in range(tries):
         app.jump_to(client, view)
         try:

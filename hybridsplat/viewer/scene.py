@@ -119,12 +119,11 @@ def splat_arrays(gs: GaussianSet, frame_origin: np.ndarray, max_splats: int = 2_
 
 
 def cloud_arrays(path: str | PathLike[str], frame_origin: np.ndarray, max_points: int = 1_000_000) -> CloudArrays:
-    """A PLY point cloud (its origin sidecar honoured) as viewer arrays in the frame of ``frame_origin``."""
-    from core.io.origin import read_origin
+    """A PLY point cloud (origin sidecar honoured by ``read_ply``) as viewer arrays in the frame ``frame_origin``."""
     from core.io.ply import read_ply
 
     cloud = read_ply(path)
-    origin = read_origin(path) if not np.any(cloud.origin) else cloud.origin
+    origin = cloud.origin
     total = len(cloud.positions)
     keep = _cap(total, max_points)
     pos = cloud.positions if keep is None else cloud.positions[keep]
