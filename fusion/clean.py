@@ -95,8 +95,8 @@ def clean_splats(
     options: CleanOptions | None = None,
 ) -> CleanResult:
     """Remove floaters and degenerate splats (``splats`` in the frame of ``cameras``' origin or any other: they
-    are moved to the cameras' origin for the mask test). Without cameras and masks the mask test is skipped and
-    the scene scale check uses the splats' extent."""
+    are moved to the cameras' origin for the mask test). Without cameras and masks the mask test is skipped; without
+    at least two cameras the scene scale is the splats' extent."""
     opts = options or CleanOptions()
     n = len(splats)
     reasons = np.zeros(n, np.uint8)
@@ -116,7 +116,10 @@ def clean_splats(
     sigma = splats.scales.astype(np.float64).max(axis=1)
     spacing = _median_spacing(splats.means)
     if opts.max_scale_scene is not None:
-        scale = scene_scale(cameras) if cameras is not None else float(np.ptp(splats.means, axis=0).max())
+        if cameras is not None and len(cameras) > 1:
+            scale = scene_scale(cameras)
+        else:  # no camera spread to measure: the splats' own extent
+            scale = float(np.ptp(splats.means, axis=0).max())
         mark(sigma > opts.max_scale_scene * scale, Reason.EXTREME_SCALE)
     if opts.max_scale_spacing is not None and spacing > 0:
         mark(sigma > opts.max_scale_spacing * spacing, Reason.EXTREME_SCALE)

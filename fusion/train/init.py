@@ -6,9 +6,9 @@ Three sources of seeds (all in the cameras' local frame, metres):
 2. SfM points whose projection falls inside a mask in at least ``min_sfm_views`` views (in front of the camera);
 3. ray samples: for a seeded subset of each view's mask pixels, a point on the pixel's ray at the depth
    interpolated from the surrounding trusted MVS depth (the z-buffered projection of the ``needs_splats = 0``
-   points, in a band around the mask), so that holes without any MVS point still get seeds. The interpolation is
-   linear over a Delaunay triangulation of the band's depth samples (scipy's ``LinearNDInterpolator``), nearest
-   sample outside their hull.
+   points, in a band around the mask), so that holes without any MVS point still get seeds. The interpolation is a
+   normalised convolution (:func:`fill_depth`): the Gaussian-weighted mean of nearby band depths, with the window
+   widened until it reaches some.
 
 Colours: each seed's own colour (MVS / SfM point colour; the photo's pixel for ray samples). Scales: isotropic,
 the mean distance to the ``k_scale`` nearest seeds-or-frozen points (3DGS's initialisation), clamped. Opacity:
@@ -23,7 +23,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
 from scipy.spatial import cKDTree
 
 from core.cameras import Cameras
@@ -104,6 +103,27 @@ def zbuffer_depth(cameras: Cameras, view, points: np.ndarray) -> np.ndarray:
     return depth.reshape(cam.height, cam.width)
 
 
+def fill_depth(depth: np.ndarray, valid: np.ndarray, sigmas: tuple[float, ...] = (2, 4, 8, 16, 32, 64)) -> np.ndarray:
+    """(H, W) depth interpolated everywhere from the ``valid`` pixels by normalised convolution: per pixel, the
+    Gaussian-weighted mean of the valid depths at the smallest σ (px) whose weight reaches 1e-3; NaN where even the
+    largest σ sees no valid pixel. (Normalised convolution instead of a Delaunay interpolator: Qhull on pixel-grid
+    samples took minutes per view.)"""
+    out = np.full(depth.shape, np.nan)
+    todo = np.ones(depth.shape, bool)
+    d = np.where(valid, depth, 0.0).astype(np.float64)
+    w = valid.astype(np.float64)
+    for sigma in sigmas:
+        k = int(2 * round(3 * sigma) + 1)
+        wd = cv2.GaussianBlur(d, (k, k), sigma, borderType=cv2.BORDER_CONSTANT)
+        ww = cv2.GaussianBlur(w, (k, k), sigma, borderType=cv2.BORDER_CONSTANT)
+        ready = todo & (ww > 1e-3)
+        out[ready] = wd[ready] / ww[ready]
+        todo &= ~ready
+        if not todo.any():
+            break
+    return out
+
+
 def ray_seeds(
     cameras: Cameras,
     masks: Mapping[str, np.ndarray],
@@ -125,20 +145,11 @@ def ray_seeds(
         rows, colsi = np.nonzero(mask)
         pick = rng.choice(len(rows), size=min(options.rays_per_view, len(rows)), replace=False)
         r, c = rows[pick], colsi[pick]
-        br, bc = np.nonzero(band)
-        if len(br) < 3:
-            missing += len(r)
-            continue
-        samples = np.stack([bc + 0.5, br + 0.5], axis=1)
-        values = depth[br, bc]
+        z = fill_depth(np.where(band, depth, 0.0), band)[r, c]
+        ok = np.isfinite(z)
+        missing += int((~ok).sum())
+        r, c, z = r[ok], c[ok], z[ok]
         query = np.stack([c + 0.5, r + 0.5], axis=1)
-        try:
-            z = LinearNDInterpolator(samples, values)(query)
-        except Exception:  # noqa: BLE001 - degenerate (collinear) samples: fall back to nearest below
-            z = np.full(len(query), np.nan)
-        far = ~np.isfinite(z)
-        if far.any():
-            z[far] = NearestNDInterpolator(samples, values)(query[far])
         pts.append(cameras.unproject(view, query, z))
         img = np.asarray(images[view.name])
         img = img.astype(np.float64) / 255.0 if img.dtype == np.uint8 else img.astype(np.float64)
