@@ -19,17 +19,14 @@ Distances are metres, image metrics use colours in [0, 1] (see :mod:`eval.image_
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from core.errors import FormatError, InputFileError
-from core.io.atomic import write_text_atomic
+from core.io.json_io import read_json, to_jsonable, write_json_atomic
 from eval.c2c import C2CResult, DistanceStats, ThresholdScores, histogram
 from eval.image_metrics import ImageScores, ScoreSummary, summarize
 
@@ -168,46 +165,115 @@ def metrics_path(project: str | PathLike[str]) -> Path:
 
 
 def to_json_safe(value: Any) -> Any:
-    """JSON-safe copy: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, Mapping):
-        return {str(k): to_json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [to_json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
+    """JSON-safe copy (numpy to Python, non-finite floats to None); alias of :func:`core.io.json_io.to_jsonable`."""
+    return to_jsonable(value)
 
 
 def write_metrics(project: str | PathLike[str], products: Mapping[str, ProductMetrics]) -> Path:
     """Write (replace) ``PROJECT/eval/metrics.json`` with ``products``; atomic. Returns the path."""
     path = metrics_path(project)
     payload = {"schema": SCHEMA, "products": {name: p.as_dict() for name, p in products.items()}}
-    write_text_atomic(path, json.dumps(to_json_safe(payload), indent=2) + "\n")
-    return path
+    return write_json_atomic(path, payload)
 
 
 def update_metrics(project: str | PathLike[str], name: str, product: ProductMetrics) -> Path:
     """Add or replace one product in ``PROJECT/eval/metrics.json`` (other products are kept); atomic."""
     path = metrics_path(project)
     payload = read_metrics(path) if path.exists() else {"schema": SCHEMA, "products": {}}
-    payload["products"][name] = to_json_safe(product.as_dict())
-    write_text_atomic(path, json.dumps(payload, indent=2) + "\n")
-    return path
+    payload["products"][name] = product.as_dict()
+    return write_json_atomic(path, payload)
 
 
 def read_metrics(path: str | PathLike[str]) -> dict[str, Any]:
-    """Read a metrics.json (path to the file or to the project folder) as plain JSON data, checked."""
+    """Read a metrics.json (path to the file or to the project folder) as plain JSON data, checked.
+
+    Every value the report uses is checked for its JSON type (numbers or null for metrics, booleans,
+    strings, objects and lists where the layout in this module's docstring has them); a wrong type raises
+    :class:`FormatError` naming the file and the key path (e.g. ``products.mvs.c2c.mean``).
+    """
     p = Path(path)
     if p.is_dir():
         p = metrics_path(p)
-    if not p.is_file():
+    if not p.exists():
         raise InputFileError("metrics file does not exist", p)
-    try:
-        payload = json.loads(p.read_text(encoding="utf-8"))
-    except (ValueError, UnicodeDecodeError) as err:
-        raise FormatError(f"not valid JSON ({err})", p) from err
+    payload = read_json(p)
     if not isinstance(payload, dict) or not isinstance(payload.get("products"), dict):
         raise FormatError("expected an object with a 'products' object", p)
+    for name, product in payload["products"].items():
+        _check_product(product, f"products.{name}", p)
     return payload
+
+
+_NUMBER = (int, float)
+
+
+def _fail(where: str, expected: str, value: Any, path: Path) -> None:
+    raise FormatError(f"{where} must be {expected}, found {type(value).__name__} {str(value)[:40]!r}", path)
+
+
+def _check_type(obj: Mapping[str, Any], key: str, types: tuple[type, ...], where: str, path: Path) -> None:
+    """``obj[key]`` must be missing, null or one of ``types`` (bool is not a number)."""
+    v = obj.get(key)
+    if v is None:
+        return
+    if isinstance(v, bool) and bool not in types:
+        _fail(f"{where}.{key}", "/".join(t.__name__ for t in types), v, path)
+    if not isinstance(v, types):
+        _fail(f"{where}.{key}", "/".join(t.__name__ for t in types), v, path)
+
+
+def _check_stats(stats: Any, where: str, path: Path) -> None:
+    if stats is None:
+        return
+    if not isinstance(stats, dict):
+        _fail(where, "an object or null", stats, path)
+    for key, value in stats.items():
+        if key in ("method", "reference"):
+            _check_type(stats, key, (str,), where, path)
+        elif key in ("reverse",):
+            _check_stats(value, f"{where}.reverse", path)
+        elif key == "per_class":
+            if value is not None and not isinstance(value, dict):
+                _fail(f"{where}.per_class", "an object", value, path)
+            for cls, block in (value or {}).items():
+                _check_stats(block, f"{where}.per_class.{cls}", path)
+        elif key in ("registration", "files", "histogram"):
+            if value is not None and not isinstance(value, dict):
+                _fail(f"{where}.{key}", "an object or null", value, path)
+            if key == "histogram" and value is not None:
+                for part in ("edges", "counts"):
+                    seq = value.get(part, [])
+                    if not isinstance(seq, list) or not all(
+                        isinstance(x, _NUMBER) and not isinstance(x, bool) for x in seq
+                    ):
+                        _fail(f"{where}.histogram.{part}", "a list of numbers", seq, path)
+        elif key == "std" and isinstance(value, dict):
+            _check_stats(value, f"{where}.std", path)
+        else:
+            _check_type(stats, key, _NUMBER, where, path)
+
+
+def _check_product(product: Any, where: str, path: Path) -> None:
+    if not isinstance(product, dict):
+        _fail(where, "an object", product, path)
+    _check_type(product, "skipped", (bool,), where, path)
+    _check_type(product, "reason", (str,), where, path)
+    _check_stats(product.get("c2c"), f"{where}.c2c", path)
+    images = product.get("images")
+    if images is None:
+        return
+    if not isinstance(images, dict):
+        _fail(f"{where}.images", "an object or null", images, path)
+    for part in ("full", "masked"):
+        _check_stats(images.get(part), f"{where}.images.{part}", path)
+    views = images.get("per_view", [])
+    if not isinstance(views, list):
+        _fail(f"{where}.images.per_view", "a list", views, path)
+    for i, view in enumerate(views):
+        vw = f"{where}.images.per_view[{i}]"
+        if not isinstance(view, dict):
+            _fail(vw, "an object", view, path)
+        _check_type(view, "view", (str,), vw, path)
+        _check_type(view, "mask_share", _NUMBER, vw, path)
+        for part in ("full", "masked"):
+            _check_stats(view.get(part), f"{vw}.{part}", path)

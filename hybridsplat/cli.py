@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import signal
 import sys
+import threading
 
 import typer
 
@@ -52,25 +54,102 @@ def _register_commands() -> None:
 _register_commands()
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Entry point of the console script; exits 2 with one line on toolkit errors."""
-    debug = "--debug" in (argv if argv is not None else sys.argv[1:])
+class Terminated(BaseException):
+    """Raised in the main thread when the process receives SIGTERM.
+
+    A ``BaseException`` (like ``KeyboardInterrupt``) so that ``except Exception`` blocks do not swallow it,
+    while ``finally`` blocks and context managers (atomic writes, the pipeline's cleanup) still run.
+    """
+
+
+EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
+def _error(text: str) -> None:
+    print(f"hybridsplat: error: {' '.join(str(text).split())}", file=sys.stderr)
+
+
+def _os_error_line(err: OSError) -> str:
+    """``<file>: <problem>`` for an OSError (permission denied, is a directory, read-only file system...)."""
+    problem = err.strerror or str(err) or type(err).__name__
+    if err.filename is not None:
+        return f"{err.filename}: {problem}"
+    return problem
+
+
+def run_cli(argv: list[str] | None = None) -> int:
+    """Run the command line and return its exit status (never raises, except with ``--debug``).
+
+    Exit statuses: 0 success; 2 bad input or usage (one line ``hybridsplat: error: <file>: <problem>``,
+    or a usage line and the error); 1 internal error (one line naming the exception; ``--debug`` shows the
+    traceback); 130 Ctrl-C ("interrupted"); 143 SIGTERM ("terminated"). SIGTERM is converted into the
+    :class:`Terminated` exception while the command runs, so ``finally`` blocks run as on Ctrl-C.
+    """
+    from typer._click import exceptions as click_exc
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        app(args=argv, standalone_mode=False)
+        try:
+            rv = app(args=args, prog_name="hybridsplat", standalone_mode=False)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        code = rv if isinstance(rv, int) and not isinstance(rv, bool) else EXIT_OK
+        if code == EXIT_INTERRUPTED:  # typer turns KeyboardInterrupt into Exit(130) and returns the code
+            print("hybridsplat: interrupted", file=sys.stderr)
+        return code
     except HybridSplatError as err:
         if debug:
             raise
-        print(f"hybridsplat: error: {err.one_line()}", file=sys.stderr)
-        sys.exit(2)
+        _error(err.one_line())
+        return EXIT_BAD_INPUT
+    except click_exc.NoArgsIsHelpError as err:
+        err.show()
+        return EXIT_BAD_INPUT
+    except click_exc.UsageError as err:
+        if err.ctx is not None:
+            print(err.ctx.get_usage(), file=sys.stderr)
+        hint = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
+        _error(err.format_message() + hint)
+        return EXIT_BAD_INPUT
+    except click_exc.ClickException as err:
+        _error(err.format_message())
+        return EXIT_BAD_INPUT
     except typer.Exit as ex:
-        sys.exit(ex.exit_code)
+        return int(ex.exit_code)
     except (typer.Abort, KeyboardInterrupt):
-        print("hybridsplat: aborted", file=sys.stderr)
-        sys.exit(130)
-    except Exception as err:  # click usage errors arrive here in non-standalone mode
-        import click
+        print("hybridsplat: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Terminated:
+        print("hybridsplat: terminated", file=sys.stderr)
+        return EXIT_TERMINATED
+    except OSError as err:  # the file system refused: unwritable output, a folder where a file is expected...
+        if debug:
+            raise
+        _error(_os_error_line(err))
+        return EXIT_BAD_INPUT if err.filename is not None else EXIT_INTERNAL
+    except MemoryError:
+        if debug:
+            raise
+        _error("out of memory (an input may declare far more data than it holds; run with --debug for details)")
+        return EXIT_INTERNAL
+    except Exception as err:
+        if debug:
+            raise
+        _error(f"internal error: {type(err).__name__}: {err} (run with --debug for the traceback)")
+        return EXIT_INTERNAL
 
-        if isinstance(err, click.ClickException):
-            err.show()
-            sys.exit(err.exit_code)
-        raise
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script: runs :func:`run_cli` and exits with its status (returns on 0)."""
+    code = run_cli(argv)
+    if code != EXIT_OK:
+        sys.exit(code)

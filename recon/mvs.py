@@ -50,6 +50,7 @@ class MvsOptions:
     fusion: FusionOptions = field(default_factory=FusionOptions)
     num_threads: int | None = None  # torch threads for the CPU backend (None = torch's default)
     map_cache: int = 16  # depth maps held in memory during the geometric pass (bounds memory)
+    held_out: frozenset[str] = frozenset()  # image names never used for depth (as reference or source) nor fusion
 
 
 @dataclass
@@ -107,6 +108,12 @@ def run_mvs(
         t1 = time.perf_counter()
         run_patch_match(ws.root, options.max_image_size)
         report = _report_for(ws, backend.value)
+        if options.held_out:  # PatchMatch computed every view; held-out ones are left out of fusion
+            import pycolmap
+
+            rec = pycolmap.Reconstruction(str(ws.sparse))
+            names = [rec.image(i).name for i in sorted(rec.reg_image_ids())]
+            ws.write_fusion_cfg([n for n in names if n not in options.held_out])
         report.seconds_depth = time.perf_counter() - t1
     else:
         report = compute_depth_maps_cpu(ws, options, progress)
@@ -161,12 +168,13 @@ def compute_depth_maps_cpu(
     if options.num_threads:
         torch.set_num_threads(int(options.num_threads))
     rec = pycolmap.Reconstruction(str(ws.sparse))
-    ids = sorted(int(i) for i in rec.reg_image_ids())
+    ids = sorted(int(i) for i in rec.reg_image_ids() if rec.image(i).name not in options.held_out)
     if len(ids) < 2:
         raise ReconstructionError(
             f"dense reconstruction needs at least 2 registered images, the model has {len(ids)}", ws.sparse
         )
-    sel = select_views(rec, num_sources=options.cpu.num_sources)
+    held_out_ids = frozenset(int(i) for i in rec.reg_image_ids() if rec.image(i).name in options.held_out)
+    sel = select_views(rec, num_sources=options.cpu.num_sources, exclude=held_out_ids)
     names = {i: rec.image(i).name for i in ids}
     Ks = {i: np.asarray(rec.image(i).camera.calibration_matrix(), dtype=np.float64) for i in ids}
     poses = {}

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import FormatError, InputFileError, ReconstructionError
+from core.io import colmap_vis
 from core.io.atomic import atomic_path
 from core.pointcloud import PointCloud
 
@@ -146,36 +147,16 @@ def setup_dense_workspace(
 
 # -- import -----------------------------------------------------------------------------------------
 def read_vis(path: str | PathLike[str], num_points: int | None = None) -> list[np.ndarray]:
-    """Read ``fused.ply.vis``: per point, positions (uint32) into the model's ``reg_image_ids()`` order."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputFileError("visibility file does not exist", path)
-    data = np.fromfile(path, dtype="<u4")
-    if len(data) < 2:
-        raise FormatError("visibility file is truncated", path)
-    count = int(data[0]) | (int(data[1]) << 32)
-    out: list[np.ndarray] = []
-    i = 2
-    for _ in range(count):
-        if i >= len(data):
-            raise FormatError(f"visibility file is truncated after {len(out)} of {count} points", path)
-        n = int(data[i])
-        out.append(data[i + 1 : i + 1 + n].astype(np.int64))
-        i += 1 + n
-    if i != len(data) or (num_points is not None and count != num_points):
-        raise FormatError(f"visibility file lists {count} points, the cloud has {num_points}", path)
-    return out
+    """Read ``fused.ply.vis``: per point, positions (int64) into the model's ``reg_image_ids()`` order.
+
+    Thin wrapper of :func:`core.io.colmap_vis.read_vis` (the one reader of this file).
+    """
+    return colmap_vis.read_vis(path, num_points)
 
 
 def write_vis(path: str | PathLike[str], visibility: list[np.ndarray]) -> None:
-    """Write ``fused.ply.vis`` (uint64 count, then per point uint32 n and n uint32 indices)."""
-    parts = [np.array([len(visibility)], dtype="<u8").view("<u4")]
-    for v in visibility:
-        v = np.asarray(v, dtype="<u4").reshape(-1)
-        parts.append(np.array([len(v)], dtype="<u4"))
-        parts.append(v)
-    with atomic_path(path) as tmp:
-        np.concatenate(parts).astype("<u4").tofile(tmp)
+    """Write ``fused.ply.vis``; thin wrapper of :func:`core.io.colmap_vis.write_vis`."""
+    colmap_vis.write_vis(path, visibility)
 
 
 def read_fused(dense_dir: str | PathLike[str]) -> PointCloud:
@@ -191,12 +172,7 @@ def read_fused(dense_dir: str | PathLike[str]) -> PointCloud:
     if ws.fused_vis.is_file():
         vis = read_vis(ws.fused_vis, len(cloud))
         rec = pycolmap.Reconstruction(str(ws.sparse))
-        ids = np.asarray(sorted(rec.reg_image_ids()), dtype=np.int64)
-        if any(len(v) and int(v.max()) >= len(ids) for v in vis):
-            raise FormatError(
-                f"visibility indices exceed the {len(ids)} registered images of dense/sparse", ws.fused_vis
-            )
-        cloud.visibility = [ids[v] for v in vis]
+        cloud.visibility = colmap_vis.positions_to_image_ids(vis, rec.reg_image_ids(), ws.fused_vis)
     return cloud
 
 

@@ -14,8 +14,9 @@ import numpy as np
 import pycolmap
 
 from core.cameras import Camera, CameraModel, Cameras, View
-from core.errors import FormatError, InputFileError
+from core.errors import ConfigError, DataError, FormatError
 from core.io.atomic import atomic_path
+from core.io.colmap_scan import scan_model
 from core.pointcloud import PointCloud
 
 _MODEL_FILES = ("cameras", "images", "points3D")
@@ -88,12 +89,8 @@ def to_reconstruction(cameras: Cameras, points: PointCloud | None = None) -> pyc
 def read_model(path: str | PathLike[str]) -> tuple[Cameras, PointCloud]:
     """Read a COLMAP sparse model folder (binary or text) as cameras and sparse points."""
     path = Path(path)
-    if not path.is_dir():
-        raise InputFileError("COLMAP model folder does not exist" if not path.exists() else "is not a folder", path)
+    scan_model(path)  # counts against file sizes, ids, finiteness: before pycolmap trusts any count
     has_bin = all((path / f"{n}.bin").is_file() for n in _MODEL_FILES)
-    has_txt = all((path / f"{n}.txt").is_file() for n in _MODEL_FILES)
-    if not (has_bin or has_txt):
-        raise InputFileError("not a COLMAP model: needs cameras, images and points3D as .bin or .txt", path)
     rec = pycolmap.Reconstruction()
     try:
         if has_bin:
@@ -102,7 +99,11 @@ def read_model(path: str | PathLike[str]) -> tuple[Cameras, PointCloud]:
             rec.read_text(str(path))
     except Exception as err:  # pycolmap raises RuntimeError/ValueError from C++ checks
         raise FormatError(f"cannot read COLMAP model ({' '.join(str(err).split())[:200]})", path) from err
-    return from_reconstruction(rec)
+    try:
+        return from_reconstruction(rec)
+    except (ConfigError, DataError, FormatError) as err:
+        culprit = "cameras" if "camera" in err.problem else "images"
+        raise FormatError(err.problem, path / f"{culprit}{'.bin' if has_bin else '.txt'}") from err
 
 
 def write_model(

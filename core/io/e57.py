@@ -20,6 +20,8 @@ def read_e57(path: str | PathLike[str]) -> PointCloud:
     path = Path(path)
     if not path.is_file():
         raise InputFileError("file does not exist" if not path.exists() else "is not a file", path)
+    if path.stat().st_size == 0:
+        raise InputFileError("file is empty", path)
     try:
         import pye57
     except ImportError as err:  # pragma: no cover - pye57 is a dependency
@@ -31,7 +33,9 @@ def read_e57(path: str | PathLike[str]) -> PointCloud:
             for i in range(e57.scan_count)
         ]
     except Exception as err:  # pye57 raises its own libE57 exceptions
-        raise FormatError(f"not a readable E57 file ({err})", path) from err
+        text = " ".join(str(err).split())
+        text = text.split("(Error")[0].strip() or text  # libE57 appends a multi-line context dump
+        raise FormatError(f"not a readable E57 file ({text[:120]})", path) from err
     if not scans:
         raise InputFileError("E57 file holds no scans", path)
     world = np.concatenate(

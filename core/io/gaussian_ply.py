@@ -24,7 +24,8 @@ from core.errors import DataError, FormatError
 from core.gaussians import GaussianSet, num_sh_bases, sh_degree_from_rest
 from core.io.atomic import atomic_path
 from core.io.origin import read_origin, remove_origin, write_origin
-from core.io.ply import load_ply_data
+from core.io.ply import load_ply_data, scalar_column
+from core.pointcloud import choose_origin
 
 
 def gaussian_property_names(sh_degree: int) -> list[str]:
@@ -118,9 +119,17 @@ def read_gaussian_ply(path: str | PathLike[str]) -> GaussianSet:
         raise FormatError(f"not a 3DGS PLY: missing vertex properties {shown}", path)
 
     def cols(keys: list[str], dtype: type = np.float32) -> np.ndarray:
-        return np.stack([np.asarray(v[k], dtype=dtype) for k in keys], axis=1) if keys else np.zeros((len(v), 0), dtype)
+        if not keys:
+            return np.zeros((len(v), 0), dtype)
+        return np.stack([scalar_column(v, k, path).astype(dtype) for k in keys], axis=1)
 
     means = cols(["x", "y", "z"], np.float64)
+    origin = read_origin(path)
+    # World coordinates in the file (no sidecar, or a sidecar plus large offsets): move them to a local
+    # origin in float64 now, so that every later float32 step (export, render) keeps the millimetres.
+    shift = choose_origin(means) if np.isfinite(means).all() else np.zeros(3)
+    means = means - shift
+    origin = origin + shift
     k = num_sh_bases(degree) - 1
     rest = cols([f"f_rest_{i}" for i in range(3 * k)]).reshape(len(v), 3, k).transpose(0, 2, 1)
     known = set(gaussian_property_names(degree))
@@ -129,14 +138,35 @@ def read_gaussian_ply(path: str | PathLike[str]) -> GaussianSet:
         means=means,
         log_scales=cols(["scale_0", "scale_1", "scale_2"]),
         quats=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
-        logit_opacities=np.asarray(v["opacity"], dtype=np.float32),
+        logit_opacities=scalar_column(v, "opacity", path).astype(np.float32),
         sh_dc=cols(["f_dc_0", "f_dc_1", "f_dc_2"]),
         sh_rest=np.ascontiguousarray(rest),
-        origin=read_origin(path),
+        origin=origin,
         fields=fields,
     )
     try:
         gs.validate()
     except DataError as err:
         raise DataError(err.problem, path) from err
+    _check_ranges(gs, path)
     return gs
+
+
+#: Log-scales above this (σ > e^30 m ≈ 1e13 m) are corrupt values, not Gaussians; exp() of them overflows
+#: float32 in every renderer.
+MAX_LOG_SCALE = 30.0
+
+
+def _check_ranges(gs: GaussianSet, path: Path) -> None:
+    """Refuse values that are finite but overflow later (huge log-scales)."""
+    if len(gs) == 0:
+        return
+    worst = gs.log_scales.max(axis=1)
+    bad = worst > MAX_LOG_SCALE
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            f"{int(bad.sum())} Gaussians have log-scales above {MAX_LOG_SCALE:g} (first: vertex {first}, "
+            f"{float(worst[first]):.3g}); exp() would overflow",
+            path,
+        )

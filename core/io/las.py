@@ -31,14 +31,19 @@ _EXTRA_TYPES = {
 def read_las(path: str | PathLike[str]) -> PointCloud:
     """Read a LAS or LAZ file as a :class:`PointCloud` (float64 positions relative to a local origin)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputFileError("file does not exist" if not path.exists() else "is not a file", path)
+    declared = scan_las_header(path)
     try:
         las = laspy.read(path)
     except laspy.errors.LaspyException as err:
-        raise FormatError(f"not a valid LAS/LAZ file ({err})", path) from err
+        raise FormatError(f"not a valid LAS/LAZ file ({_short(err)})", path) from err
     except (ValueError, EOFError, OSError, struct.error) as err:
-        raise InputFileError(f"LAS data is truncated or corrupt ({err})", path) from err
+        raise InputFileError(f"LAS data is truncated or corrupt ({_short(err)})", path) from err
+    except MemoryError as err:
+        raise InputFileError(f"header declares {declared} points, more than memory can hold", path) from err
+    except Exception as err:  # lazrs raises its own LazrsError for truncated or corrupt compressed data
+        raise InputFileError(f"LAZ data is truncated or corrupt ({type(err).__name__}: {_short(err)})", path) from err
+    if len(las.points) != declared:
+        raise InputFileError(f"header declares {declared} points but {len(las.points)} could be read", path)
 
     scales = np.asarray(las.header.scales, dtype=np.float64)
     offsets = np.asarray(las.header.offsets, dtype=np.float64)
@@ -73,6 +78,76 @@ def read_las(path: str | PathLike[str]) -> PointCloud:
             continue
         fields[name] = np.asarray(las[name]).copy()
     return PointCloud(positions, origin, colors, normals, fields)
+
+
+# Byte offsets of the LAS public header block (LAS 1.0–1.4, little-endian).
+_HEADER_MIN = 227  # LAS 1.0–1.2 header size
+#: A LAZ file cannot hold more uncompressed point bytes than this multiple of its size. LASzip reaches
+#: 5–15× on real scans and ~100× on constant records; a header declaring more is corrupt, and refusing it
+#: here avoids allocating the declared size.
+MAX_LAZ_RATIO = 1000
+
+
+def _short(err: BaseException, limit: int = 120) -> str:
+    text = " ".join(str(err).split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def scan_las_header(path: str | PathLike[str]) -> int:
+    """Check a LAS/LAZ header against the file size before laspy reads it; returns the declared point count.
+
+    Checks the signature, the header size, the point data offset, the legacy and LAS 1.4 point counts
+    (they must agree when both are set), and that the declared records fit in the file (LAS: exactly the
+    bytes present, except for trailing EVLRs; LAZ: at most :data:`MAX_LAZ_RATIO` times the file size).
+    Raises :class:`InputFileError` (missing, empty, truncated) or :class:`FormatError` (inconsistent).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("file does not exist" if not path.exists() else "is not a file", path)
+    size = path.stat().st_size
+    if size == 0:
+        raise InputFileError("file is empty", path)
+    with path.open("rb") as f:
+        head = f.read(375)
+    if head[:4] != b"LASF":
+        raise FormatError(f"not a LAS/LAZ file (signature {head[:4]!r}, expected b'LASF')", path)
+    if len(head) < _HEADER_MIN:
+        raise InputFileError(f"file is truncated inside the LAS header ({size} bytes)", path)
+    major, minor = head[24], head[25]
+    header_size, point_offset = struct.unpack_from("<HI", head, 94)
+    fmt_id, rec_len, legacy = struct.unpack_from("<BHI", head, 104)
+    if header_size < _HEADER_MIN or header_size > size:
+        raise InputFileError(f"LAS header size {header_size} does not fit a {size}-byte file", path)
+    count = legacy
+    evlr_start = 0
+    if (major, minor) >= (1, 4):
+        if len(head) < 375 or header_size < 375:
+            raise InputFileError("file is truncated inside the LAS 1.4 header", path)
+        evlr_start, _n_evlr, count = struct.unpack_from("<QIQ", head, 235)
+        if legacy and legacy != count:
+            raise FormatError(f"header point counts disagree: legacy {legacy}, LAS 1.4 {count}", path)
+    if point_offset < header_size or point_offset > size:
+        raise FormatError(f"point data offset {point_offset} lies outside the file ({size} bytes)", path)
+    compressed = bool(fmt_id & 0x80) or path.suffix.lower() == ".laz"
+    room = (evlr_start if evlr_start > point_offset else size) - point_offset
+    need = count * rec_len
+    if compressed:
+        if need > MAX_LAZ_RATIO * max(room, 1):
+            raise FormatError(
+                f"header declares {count} points ({need} bytes uncompressed) in {room} compressed bytes", path
+            )
+    elif need > room:
+        raise InputFileError(
+            f"header declares {count} points ({need} bytes) but only {room} bytes of point records follow "
+            f"({room // max(rec_len, 1)} points): file truncated or header count wrong",
+            path,
+        )
+    elif rec_len and room - need >= rec_len:
+        raise FormatError(
+            f"header declares {count} points but the file holds {room // rec_len} records: header count wrong",
+            path,
+        )
+    return int(count)
 
 
 def write_las(

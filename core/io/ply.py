@@ -9,6 +9,7 @@ other scalar vertex property as a named field. Positions are returned relative t
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
 from typing import Literal
@@ -36,22 +37,155 @@ _PLY_TYPES = {
 }
 
 
-def load_ply_data(path: str | PathLike[str]) -> plyfile.PlyData:
-    """Parse a PLY file fully; plyfile's and the OS's errors become :class:`InputFileError` / :class:`FormatError`."""
+# PLY scalar type names (both spellings) -> size in bytes
+_PLY_SIZES = {
+    "char": 1, "int8": 1, "uchar": 1, "uint8": 1,
+    "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+    "int": 4, "int32": 4, "uint": 4, "uint32": 4,
+    "float": 4, "float32": 4, "double": 8, "float64": 8,
+}  # fmt: skip
+_MAX_HEADER = 1 << 20
+
+
+@dataclass(frozen=True)
+class PlyElementHeader:
+    """One ``element`` of a PLY header: its name, declared count and properties.
+
+    ``properties``: (name, type, list count type or None) in file order.
+    """
+
+    name: str
+    count: int
+    properties: tuple[tuple[str, str, str | None], ...]
+
+    def min_bytes(self, binary: bool) -> int:
+        """The fewest bytes ``count`` rows can take (lists may be empty)."""
+        if binary:
+            row = sum(_PLY_SIZES[t] if c is None else _PLY_SIZES[c] for _, t, c in self.properties)
+            return self.count * row
+        return max(0, self.count * 2 * len(self.properties) - 1)  # one digit and one separator per value
+
+
+@dataclass(frozen=True)
+class PlyHeader:
+    """A parsed PLY header: ``format`` (ascii, binary_little_endian, binary_big_endian), elements,
+    and ``data_offset``, the byte where the payload starts."""
+
+    format: str
+    elements: tuple[PlyElementHeader, ...]
+    data_offset: int
+
+    def element(self, name: str) -> PlyElementHeader | None:
+        return next((e for e in self.elements if e.name == name), None)
+
+
+def scan_ply_header(path: str | PathLike[str]) -> PlyHeader:
+    """Parse and check a PLY header before any payload is read.
+
+    Checks the magic, the format, every element count (a non-negative integer) and property type, and
+    that the file is large enough for the declared counts (so that a header declaring 2^31 vertices over
+    a few bytes is refused at once instead of allocating gigabytes). Raises :class:`InputFileError`
+    (missing, folder, empty) or :class:`FormatError` naming the header line.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputFileError("file does not exist" if not path.exists() else "is not a file", path)
-    if path.stat().st_size == 0:
+    size = path.stat().st_size
+    if size == 0:
         raise InputFileError("file is empty", path)
+    try:
+        with path.open("rb") as f:
+            head = f.read(min(size, _MAX_HEADER))
+    except OSError as err:
+        raise InputFileError(f"cannot read file ({err.strerror or err})", path) from err
+    if not head.startswith(b"ply"):
+        raise FormatError("not a PLY file (it does not start with 'ply')", path)
+    end = head.find(b"end_header")
+    if end < 0:
+        raise FormatError("PLY header has no 'end_header' line (file truncated or not PLY)", path)
+    nl = head.find(b"\n", end)
+    data_offset = (nl + 1) if nl >= 0 else len(head)
+    try:
+        lines = head[:end].decode("ascii").splitlines()
+    except UnicodeDecodeError as err:
+        raise FormatError("PLY header is not ASCII text", path) from err
+    fmt = None
+    elements: list[PlyElementHeader] = []
+    current: tuple[str, int, list[tuple[str, str, str | None]]] | None = None
+    for no, line in enumerate(lines[1:], 2):
+        tok = line.split()
+        if not tok or tok[0] in ("comment", "obj_info"):
+            continue
+        if tok[0] == "format":
+            if len(tok) != 3 or tok[1] not in ("ascii", "binary_little_endian", "binary_big_endian"):
+                raise FormatError(f"PLY header line {no}: unknown format {' '.join(tok[1:])!r}", path)
+            fmt = tok[1]
+        elif tok[0] == "element":
+            if len(tok) != 3 or not tok[2].isdigit():
+                raise FormatError(f"PLY header line {no}: expected 'element NAME COUNT' with COUNT >= 0", path)
+            if current is not None:
+                elements.append(PlyElementHeader(current[0], current[1], tuple(current[2])))
+            current = (tok[1], int(tok[2]), [])
+        elif tok[0] == "property":
+            if current is None:
+                raise FormatError(f"PLY header line {no}: property before any element", path)
+            if len(tok) == 3 and tok[1] in _PLY_SIZES:
+                current[2].append((tok[2], tok[1], None))
+            elif len(tok) == 5 and tok[1] == "list" and tok[2] in _PLY_SIZES and tok[3] in _PLY_SIZES:
+                current[2].append((tok[4], tok[3], tok[2]))
+            else:
+                shown = " ".join(tok)[:60]
+                raise FormatError(f"PLY header line {no}: unknown property declaration {shown!r}", path)
+        else:
+            raise FormatError(f"PLY header line {no}: unknown keyword {tok[0][:30]!r}", path)
+    if current is not None:
+        elements.append(PlyElementHeader(current[0], current[1], tuple(current[2])))
+    if fmt is None:
+        raise FormatError("PLY header has no 'format' line", path)
+    header = PlyHeader(fmt, tuple(elements), data_offset)
+    need = sum(e.min_bytes(fmt != "ascii") for e in elements)
+    have = size - data_offset
+    if need > have:
+        counts = ", ".join(f"{e.count} {e.name}" for e in elements)
+        raise FormatError(
+            f"PLY header declares {counts} needing at least {need} bytes, but only {have} bytes follow "
+            "(file truncated or header count wrong)",
+            path,
+        )
+    return header
+
+
+def load_ply_data(path: str | PathLike[str]) -> plyfile.PlyData:
+    """Parse a PLY file fully after :func:`scan_ply_header`; plyfile's and the OS's errors become
+    :class:`InputFileError` / :class:`FormatError`."""
+    path = Path(path)
+    scan_ply_header(path)
     try:
         with path.open("rb") as f:
             return plyfile.PlyData.read(f)
     except plyfile.PlyHeaderParseError as err:
-        raise FormatError(f"not a valid PLY header ({err})", path) from err
-    except (plyfile.PlyElementParseError, ValueError, EOFError, IndexError, UnicodeDecodeError) as err:
-        raise InputFileError(f"PLY data is truncated or corrupt ({err})", path) from err
+        raise FormatError(f"not a valid PLY header ({_short(err)})", path) from err
+    except (plyfile.PlyElementParseError, ValueError, EOFError, IndexError, UnicodeDecodeError, TypeError) as err:
+        raise InputFileError(f"PLY data is truncated or corrupt ({_short(err)})", path) from err
+    except MemoryError as err:
+        raise InputFileError(
+            "PLY data declares more values than memory can hold (corrupt list lengths?)", path
+        ) from err
     except OSError as err:
         raise InputFileError(f"cannot read file ({err.strerror or err})", path) from err
+
+
+def _short(err: BaseException, limit: int = 120) -> str:
+    text = " ".join(str(err).split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def scalar_column(vertex: np.ndarray, name: str, path: Path) -> np.ndarray:
+    """A scalar (non-list) numeric vertex property, or :class:`FormatError` naming its declared type."""
+    values = vertex[name]
+    if values.dtype == object or not (np.issubdtype(values.dtype, np.number) or values.dtype == np.bool_):
+        raise FormatError(f"PLY property {name!r} is a list, expected a single number per vertex", path)
+    return np.asarray(values)
 
 
 def read_ply(path: str | PathLike[str]) -> PointCloud:
@@ -70,7 +204,7 @@ def read_ply(path: str | PathLike[str]) -> PointCloud:
     if missing:
         raise FormatError(f"PLY vertex element lacks {', '.join(missing)} (has: {', '.join(names) or 'nothing'})", path)
 
-    xyz = np.stack([np.asarray(vertex[n], dtype=np.float64) for n in ("x", "y", "z")], axis=1)
+    xyz = np.stack([scalar_column(vertex, n, path).astype(np.float64) for n in ("x", "y", "z")], axis=1)
     bad = ~np.isfinite(xyz).all(axis=1)
     if bad.any():
         raise DataError(
@@ -87,13 +221,13 @@ def read_ply(path: str | PathLike[str]) -> PointCloud:
     colors = None
     for triple in _COLOR_NAMES:
         if all(n in names for n in triple):
-            raw = np.stack([np.asarray(vertex[n]) for n in triple], axis=1)
+            raw = np.stack([scalar_column(vertex, n, path) for n in triple], axis=1)
             colors = _colors_from_ply(raw, path)
             used.update(triple)
             break
     normals = None
     if all(n in names for n in _NORMAL_NAMES):
-        normals = np.stack([np.asarray(vertex[n], dtype=np.float32) for n in _NORMAL_NAMES], axis=1)
+        normals = np.stack([scalar_column(vertex, n, path).astype(np.float32) for n in _NORMAL_NAMES], axis=1)
         used.update(_NORMAL_NAMES)
 
     fields: dict[str, np.ndarray] = {}

@@ -6,38 +6,13 @@ import sys
 import warnings
 from pathlib import Path
 
-import numpy as np
 import typer
 
-from core.errors import FormatError, InputFileError
 from core.io import read_point_cloud
+from core.io.colmap_vis import read_vis
 from core.pointcloud import PointCloud
-from fusion.convert import ConversionWarning, ConvertMode, ConvertOptions, convert_points
+from fusion.convert import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, convert_points
 from fusion.export import ExportOptions, ExportReport, export_gaussians
-
-
-def read_visibility(path: Path, num_points: int) -> list[np.ndarray]:
-    """COLMAP's ``fused.ply.vis``: uint64 count, then per point a uint32 n and n uint32 image positions."""
-    if not path.is_file():
-        raise InputFileError("visibility file does not exist", path)
-    raw = path.read_bytes()
-    if len(raw) < 8:
-        raise InputFileError("visibility file is truncated (no point count)", path)
-    count = int(np.frombuffer(raw[:8], "<u8")[0])
-    if count != num_points:
-        raise FormatError(f"visibility file lists {count} points but the cloud has {num_points}", path)
-    words = np.frombuffer(raw[8 : 8 + (len(raw) - 8) // 4 * 4], "<u4")
-    out: list[np.ndarray] = []
-    pos = 0
-    for _ in range(count):  # sequential: each record's start depends on the previous length
-        if pos >= len(words):
-            raise InputFileError("visibility file is truncated", path)
-        n = int(words[pos])
-        if pos + 1 + n > len(words):
-            raise InputFileError("visibility file is truncated", path)
-        out.append(words[pos + 1 : pos + 1 + n].astype(np.int64))
-        pos += 1 + n
-    return out
 
 
 def load_cloud(path: Path, visibility: Path | None = None) -> PointCloud:
@@ -45,7 +20,7 @@ def load_cloud(path: Path, visibility: Path | None = None) -> PointCloud:
     cloud = read_point_cloud(path)
     vis = visibility or path.with_name(path.name + ".vis")
     if visibility is not None or vis.is_file():
-        cloud.visibility = read_visibility(vis, len(cloud))
+        cloud.visibility = read_vis(vis, len(cloud))
     return cloud
 
 
@@ -72,7 +47,9 @@ def print_export(report: ExportReport) -> None:
 def convert(
     cloud: Path = typer.Argument(..., help="MVS point cloud (.ply, .las, .laz, .e57); a CLOUD.vis next to it is used."),
     out: Path = typer.Option(..., "--out", "-o", help="Output: .ply (3DGS PLY), .splat, or .las/.laz (points)."),
-    mode: ConvertMode = typer.Option(ConvertMode.PAPER, "--mode", help="paper: Eq. 1-4 exactly; adaptive: surfels."),
+    mode: ConvertMode = typer.Option(
+        DEFAULT_MODE, "--mode", help="adaptive (default): surfels; paper: Eq. 1-4 exactly."
+    ),
     visibility: Path | None = typer.Option(None, help="COLMAP fused.ply.vis file (default: CLOUD.vis if present)."),
     k: int = typer.Option(8, "--k", help="adaptive: neighbours for the per-point spacing."),
     tangent_scale: float = typer.Option(0.4, help="adaptive: in-surface sigma as a multiple of the spacing."),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -13,6 +12,7 @@ from rich.table import Table
 from core.errors import ConfigError
 from core.io import read_point_cloud, write_point_cloud
 from core.io.atomic import write_text_atomic
+from core.io.json_io import write_json_atomic
 
 if TYPE_CHECKING:
     from eval.metrics_io import ImageEval
@@ -32,9 +32,7 @@ def _fmt(v: Any) -> str:
 
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
-    from eval.metrics_io import to_json_safe
-
-    write_text_atomic(path, json.dumps(to_json_safe(payload), indent=2) + "\n")
+    write_json_atomic(path, payload)
 
 
 def _print_image_table(result: ImageEval, title: str) -> None:

@@ -1,0 +1,115 @@
+"""Run one fuzz case: the CLI in a subprocess under a time limit and an address-space limit, then judge it.
+
+Judgement of a malformed-input case (:func:`judge`):
+
+- ``clean``: the expected exit status (2), one short stderr line ``hybridsplat: error: ...`` naming the
+  file, no traceback, and none of the case's outputs left behind;
+- ``traceback``: a Python traceback (or an "internal error" line) on stderr;
+- ``silent``: exit status 0 on garbage;
+- ``leftover``: an output exists afterwards;
+- ``unclear``: anything else (wrong status, several lines, the file not named, killed by a limit).
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from fuzz.cases import FuzzCase, Invocation
+
+TIME_LIMIT_S = 60
+ADDRESS_SPACE_BYTES = 2 * 1024**3
+MAX_LINE = 300
+REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one run of the CLI did. ``peak_rss_mb``: the child's peak resident memory (getrusage)."""
+
+    case: str
+    code: int | None
+    stderr: str
+    seconds: float
+    peak_rss_mb: float
+    leftovers: tuple[str, ...]
+    verdict: str
+    invocation: Invocation
+
+
+def _limits() -> None:  # runs in the child between fork and exec
+    resource.setrlimit(resource.RLIMIT_AS, (ADDRESS_SPACE_BYTES, ADDRESS_SPACE_BYTES))
+
+
+def run_cli(argv: list[str], cwd: Path, timeout: float = TIME_LIMIT_S) -> tuple[int | None, str, str, float, float]:
+    """(exit status, or None when killed at the time limit; stdout; stderr; seconds; the child's peak RSS in MiB).
+
+    The child is reaped with ``os.wait4`` so that its own peak resident memory is known.
+    """
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"}
+    env.pop("HYBRIDSPLAT_LPIPS_WEIGHTS", None)
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "hybridsplat", *argv],
+            cwd=cwd,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=err,
+            preexec_fn=_limits,
+        )
+        code: int | None = None
+        peak = float("nan")
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid == proc.pid:
+                code = os.waitstatus_to_exitcode(status)
+                peak = usage.ru_maxrss / 1024
+                break
+            if time.perf_counter() - start > timeout:
+                proc.kill()
+                _pid, _status, usage = os.wait4(proc.pid, 0)
+                peak = usage.ru_maxrss / 1024
+                break
+            time.sleep(0.01)
+        proc.returncode = -1 if code is None else code  # reaped here; keep Popen from waiting again
+        seconds = time.perf_counter() - start
+        out.seek(0)
+        err.seek(0)
+        return code, out.read(), err.read(), seconds, peak
+
+
+def judge(code: int | None, stderr: str, leftovers: list[str], inv: Invocation) -> str:
+    lines = [line for line in stderr.strip().splitlines() if line.strip()]
+    if "Traceback" in stderr or "internal error" in stderr:
+        return "traceback"
+    if code == 0 and inv.expect_code != 0:
+        return "silent"
+    if leftovers:
+        return "leftover"
+    if code != inv.expect_code:
+        return "unclear"
+    errors = [line for line in lines if line.startswith("hybridsplat: error:")]
+    if len(errors) != 1 or len(errors[0]) > MAX_LINE or inv.culprit not in errors[0]:
+        return "unclear"
+    others = [line for line in lines if not line.startswith(("hybridsplat: error:", "Usage:"))]
+    if others:
+        return "unclear"
+    return "clean"
+
+
+def run_case(case: FuzzCase, folder: Path, timeout: float = TIME_LIMIT_S) -> Outcome:
+    """Build ``case`` in ``folder``, run it and judge it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    inv = case.build(folder)
+    code, _out, err, seconds, peak = run_cli(inv.argv, folder, timeout)
+    leftovers = [str(p) for p in inv.outputs if p.exists() and not (p.is_dir() and not any(p.iterdir()))]
+    leftovers += [str(p) for p in folder.rglob(".*.tmp*")]  # temporary files of atomic writes
+    return Outcome(case.name, code, err, seconds, peak, tuple(leftovers), judge(code, err, leftovers, inv), inv)
