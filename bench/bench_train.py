@@ -60,7 +60,7 @@ def bench_speed(args: argparse.Namespace) -> None:
     }
     params = make_parameters(tensors)
     optimizer = make_optimizer(params, {k: 1e-4 for k in params})
-    strategy = DefaultStrategy(cap=args.n, refine_start=10**9)
+    strategy = DefaultStrategy(cap=args.n)  # bookkeeping every step; no refinement before step 500
     state = strategy.initial_state(args.n)
     bg = torch.zeros(3)
     parts = {"render fwd": [], "loss fwd": [], "backward": [], "adam": [], "densify stats": [], "total": []}

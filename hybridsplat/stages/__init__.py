@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.clean import CleanStage
 from hybridsplat.stages.convert import ConvertStage
 from hybridsplat.stages.evaluate import EvalStage
 from hybridsplat.stages.merge import MergeStage
 from hybridsplat.stages.mvs import MvsStage
 from hybridsplat.stages.report import ReportStage
 from hybridsplat.stages.sfm import SfmStage
+from hybridsplat.stages.train import TrainStage
 
-STAGES: tuple[Stage, ...] = (SfmStage(), MvsStage(), ConvertStage(), MergeStage(), EvalStage(), ReportStage())
+STAGES: tuple[Stage, ...] = (
+    SfmStage(),
+    MvsStage(),
+    ConvertStage(),
+    TrainStage(),
+    CleanStage(),
+    MergeStage(),
+    EvalStage(),
+    ReportStage(),
+)
 
 __all__ = ["STAGES", "Stage", "StageContext", "stage_named"]
 
