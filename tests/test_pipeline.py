@@ -30,6 +30,9 @@ def test_every_stage_is_recorded_with_outputs(project):
     stages = json.loads(layout.manifest.read_text())["stages"]
     assert list(stages) == [s.name for s in STAGES]
     for name, record in stages.items():
+        if name in ("train", "clean"):  # no classification on this scene yet: nothing needs splats
+            assert record["skipped"] and record["reason"], name
+            continue
         assert not record["skipped"] and record["seconds"] > 0 and record["outputs"], name
     for path in (
         layout.config,
