@@ -122,6 +122,25 @@ def truth_inputs(scene: Path, cameras, fused_positions: np.ndarray):
     return masks, needs, non_collab
 
 
+def splat_geometry(splats, lidar_world: np.ndarray, material: np.ndarray, non_collab, tau: float) -> dict:
+    """Opacity-weighted C2C (metres) of splat centres to the LiDAR truth, per nearest material, and the count of
+    splats outside the true region (nearest truth point collaborative, or farther than ``tau``)."""
+    from scipy.spatial import cKDTree
+
+    if len(splats) == 0:
+        return {"outside_true_region": 0, "per_material": {}}
+    d, idx = cKDTree(lidar_world).query(splats.world_means, k=1, workers=-1)
+    w = splats.opacities.astype(np.float64)
+    mat = material[idx]
+    per = {}
+    for m in np.unique(mat):
+        sel = mat == m
+        per[int(m)] = {"n": int(sel.sum()), "c2c_weighted_mean_m": float((d[sel] * w[sel]).sum() / w[sel].sum()),
+                       "c2c_median_m": float(np.median(d[sel]))}  # fmt: skip
+    outside = (~np.isin(mat, non_collab)) | (d > tau)
+    return {"outside_true_region": int(outside.sum()), "per_material": per}
+
+
 def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_model, out_dir):
     from eval.render_eval import evaluate_gaussians
 
@@ -196,7 +215,27 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     cleaned = clean_splats(tr.splats, cameras, masks, CleanOptions())
     t_clean = time.perf_counter() - t1
     print(f"clean: {cleaned.counts} in {t_clean:.1f} s")
+    from core.io import read_point_cloud as _read
+
+    lidar = _read(scene / "gt" / "lidar.ply")
+    lmat = np.asarray(lidar.fields["material"]).astype(np.int64)
+    tau = 3 * json.loads((scene / "scene.json").read_text())["gsd_m"]
+    g_before = splat_geometry(tr.splats, lidar.world_positions, lmat, non_collab, tau)
+    g_after = splat_geometry(cleaned.splats, lidar.world_positions, lmat, non_collab, tau)
+    print(f"splats outside the true region (nearest truth collaborative or > {tau * 1000:.1f} mm): "
+          f"{g_before['outside_true_region']} of {len(tr.splats)} before cleaning, "
+          f"{g_after['outside_true_region']} of {len(cleaned.splats)} after")  # fmt: skip
+    for m, v in g_after["per_material"].items():
+        print(f"   material {m}: {v['n']} splats, opacity-weighted mean C2C {1000 * v['c2c_weighted_mean_m']:.2f} mm, "
+              f"median {1000 * v['c2c_median_m']:.2f} mm")  # fmt: skip
     merged = merge_hybrid(mvs, cleaned.splats, needs).gaussians
+    from scipy.spatial import cKDTree
+
+    for label, pts in (("MVS-only", mvs.world_means), ("merged", merged.world_means)):
+        d, _ = cKDTree(pts).query(lidar.world_positions, k=1, workers=-1)
+        nc = np.isin(lmat, non_collab)
+        print(f"completeness at tau {tau * 1000:.1f} mm, {label}: all {np.mean(d <= tau):.3f}, "
+              f"non-collaborative materials {np.mean(d[nc] <= tau):.3f}")  # fmt: skip
     write_gaussian_ply(out / "merged.ply", merged, extra_fields=True)
     write_gaussian_ply(out / "splats.ply", tr.splats, extra_fields=True)
     hybrid_time = t_init + tr.seconds + t_clean

@@ -223,3 +223,148 @@ class DefaultStrategy:
                 if st:
                     st["exp_avg"].zero_()
                     st["exp_avg_sq"].zero_()
+
+
+@dataclass
+class MCMCState:
+    """State of :class:`MCMCStrategy`: the initial count and the run totals (no per-Gaussian accumulators)."""
+
+    n_initial: int
+    totals: RefineCounts = field(default_factory=RefineCounts)
+
+
+def _relocation(opacity: torch.Tensor, log_scales: torch.Tensor, ratio: torch.Tensor, max_ratio: int = 51):
+    """Opacity and log-scales of a Gaussian split into ``ratio`` copies that render like the original (MCMC paper,
+    Eq. 9; gsplat's ``compute_relocation``): α' = 1 − (1 − α)^(1/r),
+    σ' = α σ / Σᵢ₌₁..ᵣ Σₖ₌₀..ᵢ₋₁ C(i−1, k) (−1)^k α'^(k+1) / √(k+1)."""
+    r = ratio.clamp(1, max_ratio).to(opacity.dtype)
+    new_opacity = 1.0 - (1.0 - opacity).clamp_min(1e-12) ** (1.0 / r)
+    denom = torch.zeros_like(opacity)
+    for i in range(1, int(r.max()) + 1 if len(r) else 1):
+        term = torch.zeros_like(opacity)
+        for k in range(i):
+            term = term + math.comb(i - 1, k) * (-1) ** k / math.sqrt(k + 1) * new_opacity ** (k + 1)
+        denom = denom + torch.where(r >= i, term, torch.zeros_like(term))
+    scale_factor = (opacity / denom.clamp_min(1e-12)).clamp(1e-6, 1.0)
+    return new_opacity.clamp(1e-4, 1 - 1e-4), log_scales + torch.log(scale_factor)[:, None]
+
+
+@dataclass(frozen=True)
+class MCMCStrategy:
+    """MCMC-style densification (3DGS as MCMC; gsplat's ``MCMCStrategy``): every ``refine_every`` steps inside the
+    window, dead Gaussians (α < ``min_opacity``) are moved onto live ones sampled by opacity, then the count grows by
+    ``grow_rate`` (never above ``cap``) by splitting sampled Gaussians the same way; after every step positions get
+    noise scaled by (1 − α) and the covariance (``noise_lr`` × the current means learning rate). Needs its opacity and
+    scale L1 regularisers (:meth:`regularisation`). The count never exceeds ``cap``."""
+
+    cap: int = 100_000
+    refine_start: int = 500
+    refine_stop: int = 25_000
+    refine_every: int = 100
+    min_opacity: float = 0.005
+    grow_rate: float = 0.05
+    noise_lr: float = 5e5
+    opacity_reg: float = 0.01
+    scale_reg: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.cap < 1 or self.refine_every < 1 or self.grow_rate < 0:
+            raise ConfigError("cap and refine_every must be >= 1 and grow_rate >= 0")
+
+    def initial_state(self, n: int) -> MCMCState:
+        return MCMCState(n)
+
+    def regularisation(self, params: dict[str, torch.Tensor]) -> torch.Tensor:
+        return (
+            self.opacity_reg * torch.sigmoid(params["logit_opacities"]).mean()
+            + self.scale_reg * params["log_scales"].exp().mean()
+        )
+
+    def after_backward(self, state: MCMCState, means2d: torch.Tensor, width: int, height: int, step: int,
+                       **_: object) -> None:  # fmt: skip
+        return None
+
+    def refine(
+        self,
+        state: MCMCState,
+        params: dict[str, torch.nn.Parameter],
+        optimizer: torch.optim.Adam,
+        step: int,
+        total_steps: int,
+        scene_scale: float,
+        generator: torch.Generator,
+        lr_means: float = 0.0,
+        **_: object,
+    ) -> RefineCounts:
+        counts = RefineCounts()
+        if self.refine_start <= step < self.refine_stop and step % self.refine_every == 0 and step > 0:
+            counts.relocated = self._relocate(params, optimizer, generator)
+            counts.cloned = self._add(params, optimizer, generator)
+        if lr_means > 0:
+            self._noise(params, lr_means, generator)
+        state.totals.add(counts)
+        return counts
+
+    def _sample(self, opacity: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
+        return torch.multinomial(opacity.clamp_min(1e-12), n, replacement=True, generator=generator)
+
+    def _split_into(self, params, optimizer, sources: torch.Tensor, targets: torch.Tensor | None) -> None:
+        """Copies of ``sources`` (with repeats) go to ``targets`` (rows overwritten) or are appended (None); the
+        sources and copies get the relocated opacity and scale, and the copies zeroed Adam moments."""
+        opacity = torch.sigmoid(params["logit_opacities"].detach())
+        ratio = torch.bincount(sources, minlength=len(opacity))[sources] + 1
+        new_op, new_ls = _relocation(opacity[sources], params["log_scales"].detach()[sources], ratio)
+        uniq = torch.unique(sources)
+
+        def param_fn(name: str, p: torch.Tensor) -> torch.Tensor:
+            p = p.clone()
+            if name == "logit_opacities":
+                p[sources] = torch.logit(new_op)
+            elif name == "log_scales":
+                p[sources] = new_ls
+            copy = p[sources]
+            if targets is None:
+                return torch.cat([p, copy])
+            p[targets] = copy
+            return p
+
+        def state_fn(_: str, s: torch.Tensor) -> torch.Tensor:
+            s = s.clone()
+            s[uniq] = 0
+            if targets is None:
+                return torch.cat([s, torch.zeros_like(s[sources])])
+            s[targets] = 0
+            return s
+
+        update_parameters(params, optimizer, param_fn, state_fn)
+
+    def _relocate(self, params, optimizer, generator) -> int:
+        opacity = torch.sigmoid(params["logit_opacities"].detach())
+        dead = torch.nonzero(opacity <= self.min_opacity).squeeze(1)
+        alive = torch.nonzero(opacity > self.min_opacity).squeeze(1)
+        if len(dead) == 0 or len(alive) == 0:
+            return 0
+        sources = alive[self._sample(opacity[alive], len(dead), generator)]
+        self._split_into(params, optimizer, sources, dead)
+        return int(len(dead))
+
+    def _add(self, params, optimizer, generator) -> int:
+        n = params["means"].shape[0]
+        target = min(self.cap, int(math.floor(n * (1.0 + self.grow_rate))))
+        extra = max(0, target - n)
+        if extra == 0:
+            return 0
+        opacity = torch.sigmoid(params["logit_opacities"].detach())
+        self._split_into(params, optimizer, self._sample(opacity, extra, generator), None)
+        return extra
+
+    def _noise(self, params, lr_means: float, generator: torch.Generator) -> None:
+        with torch.no_grad():
+            opacity = torch.sigmoid(params["logit_opacities"])
+            R = quat_to_rotmat(params["quats"])
+            s2 = params["log_scales"].exp() ** 2
+            cov = torch.einsum("nij,nj,nkj->nik", R, s2, R)
+            gate = 1.0 / (1.0 + torch.exp(-100.0 * ((1.0 - opacity) - 0.995)))
+            z = torch.randn(params["means"].shape, generator=generator)
+            noise = torch.einsum("nij,nj->ni", cov, z) * (gate * self.noise_lr * lr_means)[:, None]
+            params["means"].add_(noise)

@@ -39,7 +39,7 @@ from fusion.train.params import (
     tensors_from_set,
 )
 from fusion.train.render import project_context, render_step
-from fusion.train.strategy import DefaultStrategy, RefineCounts
+from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
 from fusion.train.views import prepare_views
 
 
@@ -79,7 +79,7 @@ class TrainOptions:
     min_iterations: int = 600
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    strategy: DefaultStrategy = field(default_factory=DefaultStrategy)
+    strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
@@ -260,7 +260,8 @@ def train_splats(
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
         step += 1
-        strategy.refine(state, params, optimizer, step, opts.iterations, scale, gen)
+        lr_now = lrs["means"] * decay ** (step - 1)
+        strategy.refine(state, params, optimizer, step, opts.iterations, scale, gen, lr_means=lr_now)
 
         with torch.no_grad():
             hold = view.holdout_mask
