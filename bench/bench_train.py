@@ -192,6 +192,8 @@ def bench_tabletop(args: argparse.Namespace) -> None:
           f"{sum(int(m.sum()) for m in masks.values())} mask pixels; {load()}")  # fmt: skip
 
     results = {}
+    if args.only == "baseline":
+        return bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
     t0 = time.perf_counter()
     init = seed_splats(cameras, masks, images, fused.positions, fused.colors, needs, sfm.positions, sfm.colors,
                        InitOptions(rays_per_view=args.rays, seed=args.seed))  # fmt: skip
@@ -242,30 +244,51 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     results["merged"] = evaluate("merged", merged, test_cams, scene, test_masks, lpips_model, out)
     results["mvs"] = evaluate("mvs", mvs, test_cams, scene, test_masks, lpips_model, out)
     results["splats_only"] = evaluate("splats", cleaned.splats, test_cams, scene, test_masks, lpips_model, out)
-    if args.baseline_iterations > 0:
-        from fusion.train.init import sfm_seeds
+    print(f"hybrid time (init + train + clean, MVS excluded): {hybrid_time:.1f} s")
+    if args.only == "both":
+        bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
+        return
+    report(results, out, load)
 
-        base_init = sfm_seeds(sfm.positions, sfm.colors, cameras.origin)
-        bopts = TrainOptions(iterations=args.baseline_iterations, downscale=args.downscale, seed=args.seed,
-                             strategy=strategy, sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc,
-                             patience=args.patience)  # fmt: skip
-        base = train_splats(cameras, images, None, base_init, None, bopts)
-        print(f"baseline training: {base.iterations} it in {base.seconds:.1f} s "
-              f"({base.seconds / base.iterations:.3f} s/it), {len(base.splats)} splats; {load()}")  # fmt: skip
-        for c in base.history:
-            print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
-                  f"{c.seconds:6.1f} s")  # fmt: skip
-        write_gaussian_ply(out / "baseline.ply", base.splats)
-        results["baseline"] = evaluate("baseline", base.splats, test_cams, scene, test_masks, lpips_model, out)
-    print(f"\nheld-out views ({len(test_cams)}), {load()}:")
+
+def bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results) -> None:
+    """The whole-scene 3DGS baseline: same trainer, mask = whole image, no context, SfM init, same cap."""
+    from core.io.gaussian_ply import write_gaussian_ply
+    from fusion.train import DefaultStrategy, TrainOptions, train_splats
+    from fusion.train.init import sfm_seeds
+
+    strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
+                               reset_every=args.reset_every)  # fmt: skip
+    base_init = sfm_seeds(sfm.positions, sfm.colors, cameras.origin)
+    bopts = TrainOptions(iterations=args.baseline_iterations, downscale=args.downscale, seed=args.seed,
+                         strategy=strategy, sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc,
+                         patience=args.patience)  # fmt: skip
+    base = train_splats(cameras, images, None, base_init, None, bopts)
+    print(f"baseline training: {base.iterations} it in {base.seconds:.1f} s "
+          f"({base.seconds / base.iterations:.3f} s/it), {len(base.splats)} splats; {load()}")  # fmt: skip
+    for c in base.history:
+        print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
+              f"{c.seconds:6.1f} s")  # fmt: skip
+    write_gaussian_ply(out / "baseline.ply", base.splats)
+    results["baseline"] = evaluate("baseline", base.splats, test_cams, scene, test_masks, lpips_model, out)
+    report(results, out, load)
+
+
+def report(results, out: Path, load_fn) -> None:
+    print(f"\nheld-out views, {load_fn()}:")
     for name, r in results.items():
         print(f"  {name:12s} masked: {fmt_scores(r.masked)} | whole: {fmt_scores(r.full)}")
-    print(f"hybrid time (init + train + clean, MVS excluded): {hybrid_time:.1f} s")
     summary = {
-        name: {"masked_psnr": r.masked.psnr if r.masked else None, "whole_psnr": r.full.psnr}
+        name: {
+            "masked": None
+            if r.masked is None
+            else {"psnr": r.masked.psnr, "ssim": r.masked.ssim, "lpips": r.masked.lpips},
+            "whole": {"psnr": r.full.psnr, "ssim": r.full.ssim},
+        }
         for name, r in results.items()
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return None
 
 
 def main() -> None:
@@ -293,6 +316,7 @@ def main() -> None:
     t.add_argument("--patience", type=int, default=3)
     t.add_argument("--flat", action="store_true")
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
     args = p.parse_args()
     torch.manual_seed(0)
