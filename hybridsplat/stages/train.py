@@ -1,9 +1,10 @@
 """Stage ``train``: new splats trained inside the region masks next to the frozen MVS Gaussians (splats/trained.ply
 and splats/snapshots/), see fusion.train.
 
-Reads the undistorted photos and model of the dense workspace, the classified cloud (``needs_splats`` per MVS
-point), the masks (classify/masks/<image name>.png, 255 = needs splats), the MVS Gaussians (export/mvs_gaussians.ply,
-one per fused point) and the SfM points. Skipped when the scene has no classification or no mask pixel.
+Reads the undistorted photos and model of the dense workspace (held-out photos excluded), the classified cloud
+(``needs_splats`` per MVS point), the masks (classify/masks/<image name>.png, 255 = needs splats), the MVS Gaussians
+(export/mvs_gaussians.ply, one per fused point) and the SfM points. Skipped when the scene has no classification or
+no mask pixel.
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ class TrainStage(Stage):
         ws = layout.dense_workspace
         cameras, _ = read_model(ws.sparse)
         _, sfm = read_model(layout.sparse)
-        masks = read_masks(ctx, cameras)
+        held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
+        masks = {k: m for k, m in read_masks(ctx, cameras).items() if k not in held_out}  # never train on those
         if not any(m.any() for m in masks.values()):
             return {"trained": 0, "reason": "masks are empty"}
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
