@@ -167,3 +167,23 @@ def test_adam_groups_follow_parameters() -> None:
     assert all(g["params"][0] is params[g["name"]] for g in opt.param_groups)
     assert params["sh_rest"].shape == (10, 3, 3) and params["sh_dc"].shape == (10, 1, 3)
     assert torch.equal(params["means"], torch.from_numpy(gs.means.astype(np.float32)))
+
+
+def test_flat_option_drives_one_axis_towards_zero_and_normals_follow_it() -> None:
+    cams = ring_cameras(6)
+    truth = blob_set(120, 9)
+    photos = render_all(truth, cams)
+    # Adam moves a log-scale by at most ~lr per step: a larger lr lets 40 steps show the effect
+    base = TrainOptions(iterations=40, sh_degree=0, seed=2, lr_log_scales=0.02,
+                        strategy=DefaultStrategy(refine_start=10_000))  # fmt: skip
+    flat = TrainOptions(iterations=40, sh_degree=0, seed=2, lr_log_scales=0.02,
+                        strategy=DefaultStrategy(refine_start=10_000), flat=True, flat_reg=50.0)  # fmt: skip
+    a = train_splats(cams, photos, None, truth, options=base).splats
+    b = train_splats(cams, photos, None, truth, options=flat).splats
+    ratio = lambda gs: float(np.median(gs.scales.min(axis=1) / gs.scales.max(axis=1)))  # noqa: E731
+    assert ratio(b) < 0.6 * ratio(a), (ratio(a), ratio(b))
+    # the written normal is the rotated axis of the smallest scale
+    from fusion.train import splat_normals
+
+    n = splat_normals(b)
+    np.testing.assert_allclose(n, np.stack([b.fields[k] for k in ("nx", "ny", "nz")], axis=1), atol=1e-6)
