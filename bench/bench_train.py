@@ -152,8 +152,9 @@ def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_mod
 def fmt_scores(s) -> str:
     if s is None:
         return "n/a"
-    lp = "n/a" if s.lpips is None else f"{s.lpips:.3f}"
-    return f"PSNR {s.psnr:6.2f} dB  SSIM {s.ssim:.3f}  LPIPS {lp}"
+    m = s.mean
+    lp = "n/a" if m.lpips is None else f"{m.lpips:.3f}"
+    return f"PSNR {m.psnr:6.2f} dB  SSIM {m.ssim:.3f}  LPIPS {lp}"
 
 
 def bench_tabletop(args: argparse.Namespace) -> None:
@@ -291,6 +292,43 @@ def report(results, out: Path, load_fn) -> None:
     return None
 
 
+def bench_score(args: argparse.Namespace) -> None:
+    """Held-out metrics of saved products: MVS-only, merged (cleaned / uncleaned splats) and baseline PLYs."""
+    from core.io import read_point_cloud
+    from core.io.colmap import read_model
+    from core.io.gaussian_ply import read_gaussian_ply
+    from core.io.images import read_image, write_image
+    from eval.lpips import LPIPS
+    from fusion.merge import merge_hybrid
+
+    scene, project, out = Path(args.scene), Path(args.project), Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cameras, _ = read_model(project / "sparse")
+    fused = read_point_cloud(project / "dense" / "fused.ply")
+    mvs = read_gaussian_ply(project / "export" / "mvs_gaussians.ply")
+    _, needs, non_collab = truth_inputs(scene, cameras, fused.world_positions)
+    test_cams, _ = read_model(scene / "sparse" / "test")
+    test_masks = out / "truth_masks_test"
+    test_masks.mkdir(exist_ok=True)
+    for label in sorted((scene / "gt" / "labels" / "test").glob("*.png")):
+        lab = read_image(label, grayscale=True)
+        write_image(test_masks / label.name, (np.isin(lab, non_collab) * 255).astype(np.uint8))
+    lpips_model = LPIPS.from_path(args.lpips)
+    products = {"mvs": mvs}
+    for spec in args.ply:
+        name, _, path = spec.partition("=")
+        gs = read_gaussian_ply(path)
+        if name.startswith("merged_from_"):  # raw trained splats: merge them with the trusted MVS first
+            gs = merge_hybrid(mvs, gs, needs).gaussians
+        products[name] = gs
+    results = {}
+    for name, gs in products.items():
+        results[name] = evaluate(name, gs, test_cams, scene, test_masks, lpips_model, out)
+        print(f"  {name:22s} ({len(gs)} Gaussians) masked: {fmt_scores(results[name].masked)} | "
+              f"whole: {fmt_scores(results[name].full)}; {load()}", flush=True)  # fmt: skip
+    report(results, out, load)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -318,9 +356,15 @@ def main() -> None:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
+    c = sub.add_parser("score")
+    c.add_argument("--scene", required=True)
+    c.add_argument("--project", required=True)
+    c.add_argument("--out", default="bench/out/train_score")
+    c.add_argument("--ply", nargs="*", default=[], help="NAME=PATH; names merged_from_* are merged with MVS first")
+    c.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
     args = p.parse_args()
     torch.manual_seed(0)
-    {"speed": bench_speed, "tabletop": bench_tabletop}[args.cmd](args)
+    {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score}[args.cmd](args)
 
 
 if __name__ == "__main__":
