@@ -280,12 +280,7 @@ def report(results, out: Path, load_fn) -> None:
     for name, r in results.items():
         print(f"  {name:12s} masked: {fmt_scores(r.masked)} | whole: {fmt_scores(r.full)}")
     summary = {
-        name: {
-            "masked": None
-            if r.masked is None
-            else {"psnr": r.masked.psnr, "ssim": r.masked.ssim, "lpips": r.masked.lpips},
-            "whole": {"psnr": r.full.psnr, "ssim": r.full.ssim},
-        }
+        name: {"masked": None if r.masked is None else r.masked.as_dict(), "whole": r.full.as_dict()}
         for name, r in results.items()
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -42,14 +42,20 @@ class Reason(IntEnum):
 
 @dataclass(frozen=True)
 class CleanOptions:
-    """Options of :func:`clean_splats` (see the module docstring); a check is off when its value is None."""
+    """Options of :func:`clean_splats` (see the module docstring); a check is off when its value is None.
+
+    Defaults were chosen on data_synth ``tabletop`` (24 views, 320×240, 1000 steps, 29.9 k splats): stricter ones
+    (σ > 0.05 × scene scale or > 20 median spacings; DBSCAN eps 5 spacings, clusters < 5) removed 59 % of the
+    splats and cost 7.5 dB of held-out PSNR inside the masks — large flat splats on textureless, glass and mirror
+    regions and sparse splats are legitimate there. The defaults remove 11 % for 0.1 dB.
+    """
 
     mask_dilation_px: int = 2
     min_opacity: float | None = 0.02
-    max_scale_scene: float | None = 0.05
-    max_scale_spacing: float | None = 20.0
-    cluster_eps_spacing: float | None = 5.0
-    min_cluster_size: int = 5
+    max_scale_scene: float | None = 0.2
+    max_scale_spacing: float | None = None
+    cluster_eps_spacing: float | None = 50.0
+    min_cluster_size: int = 3
 
     def __post_init__(self) -> None:
         if self.mask_dilation_px < 0 or self.min_cluster_size < 1:

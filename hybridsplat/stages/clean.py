@@ -18,10 +18,10 @@ class CleanStageOptions:
     """
 
     min_opacity: float = 0.02
-    max_scale_scene: float = 0.05
-    max_scale_spacing: float = 20.0
-    cluster_eps_spacing: float = 5.0
-    min_cluster_size: int = 5
+    max_scale_scene: float = 0.2
+    max_scale_spacing: float = -1.0
+    cluster_eps_spacing: float = 50.0
+    min_cluster_size: int = 3
     mask_dilation_px: int = 2
 
 
