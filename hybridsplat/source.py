@@ -1,9 +1,8 @@
 """The project's input as the stages see it: photos, known cameras, held-out views and ground truth.
 
-``resolve_source(InputOptions)`` looks at INPUT once: a folder of photos (directly or under ``images/``), a COLMAP
-workspace (``sparse/`` or ``sparse/N`` beside ``images/``) or a data_synth scene (``images/``, ``sparse/0``,
-``sparse/test`` + ``test/``, ``gt/``, ``scene.json``), via :func:`recon.inputs.resolve_input`, and adds what the
-pipeline decides from the options: which cameras are known and which photos are held out.
+``resolve_source(InputOptions)`` looks at INPUT once (:func:`recon.inputs.resolve_input`: a folder of photos,
+directly or under ``images/``; a COLMAP workspace; a data_synth scene) and adds what the options decide: which
+cameras are known (poses fixed) and which photos are held out for evaluation.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ from pathlib import Path
 
 from core.errors import InputFileError
 from hybridsplat.config import InputOptions
-from recon.inputs import InputSpec, resolve_input, select_holdout
+from recon.inputs import Holdout, InputSpec, choose_holdout, resolve_input
 
 
 @dataclass(frozen=True)
@@ -22,16 +21,23 @@ class Source:
 
     spec: what INPUT holds (photos, cameras, truth), see :class:`recon.inputs.InputSpec`.
     known_cameras: COLMAP model whose cameras are used as they are (poses fixed), or None (full SfM).
-    holdout_names: photos of ``spec.image_dir`` never used for depth, fusion or training; evaluated on.
+    holdout: the held-out views: the input's own (``source == "input"``: outside ``image_dir``, with their
+        cameras) or photos of ``image_dir`` (``"every"``: registered by SfM, never used for depth, fusion or
+        training).
     """
 
     spec: InputSpec
     known_cameras: Path | None
-    holdout_names: tuple[str, ...]
+    holdout: Holdout
 
     @property
     def image_dir(self) -> Path:
         return self.spec.image_dir
+
+    @property
+    def holdout_names(self) -> tuple[str, ...]:
+        """Photos of ``image_dir`` kept out of depth estimation, fusion and training."""
+        return self.holdout.names if self.holdout.source == "every" else ()
 
     @property
     def training_names(self) -> tuple[str, ...]:
@@ -47,9 +53,5 @@ def resolve_source(options: InputOptions) -> Source:
     known = Path(options.cameras) if options.cameras else None
     if known is None and options.use_scene_cameras:
         known = spec.known_cameras
-    if options.holdout == -1:
-        # the input's own held-out views (a data_synth scene's test/) are outside image_dir already
-        holdout = () if spec.has_own_holdout else select_holdout(spec.image_names, 8)
-    else:
-        holdout = select_holdout(spec.image_names, options.holdout)
-    return Source(spec=spec, known_cameras=known, holdout_names=tuple(holdout))
+    holdout = choose_holdout(spec, None if options.holdout == -1 else options.holdout)
+    return Source(spec=spec, known_cameras=known, holdout=holdout)

@@ -120,6 +120,5 @@ def _warnings_to(terminal: Terminal, log: IO[str]) -> Iterator[None]:
         terminal.line(f"  warning: {text}")
 
     with warnings.catch_warnings():
-        warnings.simplefilter("default")
         warnings.showwarning = show
         yield

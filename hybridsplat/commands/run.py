@@ -41,6 +41,9 @@ def register(app: typer.Typer) -> None:
         mvs_backend: str = typer.Option("auto", help="auto | cpu | colmap (COLMAP PatchMatch needs CUDA)."),
         max_image_size: int = typer.Option(1000, help="Longer side of the dense images, px (-1: full size)."),
         convert_mode: str = typer.Option("adaptive", help="MVS-to-Gaussian conversion: adaptive | paper."),
+        lidar: Path | None = typer.Option(
+            None, help="Reference cloud (PLY/LAS/LAZ/E57, e.g. a LiDAR scan) for the C2C evaluation."
+        ),
         lpips_weights: Path | None = typer.Option(None, help="LPIPS v0.1 AlexNet weights (.npz)."),
         seed: int = typer.Option(0, help="Seed of every random choice."),
         force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
@@ -60,7 +63,10 @@ def register(app: typer.Typer) -> None:
                 sfm={"camera_model": camera_model, "single_camera": single_camera, "matcher": matcher},
                 mvs={"backend": mvs_backend, "max_image_size": max_image_size},
                 convert={"mode": convert_mode},
-                eval={"lpips_weights": str(lpips_weights.resolve()) if lpips_weights else ""},
+                eval={
+                    "lpips_weights": str(lpips_weights.resolve()) if lpips_weights else "",
+                    "reference": str(lidar.resolve()) if lidar else "",
+                },
             ),
         )
         terminal = Terminal(quiet=quiet)

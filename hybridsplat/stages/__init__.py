@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.classify import ClassifyStage
 from hybridsplat.stages.clean import CleanStage
 from hybridsplat.stages.convert import ConvertStage
 from hybridsplat.stages.evaluate import EvalStage
+from hybridsplat.stages.masks import MasksStage
 from hybridsplat.stages.merge import MergeStage
 from hybridsplat.stages.mvs import MvsStage
 from hybridsplat.stages.report import ReportStage
@@ -15,6 +17,8 @@ from hybridsplat.stages.train import TrainStage
 STAGES: tuple[Stage, ...] = (
     SfmStage(),
     MvsStage(),
+    ClassifyStage(),
+    MasksStage(),
     ConvertStage(),
     TrainStage(),
     CleanStage(),

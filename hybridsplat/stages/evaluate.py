@@ -54,24 +54,24 @@ class EvalStage(Stage):
         return Path(opts.reference) if opts.reference else ctx.source.spec.reference_cloud
 
     def _held_out(self, ctx: StageContext) -> HeldOutViews | None:
-        spec = ctx.source.spec
-        if ctx.source.holdout_names:
+        holdout = ctx.source.holdout
+        if holdout.source == "every":  # photos of the input: their undistorted copies in the dense workspace
             ws = ctx.layout.dense_workspace
-            return HeldOutViews(ws.sparse, ws.images, ctx.source.holdout_names)
-        if spec.has_own_holdout:
-            return HeldOutViews(spec.test_model, spec.test_photos, None)
+            return HeldOutViews(ws.sparse, ws.images, holdout.names)
+        if holdout.source == "input":
+            return HeldOutViews(holdout.model, holdout.image_dir, None)
         return None
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout, spec = ctx.layout, ctx.source.spec
-        truth = [self._reference(ctx), spec.test_model, spec.test_photos, spec.test_labels]
+        truth = [self._reference(ctx), ctx.source.holdout.model, ctx.source.holdout.image_dir, spec.test_labels]
         return [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, *(p for p in truth if p)]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.eval_dir]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
-        return {"held_out": sorted(ctx.source.holdout_names)}
+        return {"held_out": sorted(ctx.source.holdout.names)}
 
     def needs(self, ctx: StageContext) -> str | None:
         if self._reference(ctx) is None and self._held_out(ctx) is None:
@@ -105,7 +105,7 @@ class EvalStage(Stage):
         for done, (name, (cloud, gaussians)) in enumerate(products.items()):
             ctx.progress("products", done, len(products))
             result = evaluate_product(
-                layout.root,
+                layout.metrics_json,
                 name,
                 cloud=cloud if reference is not None else None,
                 reference=reference,
@@ -119,7 +119,7 @@ class EvalStage(Stage):
             if result.images is not None:
                 counts[f"{name}_psnr"] = result.images.full.mean.psnr if result.images.full else None
         ctx.progress("products", len(products), len(products))
-        evaluate_product(layout.root, "splats", skip_reason="no splats were trained (no training stage yet)")
+        evaluate_product(layout.metrics_json, "splats", skip_reason="no splats were trained (no training stage yet)")
         return counts
 
     def _truth_masks(self, ctx: StageContext) -> Path | None:
