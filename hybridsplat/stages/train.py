@@ -24,13 +24,16 @@ class TrainStageOptions:
     """Options of the ``train`` stage (see fusion.train.TrainOptions for the training defaults).
 
     iterations: maximum steps (early stop on the hold-out mask pixels). downscale: integer factor for photos and
-    masks. cap: hard Gaussian budget. sh_degree: highest SH degree. flat: surface-aligned splats. rays_per_view:
+    masks. cap: hard Gaussian budget, further limited to ``splats_per_mask_pixel`` × the mask pixels of all
+    training photos (at least 1000) so that small regions get small budgets. sh_degree: highest SH degree.
+    flat: surface-aligned splats. rays_per_view:
     ray seeds per photo. snapshot_iterations: steps after which the splats are kept in splats/snapshots/.
     """
 
     iterations: int = 2000
     downscale: int = 1
     cap: int = 60_000
+    splats_per_mask_pixel: float = 0.25
     sh_degree: int = 3
     flat: bool = False
     rays_per_view: int = 400
@@ -39,6 +42,8 @@ class TrainStageOptions:
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.downscale < 1 or self.cap < 1:
             raise ConfigError("iterations, downscale and cap must be >= 1")
+        if not self.splats_per_mask_pixel > 0:
+            raise ConfigError(f"splats_per_mask_pixel must be > 0, got {self.splats_per_mask_pixel}")
 
 
 def read_masks(ctx: StageContext, cameras) -> dict[str, np.ndarray]:
@@ -94,6 +99,12 @@ class TrainStage(Stage):
         masks = ctx.layout.masks_dir
         if not masks.is_dir() or not any(masks.glob("*.png")):
             return "no region masks (classify/masks): nothing needs splats"
+        record = ctx.layout.record("masks")
+        if record.is_file():
+            from core.io.json_io import read_json_object
+
+            if read_json_object(record).get("training_needed") is False:
+                return "every region mask is empty: no non-collaborative region or hole needs splats"
         return None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
@@ -119,10 +130,12 @@ class TrainStage(Stage):
         seeds = seed_splats(cameras, masks, images, mvs.means, np.clip(mvs.base_colors * 255, 0, 255), needs,
                             sfm_local, sfm.colors if len(sfm) else None,
                             InitOptions(rays_per_view=opts.rays_per_view, seed=ctx.config.seed))  # fmt: skip
+        mask_pixels = sum(int(m.sum()) for m in masks.values()) / opts.downscale**2
+        cap = min(opts.cap, max(1000, round(opts.splats_per_mask_pixel * mask_pixels)))
         train_opts = TrainOptions(iterations=opts.iterations, downscale=opts.downscale, seed=ctx.config.seed,
                                   sh_degree=opts.sh_degree, flat=opts.flat,
                                   snapshot_iterations=opts.snapshot_iterations,
-                                  strategy=DefaultStrategy(cap=opts.cap))  # fmt: skip
+                                  strategy=DefaultStrategy(cap=cap))  # fmt: skip
 
         def progress(info) -> None:
             ctx.progress(
@@ -138,6 +151,7 @@ class TrainStage(Stage):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
         return {
             "trained": len(result.splats),
+            "cap": cap,
             "iterations": result.iterations,
             "stopped_early": result.stopped_early,
             "holdout_psnr_db": result.final_holdout_psnr,
