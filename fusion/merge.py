@@ -206,3 +206,26 @@ def _with_provenance(gs: GaussianSet | None, source: Source, default_class: int,
         raise DataError(f"{source.name.lower()} Gaussians have classification codes outside 0..255")
     gs.fields = {"source": np.full(n, source, dtype=np.uint8), CLASS_FIELD: cls.astype(np.uint8)}
     return gs
+
+
+def merge_hybrid(
+    mvs: GaussianSet,
+    splats: GaussianSet | None,
+    needs_splats: np.ndarray,
+    *,
+    keep_needs_splats: bool = False,
+    options: MergeOptions | None = None,
+) -> MergeResult:
+    """The hybrid product: frozen MVS Gaussians + cleaned trained splats, with the per-Gaussian ``source`` field.
+
+    ``mvs`` holds one Gaussian per MVS point, in the order of ``needs_splats`` (N,) bool; the points that needed
+    splats are left out (their noisy, incomplete geometry is what the splats replace) unless
+    ``keep_needs_splats``. Defaults differ from :func:`merge_gaussians`' on purpose: MVS Gaussians are not
+    deduplicated and only exactly coincident splats are dropped, so that outside the regions the merged set renders
+    exactly like the MVS context the splats were trained next to.
+    """
+    needs = np.asarray(needs_splats, bool).reshape(-1)
+    if len(needs) != len(mvs):
+        raise DataError(f"needs_splats has {len(needs)} entries for {len(mvs)} MVS Gaussians")
+    kept = mvs if keep_needs_splats else subset(mvs, ~needs)
+    return merge_gaussians(splats, kept, options or MergeOptions(duplicate_tolerance=0.0, dedupe_mvs=False))

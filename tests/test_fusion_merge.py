@@ -8,7 +8,15 @@ import pytest
 from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.convert import Source
-from fusion.merge import MergeOptions, MergeWarning, Prefer, first_within_tolerance, merge_gaussians, near_any
+from fusion.merge import (
+    MergeOptions,
+    MergeWarning,
+    Prefer,
+    first_within_tolerance,
+    merge_gaussians,
+    merge_hybrid,
+    near_any,
+)
 
 
 def _set(means, origin=(0.0, 0.0, 0.0), degree=0, classes=None, seed=0) -> GaussianSet:
@@ -111,3 +119,19 @@ def test_merge_with_one_side_missing_or_empty():
     with pytest.raises(ValueError):
         MergeOptions(prefer="both")
     assert MergeOptions(prefer="splat").prefer is Prefer.SPLAT
+
+
+def test_merge_hybrid_leaves_needs_splats_points_out_by_default():
+    mvs = _set(np.array([[0.0, 0, 0], [0.0, 0, 0.0005], [1.0, 0, 0], [2.0, 0, 0]]))
+    needs = np.array([False, False, True, False])
+    splats = _set(np.array([[1.0, 0.1, 0], [5.0, 0, 0], [2.0, 0, 0]]))
+    res = merge_hybrid(mvs, splats, needs)
+    src = res.gaussians.fields["source"]
+    # trusted MVS kept as they are (no dedupe of the two MVS points 0.5 mm apart), the needs_splats one left out,
+    # the splat exactly on an MVS Gaussian dropped, the others kept
+    assert (int((src == Source.MVS).sum()), int((src == Source.SPLAT).sum())) == (3, 2)
+    np.testing.assert_array_equal(res.gaussians.means[src == Source.MVS], mvs.means[~needs])
+    kept = merge_hybrid(mvs, splats, needs, keep_needs_splats=True)
+    assert int((kept.gaussians.fields["source"] == Source.MVS).sum()) == 4
+    with pytest.raises(DataError):
+        merge_hybrid(mvs, splats, needs[:3])

@@ -6,7 +6,8 @@ Vertex properties, in this order, binary little-endian float32::
     rot_0 rot_1 rot_2 rot_3
 
 ``f_rest`` is channel-major (all R coefficients, then G, then B); ``opacity`` is logit(α), ``scale_*`` log σ,
-``rot_*`` the quaternion (w, x, y, z). Normals are written as zeros. Positions are local; the float64 origin
+``rot_*`` the quaternion (w, x, y, z). Normals are zeros, unless the set has the fields ``nx``, ``ny``, ``nz``
+(e.g. the normals of trained surface splats), which then fill them. Positions are local; the float64 origin
 goes to the ``<name>.origin.json`` sidecar. Extra per-Gaussian fields (e.g. ``source``, ``classification``)
 may be appended after ``rot_3`` as float32 properties — viewers ignore unknown properties.
 """
@@ -47,7 +48,8 @@ def write_gaussian_ply(
     """Write a Gaussian set as a 3DGS PLY (atomically) plus the origin sidecar when the origin is not zero.
 
     ``sh_degree`` truncates or zero-pads SH (default: the set's degree). ``extra_fields`` appends the set's
-    ``fields`` as float32 properties after ``rot_3``. Raises :class:`DataError` on NaN/inf parameters.
+    ``fields`` as float32 properties after ``rot_3``, except ``nx``/``ny``/``nz``, which go to the normal slots.
+    Raises :class:`DataError` on NaN/inf parameters.
     """
     path = Path(path)
     gs = gaussians if sh_degree is None else gaussians.with_sh_degree(sh_degree)
@@ -57,10 +59,17 @@ def write_gaussian_ply(
     n = len(gs)
     # channel-major f_rest: (N, K-1, 3) -> (N, 3, K-1) -> flat
     rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, 3 * gs.sh_rest.shape[1])  # type: ignore[union-attr]
+    normal_names = ("nx", "ny", "nz")
+    has_normals = all(k in gs.fields for k in normal_names)
+    normals = (
+        np.stack([gs.fields[k].astype(np.float32) for k in normal_names], axis=1)
+        if has_normals
+        else np.zeros((n, 3), np.float32)
+    )
     payload = np.concatenate(
         [
             gs.means.astype(np.float32),
-            np.zeros((n, 3), np.float32),
+            normals,
             gs.sh_dc,
             rest,
             gs.logit_opacities[:, None],
@@ -69,8 +78,8 @@ def write_gaussian_ply(
         ],
         axis=1,
     ).astype("<f4")
-    if extra_fields and gs.fields:
-        extras = sorted(gs.fields)
+    extras = sorted(k for k in gs.fields if not (has_normals and k in normal_names))
+    if extra_fields and extras:
         names = names + extras
         payload = np.concatenate([payload] + [gs.fields[k].astype("<f4")[:, None] for k in extras], axis=1)
     vertex = np.ascontiguousarray(payload).view(np.dtype([(name, "<f4") for name in names])).reshape(n)

@@ -49,6 +49,9 @@ def register(app: typer.Typer) -> None:
         ),
         lpips_weights: Path | None = typer.Option(None, help="LPIPS v0.1 AlexNet weights (.npz)."),
         mesh: int = typer.Option(0, "--mesh", help="Also write a mesh with this many triangles (0: no mesh)."),
+        train_iterations: int | None = typer.Option(
+            None, help="Most splat-training steps (default: the train stage's; it stops early on a plateau)."
+        ),
         seed: int = typer.Option(0, help="Seed of every random choice."),
         force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -68,6 +71,7 @@ def register(app: typer.Typer) -> None:
                 mvs={"backend": mvs_backend, "max_image_size": max_image_size},
                 convert={"mode": convert_mode},
                 mesh={"budget": mesh},
+                train={"iterations": train_iterations},
                 eval={
                     "lpips_weights": str(lpips_weights.resolve()) if lpips_weights else "",
                     "reference": str(lidar.resolve()) if lidar else "",

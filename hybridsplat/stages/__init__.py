@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from hybridsplat.stages.base import Stage, StageContext
 from hybridsplat.stages.classify import ClassifyStage
+from hybridsplat.stages.clean import CleanStage
 from hybridsplat.stages.convert import ConvertStage
 from hybridsplat.stages.evaluate import EvalStage
 from hybridsplat.stages.masks import MasksStage
@@ -12,6 +13,7 @@ from hybridsplat.stages.mesh import MeshStage
 from hybridsplat.stages.mvs import MvsStage
 from hybridsplat.stages.report import ReportStage
 from hybridsplat.stages.sfm import SfmStage
+from hybridsplat.stages.train import TrainStage
 
 STAGES: tuple[Stage, ...] = (
     SfmStage(),
@@ -19,6 +21,8 @@ STAGES: tuple[Stage, ...] = (
     ClassifyStage(),
     MasksStage(),
     ConvertStage(),
+    TrainStage(),
+    CleanStage(),
     MergeStage(),
     MeshStage(),
     EvalStage(),

@@ -9,10 +9,14 @@ The runner (``hybridsplat.runner``) decides whether it runs, times it and record
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
+
+from core.cameras import Cameras
+from core.pointcloud import PointCloud
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.source import Source
@@ -71,3 +75,31 @@ class Stage:
     def summary(self, counts: dict[str, Any]) -> str:
         """A few words about what the stage produced, for the terminal's one-line summary."""
         return ""
+
+
+def model_origin(ctx: StageContext) -> np.ndarray:
+    """(3,) float64 world coordinates (metres) of the frame the project's COLMAP models are written in.
+
+    COLMAP models hold no origin: the sfm stage records it (a georeferenced block is aligned into a local frame
+    around a rounded centroid). Zeros before the sfm stage ran or without a georeference.
+    """
+    from core.io.json_io import read_json
+
+    record = ctx.layout.record("sfm")
+    if not record.is_file():
+        return np.zeros(3)
+    return np.asarray(read_json(record).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
+
+
+def read_model_at(path: Path, origin: np.ndarray) -> tuple[Cameras, PointCloud]:
+    """A COLMAP model (cameras and points) whose local frame lies at ``origin`` (world = origin + local)."""
+    from core.io.colmap import read_model
+
+    cameras, points = read_model(path)
+    origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    return replace(cameras, origin=origin), replace(points, origin=origin)
+
+
+def read_project_model(ctx: StageContext, path: Path) -> tuple[Cameras, PointCloud]:
+    """A model of this project (``sparse/`` or the dense workspace's) in world coordinates, see model_origin."""
+    return read_model_at(path, model_origin(ctx))

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from core.errors import ConfigError
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, model_origin, read_model_at
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,7 @@ class EvalStageOptions:
 @dataclass(frozen=True)
 class HeldOutViews:
     model: Path  # COLMAP model with the held-out cameras
+    origin: np.ndarray  # world coordinates of that model's local frame
     photos: Path
     names: tuple[str, ...] | None  # None: every view of the model
 
@@ -57,9 +58,9 @@ class EvalStage(Stage):
         holdout = ctx.source.holdout
         if holdout.source == "every":  # photos of the input: their undistorted copies in the dense workspace
             ws = ctx.layout.dense_workspace
-            return HeldOutViews(ws.sparse, ws.images, holdout.names)
-        if holdout.source == "input":
-            return HeldOutViews(holdout.model, holdout.image_dir, None)
+            return HeldOutViews(ws.sparse, model_origin(ctx), ws.images, holdout.names)
+        if holdout.source == "input":  # the input's own views, in the input's frame
+            return HeldOutViews(holdout.model, np.asarray(ctx.source.spec.origin, np.float64), holdout.image_dir, None)
         return None
 
     def inputs(self, ctx: StageContext) -> list[Path]:
@@ -79,7 +80,6 @@ class EvalStage(Stage):
         return None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from core.io.colmap import read_model
         from core.io.gaussian_ply import read_gaussian_ply
         from eval.evaluate import ImageInputs, evaluate_product
         from eval.geometry import GeometryOptions
@@ -92,7 +92,7 @@ class EvalStage(Stage):
         images = None
         held_out = self._held_out(ctx)
         if held_out is not None:
-            cameras, _ = read_model(held_out.model)
+            cameras, _ = read_model_at(held_out.model, held_out.origin)
             views = [v for v in cameras if held_out.names is None or v.name in held_out.names]
             masks = self._truth_masks(ctx) if held_out.names is None else None
             images = ImageInputs(cameras, views, held_out.photos, masks)

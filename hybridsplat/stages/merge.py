@@ -1,23 +1,42 @@
-"""Stage ``merge``: one Gaussian set for viewers (export/merged.ply) and its points (PLY + LAS), see fusion.merge."""
+"""Stage ``merge``: one Gaussian set for viewers (export/merged.ply) and its points (PLY + LAS), see fusion.merge.
+
+With cleaned splats (splats/cleaned.ply) and a classified cloud, the hybrid: trusted MVS Gaussians + splats, the
+``needs_splats`` MVS points left out (``keep_needs_splats`` keeps them), a ``source`` field per Gaussian; the splats
+alone also go to export/splats.ply. Without them, the converted MVS cloud.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from hybridsplat.stages.base import Stage, StageContext
 
 
+@dataclass(frozen=True)
+class MergeStageOptions:
+    """Options of the ``merge`` stage. keep_needs_splats: keep the MVS Gaussians of points that needed splats."""
+
+    keep_needs_splats: bool = False
+
+
 class MergeStage(Stage):
     name = "merge"
+    Options = MergeStageOptions
     title = "merge and export"
 
+    def _hybrid(self, ctx: StageContext) -> bool:
+        return ctx.layout.cleaned_splats.is_file() and ctx.layout.classified_points.is_file()
+
     def inputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.mvs_gaussians]
+        extra = [ctx.layout.cleaned_splats, ctx.layout.classified_points] if self._hybrid(ctx) else []
+        return [ctx.layout.mvs_gaussians, *extra]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
-        return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las]
+        splats = [layout.splats_export] if self._hybrid(ctx) else []
+        return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las, *splats]
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply
@@ -25,8 +44,21 @@ class MergeStage(Stage):
         from fusion.merge import merge_gaussians
 
         layout = ctx.layout
-        result = merge_gaussians(None, read_gaussian_ply(layout.mvs_gaussians))
-        written = export_gaussian_ply(layout.merged_ply, result.gaussians)
+        mvs = read_gaussian_ply(layout.mvs_gaussians)
+        if self._hybrid(ctx):
+            from fusion.export import ExportOptions
+            from fusion.merge import merge_hybrid
+            from hybridsplat.stages.train import needs_splats_per_gaussian
+
+            splats = read_gaussian_ply(layout.cleaned_splats)
+            opts: MergeStageOptions = ctx.options(self)
+            needs = needs_splats_per_gaussian(ctx, mvs)
+            result = merge_hybrid(mvs, splats, needs, keep_needs_splats=opts.keep_needs_splats)
+            export_gaussian_ply(layout.splats_export, splats)
+            written = export_gaussian_ply(layout.merged_ply, result.gaussians, ExportOptions(extra_fields=True))
+        else:
+            result = merge_gaussians(None, mvs)
+            written = export_gaussian_ply(layout.merged_ply, result.gaussians)
         export_points(layout.merged_points_ply, result.gaussians)
         export_points(layout.merged_points_las, result.gaussians)
         if ctx.config.input.crs:  # the georeference sidecars carry the CRS the user gave
@@ -34,7 +66,9 @@ class MergeStage(Stage):
 
             for path in (layout.merged_ply, layout.merged_points_ply):
                 write_origin(path, result.gaussians.origin, ctx.config.input.crs)
-        return {"merged": len(result.gaussians), "written": written.num_written}
+        s = result.stats
+        return {"merged": len(result.gaussians), "written": written.num_written, "mvs": s.mvs_kept,
+                "splats": s.splats_kept}  # fmt: skip
 
     def summary(self, counts: dict[str, Any]) -> str:
         return f"{counts['written']} Gaussians in the merged product"

@@ -19,7 +19,7 @@ import numpy as np
 
 from core.errors import ConfigError, DataError
 from hybridsplat.layout import MESH_FORMATS
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, read_project_model
 
 METHODS = ("poisson", "tsdf")
 SOURCES = ("all", "mvs")
@@ -84,7 +84,6 @@ class MeshStage(Stage):
         return None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from core.io.colmap import read_model
         from core.io.gaussian_ply import read_gaussian_ply
         from core.io.origin import write_origin
         from fusion.mesh import MeshOptions, MeshWarning, mesh_from_gaussians, write_mesh
@@ -95,8 +94,7 @@ class MeshStage(Stage):
         merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
         cameras = None
         if layout.sparse.is_dir():
-            cameras = read_model(layout.sparse)[0]
-            cameras.origin = sparse_origin(layout)
+            cameras = read_project_model(ctx, layout.sparse)[0]
         snapshots = []
         if opts.snapshots and layout.snapshots_dir.is_dir():
             snapshots = [read_gaussian_ply(p) for p in sorted(layout.snapshots_dir.glob("*.ply"))]
@@ -131,16 +129,6 @@ class MeshStage(Stage):
 
     def summary(self, counts: dict[str, Any]) -> str:
         return f"{counts['triangles']} triangles ({counts['method']}), {', '.join(counts['formats'])}"
-
-
-def sparse_origin(layout: Any) -> np.ndarray:
-    """World coordinates of the sparse model's local frame: the ``origin`` the sfm stage recorded (zeros if none)."""
-    from core.io.json_io import read_json
-
-    record = layout.record("sfm")
-    if not record.is_file():
-        return np.zeros(3)
-    return np.asarray(read_json(record).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
 
 
 def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianSet

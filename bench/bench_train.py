@@ -1,0 +1,366 @@
+"""Splat-training benchmarks.
+
+``python bench/bench_train.py speed [--n 50000] [--size 256x192] [--steps 20]``
+    One full training iteration (mask = whole image: render, loss, backward, Adam, densification bookkeeping)
+    on a random scene, each part timed, next to OpenSplat 1.1.5's CPU figures (0.119 s/iter at 5 k, 0.209 s/iter
+    at 50 k Gaussians, 256×192, 2 cores, measured on this kind of machine).
+
+``python bench/bench_train.py tabletop --scene SCENE --project PROJECT [--iterations 2000] ...``
+    The hybrid on a data_synth scene that ``hybridsplat run`` has processed: masks and ``needs_splats`` from the
+    scene's truth (material labels of the training photos; fused points labelled by the nearest LiDAR point's
+    material) until the classify stage exists; MVS Gaussians of trusted points frozen as context; seeds; masked
+    training; cleaning; merge. Then the whole-scene baseline (same trainer, mask = whole image, no context, SfM
+    init, same cap) and the held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole
+    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+
+def load() -> str:
+    return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
+
+
+# -- speed -------------------------------------------------------------------------------------------
+def bench_speed(args: argparse.Namespace) -> None:
+    from fusion.render.synthetic import random_scene
+    from fusion.train.loss import masked_photometric_loss
+    from fusion.train.params import make_optimizer, make_parameters
+    from fusion.train.render import render_step
+    from fusion.train.strategy import DefaultStrategy
+    from fusion.train.views import TrainView
+
+    width, height = (int(x) for x in args.size.split("x"))
+    scene = random_scene(args.n, width, height, seed=0, sh_degree=args.sh_degree)
+    truth = random_scene(args.n, width, height, seed=1, sh_degree=0)
+    from fusion.render import render
+
+    with torch.no_grad():
+        target = render(*truth.params, *truth.camera, backend="cpu").colour.clamp(0, 1)
+    view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat, scene.K,
+                     width, height, width * height, None)  # fmt: skip
+    tensors = {
+        "means": scene.means,
+        "quats": scene.quats,
+        "log_scales": scene.log_scales,
+        "logit_opacities": scene.logit_opacities,
+        "sh_dc": scene.sh_coeffs[:, :1],
+        "sh_rest": scene.sh_coeffs[:, 1:],
+    }
+    params = make_parameters(tensors)
+    optimizer = make_optimizer(params, {k: 1e-4 for k in params})
+    strategy = DefaultStrategy(cap=args.n)  # bookkeeping every step; no refinement before step 500
+    state = strategy.initial_state(args.n)
+    bg = torch.zeros(3)
+    names = ("render fwd", "loss fwd", "backward", "adam", "densify stats", "total")
+    parts: dict[str, list[float]] = {k: [] for k in names}
+    cpu: dict[str, list[float]] = {k: [] for k in names}  # process CPU seconds (all threads): less load-sensitive
+
+    def clock() -> tuple[float, float]:
+        return time.perf_counter(), time.process_time()
+
+    for i in range(args.steps + 3):
+        c0 = clock()
+        out = render_step(params, view, None, args.sh_degree, bg)
+        c1 = clock()
+        terms = masked_photometric_loss(out.colour, view.image, None)
+        c2 = clock()
+        terms.loss.backward()
+        c3 = clock()
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        c4 = clock()
+        strategy.after_backward(state, out.means2d, width, height, i)
+        strategy.refine(state, params, optimizer, i + 1, 10**9, 1.0, torch.Generator())
+        c5 = clock()
+        if i >= 3:  # warm-up (kernel compilation, thread pool)
+            spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
+            for k, (a, b) in zip(names, spans, strict=True):
+                parts[k].append(b[0] - a[0])
+                cpu[k].append(b[1] - a[1])
+    print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
+          f"{torch.get_num_threads()} torch threads; {load()}")  # fmt: skip
+    for k, v in parts.items():
+        print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
+              f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip
+    total = float(np.median(parts["total"]))
+    peer = 0.209 if args.n >= 50_000 else 0.119
+    print(f"  OpenSplat 1.1.5 CPU: {peer:.3f} s/iter -> ours {total:.3f} s/iter, ratio {peer / total:.2f}x "
+          f"(target <= 0.100 s)")  # fmt: skip
+
+
+# -- tabletop ----------------------------------------------------------------------------------------
+def truth_inputs(scene: Path, cameras, fused_positions: np.ndarray):
+    """Training masks (name -> bool) from the scene's material labels and needs_splats per fused point."""
+    from scipy.spatial import cKDTree
+
+    from core.io import read_point_cloud
+    from core.io.images import read_image
+
+    meta = json.loads((scene / "scene.json").read_text())
+    non_collab = [int(m["id"]) for m in meta["materials"] if not m["collaborative"]]
+    masks = {}
+    for view in cameras:
+        labels = read_image(scene / "gt" / "labels" / "train" / view.name, grayscale=True)
+        masks[view.name] = np.isin(labels, non_collab)
+    lidar = read_point_cloud(scene / "gt" / "lidar.ply")
+    material = np.asarray(lidar.fields["material"]).astype(np.int64)
+    world = lidar.world_positions
+    _, idx = cKDTree(world).query(fused_positions, k=1, workers=-1)
+    needs = np.isin(material[idx], non_collab)
+    return masks, needs, non_collab
+
+
+def splat_geometry(splats, lidar_world: np.ndarray, material: np.ndarray, non_collab, tau: float) -> dict:
+    """Opacity-weighted C2C (metres) of splat centres to the LiDAR truth, per nearest material, and the count of
+    splats outside the true region (nearest truth point collaborative, or farther than ``tau``)."""
+    from scipy.spatial import cKDTree
+
+    if len(splats) == 0:
+        return {"outside_true_region": 0, "per_material": {}}
+    d, idx = cKDTree(lidar_world).query(splats.world_means, k=1, workers=-1)
+    w = splats.opacities.astype(np.float64)
+    mat = material[idx]
+    per = {}
+    for m in np.unique(mat):
+        sel = mat == m
+        per[int(m)] = {"n": int(sel.sum()), "c2c_weighted_mean_m": float((d[sel] * w[sel]).sum() / w[sel].sum()),
+                       "c2c_median_m": float(np.median(d[sel]))}  # fmt: skip
+    outside = (~np.isin(mat, non_collab)) | (d > tau)
+    return {"outside_true_region": int(outside.sum()), "per_material": per}
+
+
+def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_model, out_dir):
+    from eval.render_eval import evaluate_gaussians
+
+    res = evaluate_gaussians(gaussians, test_cams, list(test_cams), scene / "test", masks_dir, lpips_model,
+                             out_dir, name)  # fmt: skip
+    return res
+
+
+def fmt_scores(s) -> str:
+    if s is None:
+        return "n/a"
+    m = s.mean
+    lp = "n/a" if m.lpips is None else f"{m.lpips:.3f}"
+    return f"PSNR {m.psnr:6.2f} dB  SSIM {m.ssim:.3f}  LPIPS {lp}"
+
+
+def bench_tabletop(args: argparse.Namespace) -> None:
+    from core.io import read_point_cloud
+    from core.io.colmap import read_model
+    from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
+    from core.io.images import read_image
+    from eval.lpips import LPIPS
+    from fusion.clean import CleanOptions, clean_splats
+    from fusion.merge import merge_hybrid
+    from fusion.train import DefaultStrategy, TrainOptions, train_splats
+    from fusion.train.init import InitOptions, seed_splats
+
+    scene, project = Path(args.scene), Path(args.project)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cameras, sfm = read_model(project / "sparse")
+    fused = read_point_cloud(project / "dense" / "fused.ply")
+    mvs = read_gaussian_ply(project / "export" / "mvs_gaussians.ply")
+    images = {v.name: read_image(scene / "images" / v.name) for v in cameras}
+    masks, needs, non_collab = truth_inputs(scene, cameras, fused.world_positions)
+    test_cams, _ = read_model(scene / "sparse" / "test")
+    test_masks = out / "truth_masks_test"
+    test_masks.mkdir(exist_ok=True)
+    from core.io.images import write_image
+
+    for label in sorted((scene / "gt" / "labels" / "test").glob("*.png")):
+        lab = read_image(label, grayscale=True)
+        write_image(test_masks / label.name, (np.isin(lab, non_collab) * 255).astype(np.uint8))
+    try:
+        lpips_model = LPIPS.from_path(args.lpips)
+    except Exception as err:  # noqa: BLE001
+        print("LPIPS left out:", err)
+        lpips_model = None
+    print(f"scene {scene}: {len(cameras)} training views, {len(fused)} fused points, {int(needs.sum())} need splats, "
+          f"{sum(int(m.sum()) for m in masks.values())} mask pixels; {load()}")  # fmt: skip
+
+    results = {}
+    if args.only == "baseline":
+        return bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
+    t0 = time.perf_counter()
+    init = seed_splats(cameras, masks, images, fused.positions, fused.colors, needs, sfm.positions, sfm.colors,
+                       InitOptions(rays_per_view=args.rays, seed=args.seed))  # fmt: skip
+    t_init = time.perf_counter() - t0
+    print(f"init: {len(init.gaussians)} seeds (mvs {init.from_mvs}, sfm {init.from_sfm}, rays {init.from_rays}, "
+          f"no depth {init.rays_without_depth}) in {t_init:.1f} s")  # fmt: skip
+    context = mvs.subset(~needs)
+    strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
+                               reset_every=args.reset_every)  # fmt: skip
+    opts = TrainOptions(iterations=args.iterations, downscale=args.downscale, seed=args.seed, strategy=strategy,
+                        sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc, flat=args.flat,
+                        patience=args.patience)  # fmt: skip
+    tr = train_splats(cameras, images, masks, init.gaussians, context, opts)
+    print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
+          f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
+          f"early stop {tr.stopped_early}, refine {tr.refine}; {load()}")  # fmt: skip
+    for c in tr.history:
+        print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
+              f"{c.seconds:6.1f} s")  # fmt: skip
+    t1 = time.perf_counter()
+    cleaned = clean_splats(tr.splats, cameras, masks, CleanOptions())
+    t_clean = time.perf_counter() - t1
+    print(f"clean: {cleaned.counts} in {t_clean:.1f} s")
+    from core.io import read_point_cloud as _read
+
+    lidar = _read(scene / "gt" / "lidar.ply")
+    lmat = np.asarray(lidar.fields["material"]).astype(np.int64)
+    tau = 3 * json.loads((scene / "scene.json").read_text())["gsd_m"]
+    g_before = splat_geometry(tr.splats, lidar.world_positions, lmat, non_collab, tau)
+    g_after = splat_geometry(cleaned.splats, lidar.world_positions, lmat, non_collab, tau)
+    print(f"splats outside the true region (nearest truth collaborative or > {tau * 1000:.1f} mm): "
+          f"{g_before['outside_true_region']} of {len(tr.splats)} before cleaning, "
+          f"{g_after['outside_true_region']} of {len(cleaned.splats)} after")  # fmt: skip
+    for m, v in g_after["per_material"].items():
+        print(f"   material {m}: {v['n']} splats, opacity-weighted mean C2C {1000 * v['c2c_weighted_mean_m']:.2f} mm, "
+              f"median {1000 * v['c2c_median_m']:.2f} mm")  # fmt: skip
+    merged = merge_hybrid(mvs, cleaned.splats, needs).gaussians
+    from scipy.spatial import cKDTree
+
+    for label, pts in (("MVS-only", mvs.world_means), ("merged", merged.world_means)):
+        d, _ = cKDTree(pts).query(lidar.world_positions, k=1, workers=-1)
+        nc = np.isin(lmat, non_collab)
+        print(f"completeness at tau {tau * 1000:.1f} mm, {label}: all {np.mean(d <= tau):.3f}, "
+              f"non-collaborative materials {np.mean(d[nc] <= tau):.3f}")  # fmt: skip
+    write_gaussian_ply(out / "merged.ply", merged, extra_fields=True)
+    write_gaussian_ply(out / "splats.ply", tr.splats, extra_fields=True)
+    hybrid_time = t_init + tr.seconds + t_clean
+    results["merged"] = evaluate("merged", merged, test_cams, scene, test_masks, lpips_model, out)
+    results["mvs"] = evaluate("mvs", mvs, test_cams, scene, test_masks, lpips_model, out)
+    results["splats_only"] = evaluate("splats", cleaned.splats, test_cams, scene, test_masks, lpips_model, out)
+    print(f"hybrid time (init + train + clean, MVS excluded): {hybrid_time:.1f} s")
+    if args.only == "both":
+        bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
+        return
+    report(results, out, load)
+
+
+def bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results) -> None:
+    """The whole-scene 3DGS baseline: same trainer, mask = whole image, no context, SfM init, same cap."""
+    from core.io.gaussian_ply import write_gaussian_ply
+    from fusion.train import DefaultStrategy, TrainOptions, train_splats
+    from fusion.train.init import sfm_seeds
+
+    strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
+                               reset_every=args.reset_every)  # fmt: skip
+    base_init = sfm_seeds(sfm.positions, sfm.colors, cameras.origin)
+    bopts = TrainOptions(iterations=args.baseline_iterations, downscale=args.downscale, seed=args.seed,
+                         strategy=strategy, sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc,
+                         patience=args.patience)  # fmt: skip
+    base = train_splats(cameras, images, None, base_init, None, bopts)
+    print(f"baseline training: {base.iterations} it in {base.seconds:.1f} s "
+          f"({base.seconds / base.iterations:.3f} s/it), {len(base.splats)} splats; {load()}")  # fmt: skip
+    for c in base.history:
+        print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
+              f"{c.seconds:6.1f} s")  # fmt: skip
+    write_gaussian_ply(out / "baseline.ply", base.splats)
+    results["baseline"] = evaluate("baseline", base.splats, test_cams, scene, test_masks, lpips_model, out)
+    report(results, out, load)
+
+
+def report(results, out: Path, load_fn) -> None:
+    print(f"\nheld-out views, {load_fn()}:")
+    for name, r in results.items():
+        print(f"  {name:12s} masked: {fmt_scores(r.masked)} | whole: {fmt_scores(r.full)}")
+    summary = {
+        name: {"masked": None if r.masked is None else r.masked.as_dict(), "whole": r.full.as_dict()}
+        for name, r in results.items()
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return None
+
+
+def bench_score(args: argparse.Namespace) -> None:
+    """Held-out metrics of saved products: MVS-only, merged (cleaned / uncleaned splats) and baseline PLYs."""
+    from core.io import read_point_cloud
+    from core.io.colmap import read_model
+    from core.io.gaussian_ply import read_gaussian_ply
+    from core.io.images import read_image, write_image
+    from eval.lpips import LPIPS
+    from fusion.merge import merge_hybrid
+
+    scene, project, out = Path(args.scene), Path(args.project), Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cameras, _ = read_model(project / "sparse")
+    fused = read_point_cloud(project / "dense" / "fused.ply")
+    mvs = read_gaussian_ply(project / "export" / "mvs_gaussians.ply")
+    _, needs, non_collab = truth_inputs(scene, cameras, fused.world_positions)
+    test_cams, _ = read_model(scene / "sparse" / "test")
+    test_masks = out / "truth_masks_test"
+    test_masks.mkdir(exist_ok=True)
+    for label in sorted((scene / "gt" / "labels" / "test").glob("*.png")):
+        lab = read_image(label, grayscale=True)
+        write_image(test_masks / label.name, (np.isin(lab, non_collab) * 255).astype(np.uint8))
+    lpips_model = LPIPS.from_path(args.lpips)
+    products = {"mvs": mvs}
+    for spec in args.ply:
+        name, _, path = spec.partition("=")
+        gs = read_gaussian_ply(path)
+        if name.startswith("merged_from_"):  # raw trained splats: merge them with the trusted MVS first
+            gs = merge_hybrid(mvs, gs, needs).gaussians
+        products[name] = gs
+    results = {}
+    for name, gs in products.items():
+        results[name] = evaluate(name, gs, test_cams, scene, test_masks, lpips_model, out)
+        print(f"  {name:22s} ({len(gs)} Gaussians) masked: {fmt_scores(results[name].masked)} | "
+              f"whole: {fmt_scores(results[name].full)}; {load()}", flush=True)  # fmt: skip
+    report(results, out, load)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("speed")
+    s.add_argument("--n", type=int, default=50_000)
+    s.add_argument("--size", default="256x192")
+    s.add_argument("--steps", type=int, default=20)
+    s.add_argument("--sh-degree", type=int, default=0)
+    t = sub.add_parser("tabletop")
+    t.add_argument("--scene", required=True)
+    t.add_argument("--project", required=True)
+    t.add_argument("--out", default="bench/out/train_tabletop")
+    t.add_argument("--iterations", type=int, default=2000)
+    t.add_argument("--baseline-iterations", type=int, default=0)
+    t.add_argument("--downscale", type=int, default=1)
+    t.add_argument("--cap", type=int, default=60_000)
+    t.add_argument("--rays", type=int, default=400)
+    t.add_argument("--refine-start", type=int, default=300)
+    t.add_argument("--refine-every", type=int, default=100)
+    t.add_argument("--reset-every", type=int, default=3000)
+    t.add_argument("--sh-degree", type=int, default=3)
+    t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
+    t.add_argument("--patience", type=int, default=3)
+    t.add_argument("--flat", action="store_true")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
+    t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
+    c = sub.add_parser("score")
+    c.add_argument("--scene", required=True)
+    c.add_argument("--project", required=True)
+    c.add_argument("--out", default="bench/out/train_score")
+    c.add_argument("--ply", nargs="*", default=[], help="NAME=PATH; names merged_from_* are merged with MVS first")
+    c.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
+    args = p.parse_args()
+    torch.manual_seed(0)
+    {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,119 @@
+"""Rendering trainable splats together with frozen context Gaussians for one training view.
+
+The frozen Gaussians never change, so their projection, colour and culling are computed once per view and cached
+(:class:`ContextProjection`); each step only the trainable splats are projected (with autograd) and both sets are
+composited in one rasterisation so that occlusion between them is exact. Same conventions and kernels as
+:func:`fusion.render.render` (backends ``cpu`` and ``reference``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from core.errors import ConfigError
+from fusion.render.cpu import rasterize_cpu
+from fusion.render.projection import project_gaussians
+from fusion.render.reference import rasterize_reference
+from fusion.render.sh import sh_to_colour
+from fusion.train.params import ContextGaussians
+from fusion.train.views import TrainView, boxes_touch_tiles
+
+
+@dataclass(frozen=True)
+class ContextProjection:
+    """The frozen Gaussians that matter for one view (visible and touching an active tile), projected."""
+
+    means2d: torch.Tensor  # (M, 2)
+    conics: torch.Tensor  # (M, 3)
+    depths: torch.Tensor  # (M,)
+    extents: torch.Tensor  # (M, 2)
+    opacities: torch.Tensor  # (M,)
+    colours: torch.Tensor  # (M, 3)
+    index: torch.Tensor  # (M,) int64 rows of the frozen set
+
+    def __len__(self) -> int:
+        return int(self.means2d.shape[0])
+
+
+@dataclass(frozen=True)
+class StepRender:
+    """A training render: colour (H, W, 3) over the background, alpha (H, W), and the trainable splats'
+    projected means (N, 2, gradients retained) and visibility (N,) bool."""
+
+    colour: torch.Tensor
+    alpha: torch.Tensor
+    means2d: torch.Tensor
+    visible: torch.Tensor
+
+
+def project_context(context: ContextGaussians | None, view: TrainView) -> ContextProjection | None:
+    """Project the frozen set into ``view`` once (no gradients), keeping only the Gaussians that can matter."""
+    if context is None or len(context) == 0:
+        return None
+    with torch.no_grad():
+        proj = project_gaussians(
+            context.means, context.quats, context.log_scales, view.viewmat, view.K, view.width, view.height
+        )
+        keep = proj.visible
+        if view.tile_prefix is not None:
+            keep = keep & boxes_touch_tiles(proj.means2d, proj.extents, view.tile_prefix)
+        idx = torch.nonzero(keep).squeeze(1)
+        degree = int(round(context.sh_coeffs.shape[1] ** 0.5)) - 1
+        colours = sh_to_colour(context.sh_coeffs[idx], context.means[idx] - view.camera_centre, degree)
+        return ContextProjection(
+            proj.means2d[idx].contiguous(),
+            proj.conics[idx].contiguous(),
+            proj.depths[idx].contiguous(),
+            proj.extents[idx].contiguous(),
+            torch.sigmoid(context.logit_opacities[idx]).contiguous(),
+            colours.contiguous(),
+            idx,
+        )
+
+
+def render_step(
+    params: dict[str, torch.Tensor],
+    view: TrainView,
+    context: ContextProjection | None,
+    sh_degree: int,
+    background: torch.Tensor,
+    backend: str = "cpu",
+) -> StepRender:
+    """Render trainable splats (``params`` as in :mod:`fusion.train.params`) plus the cached context into ``view``."""
+    if backend not in ("cpu", "reference"):
+        raise ConfigError(f"training renders with the 'cpu' or 'reference' backend, got {backend!r}")
+    proj = project_gaussians(
+        params["means"], params["quats"], params["log_scales"], view.viewmat, view.K, view.width, view.height
+    )
+    means2d = proj.means2d
+    if means2d.requires_grad:
+        means2d.retain_grad()
+    visible = proj.visible
+    if view.tile_prefix is not None and len(visible):
+        visible = visible & boxes_touch_tiles(means2d, proj.extents, view.tile_prefix)
+    k = (sh_degree + 1) ** 2
+    sh = torch.cat([params["sh_dc"], params["sh_rest"][:, : k - 1]], dim=1)
+    colours = sh_to_colour(sh, params["means"] - view.camera_centre, sh_degree)
+    opacities = torch.sigmoid(params["logit_opacities"])
+    parts = [(means2d, proj.conics, proj.depths, proj.extents, opacities, colours, visible)]
+    if context is not None and len(context):
+        parts.append(
+            (
+                context.means2d,
+                context.conics,
+                context.depths,
+                context.extents,
+                context.opacities,
+                context.colours,
+                torch.ones(len(context), dtype=torch.bool),
+            )
+        )
+    m2, con, dep, ext, opa, col, vis = (torch.cat(list(x), dim=0) for x in zip(*parts, strict=True))
+    features = torch.cat([col, dep[:, None]], dim=1)
+    rasterize = rasterize_cpu if backend == "cpu" else rasterize_reference
+    image = rasterize(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height)
+    alpha = image[..., 4]
+    colour = image[..., :3] + (1 - alpha)[..., None] * background
+    return StepRender(colour, alpha, means2d, visible)

@@ -1,0 +1,308 @@
+"""The splat trainer: trainable Gaussians fitted to photos inside masks, next to frozen context Gaussians.
+
+One step: pick a view (a seeded permutation per epoch), render trainable + frozen Gaussians together
+(:mod:`fusion.train.render`), loss = 0.8 · L1 + 0.2 · (1 − SSIM) averaged over the view's loss pixels
+(:mod:`fusion.train.loss`) + regularisers, backward (only the trainable tensors have gradients), Adam step with the
+3DGS learning rates (means: ``lr_means`` × scene scale decaying exponentially to ``lr_means_final`` of it), then the
+densification strategy's bookkeeping and refinement (:mod:`fusion.train.strategy`). SH degree rises by one every
+``sh_degree_interval`` steps.
+
+Early stop: a seeded ``holdout_fraction`` of each view's mask pixels never enters the loss; the PSNR on them is
+accumulated over whole epochs, and training stops when it has not improved by ``min_improvement_db`` for
+``patience`` evaluation windows. The whole-scene 3DGS baseline is the same trainer with ``masks=None``, no context
+and SfM points as ``init``.
+
+Frames: everything is trained in the cameras' local frame shifted by the mean camera centre (float64 shift, then
+float32); results come back as :class:`core.GaussianSet` in the cameras' local frame and origin.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from core.cameras import Cameras
+from core.errors import ConfigError, DataError
+from core.gaussians import GaussianSet
+from fusion.render.projection import quat_to_rotmat
+from fusion.train.loss import masked_photometric_loss
+from fusion.train.params import (
+    context_from_set,
+    make_optimizer,
+    make_parameters,
+    set_from_tensors,
+    tensors_from_set,
+)
+from fusion.train.render import project_context, render_step
+from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
+from fusion.train.views import prepare_views
+
+
+@dataclass(frozen=True)
+class TrainOptions:
+    """Options of :func:`train_splats` (learning rates per step as in 3DGS / gsplat; lengths in metres).
+
+    iterations: maximum number of steps. downscale: integer factor for photos, masks and intrinsics (2 on a CPU:
+    a quarter of the pixels). sh_degree: highest SH degree, reached one degree per ``sh_degree_interval`` steps.
+    scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
+    of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
+    holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
+    snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
+    """
+
+    iterations: int = 2000
+    downscale: int = 1
+    seed: int = 0
+    sh_degree: int = 3
+    sh_degree_interval: int = 500
+    ssim_lambda: float = 0.2
+    lr_means: float = 1.6e-4
+    lr_means_final: float = 0.01
+    lr_log_scales: float = 5e-3
+    lr_quats: float = 1e-3
+    lr_opacities: float = 5e-2
+    lr_sh_dc: float = 2.5e-3
+    lr_sh_rest: float = 2.5e-3 / 20
+    scale_reg: float = 0.0
+    flat: bool = False
+    flat_reg: float = 10.0
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    holdout_fraction: float = 0.05
+    eval_every: int = 100
+    patience: int = 3
+    min_improvement_db: float = 0.05
+    min_iterations: int = 600
+    snapshot_iterations: tuple[int, ...] = ()
+    backend: str = "cpu"
+    strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ConfigError(f"iterations must be >= 1, got {self.iterations}")
+        if not 0 <= self.sh_degree <= 3:
+            raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
+        if self.sh_degree_interval < 1 or self.eval_every < 1 or self.patience < 1:
+            raise ConfigError("sh_degree_interval, eval_every and patience must be >= 1")
+        if not 0.0 <= self.ssim_lambda <= 1.0:
+            raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
+        if self.backend not in ("cpu", "reference"):
+            raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """Training state at the end of an evaluation window: step, mean loss over the window, hold-out PSNR (dB) of
+    the window's renders, trainable count, seconds since the start."""
+
+    step: int
+    loss: float
+    holdout_psnr: float
+    gaussians: int
+    seconds: float
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train_splats` produced: the trained splats (cameras' local frame and origin; fields ``nx``,
+    ``ny``, ``nz`` = unit normal along each splat's smallest axis), snapshots by step, the evaluation history and
+    the counts of what was used and culled."""
+
+    splats: GaussianSet
+    snapshots: dict[int, GaussianSet]
+    history: list[Checkpoint]
+    iterations: int
+    stopped_early: bool
+    views_used: int
+    views_without_mask: int
+    mask_pixels: int
+    context_total: int
+    context_culled: int
+    initial_gaussians: int
+    refine: RefineCounts
+    seconds: float
+    scene_scale: float
+    resolution: tuple[int, int]
+
+    @property
+    def final_holdout_psnr(self) -> float:
+        return self.history[-1].holdout_psnr if self.history else float("nan")
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """Passed to the progress callback after every step."""
+
+    step: int
+    iterations: int
+    loss: float
+    holdout_psnr: float
+    gaussians: int
+
+
+def scene_scale(cameras: Cameras) -> float:
+    """1.1 × the largest distance of a camera centre from the centres' mean (3DGS), metres (≥ 1e-6)."""
+    centres = np.array([v.center for v in cameras])
+    if len(centres) == 0:
+        raise DataError("no cameras: cannot train")
+    return max(1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()), 1e-6)
+
+
+def splat_normals(gs: GaussianSet) -> np.ndarray:
+    """(N, 3) float32 unit vectors along each Gaussian's smallest scale axis (the surface normal of a flat splat)."""
+    if len(gs) == 0:
+        return np.zeros((0, 3), np.float32)
+    R = quat_to_rotmat(torch.from_numpy(gs.quats.astype(np.float64))).numpy()
+    axis = np.argmin(gs.log_scales, axis=1)
+    return R[np.arange(len(gs)), :, axis].astype(np.float32)
+
+
+def _with_normals(gs: GaussianSet) -> GaussianSet:
+    n = splat_normals(gs)
+    gs.fields = dict(gs.fields) | {"nx": n[:, 0], "ny": n[:, 1], "nz": n[:, 2]}
+    return gs
+
+
+def train_splats(
+    cameras: Cameras,
+    images: Mapping[str, np.ndarray],
+    masks: Mapping[str, np.ndarray] | None,
+    init: GaussianSet,
+    context: GaussianSet | None = None,
+    options: TrainOptions | None = None,
+    progress: Callable[[StepInfo], None] | None = None,
+) -> TrainResult:
+    """Train ``init`` (any origin) against ``images`` inside ``masks``, with ``context`` frozen beside it.
+
+    images: name → (H, W, 3) photo at its camera's size (uint8 or float in [0, 1]); only names with a camera and,
+    with masks, a non-empty mask are used. masks: name → (H, W) bool, or None for whole images. Returns a
+    :class:`TrainResult`; deterministic for a given seed on the CPU.
+    """
+    opts = options or TrainOptions()
+    t0 = time.perf_counter()
+    if len(init) == 0:
+        raise DataError("no initial splats to train (the regions got no seeds)")
+    origin = cameras.origin
+    centres = np.array([v.center for v in cameras])
+    centre = centres.mean(axis=0)
+    scale = scene_scale(cameras)
+    views = prepare_views(
+        cameras, images, masks, centre, downscale=opts.downscale, holdout_fraction=opts.holdout_fraction,
+        seed=opts.seed,
+    )  # fmt: skip
+    if not views:
+        raise DataError("no training view has mask pixels: nothing to train")
+    gen = torch.Generator().manual_seed(opts.seed)
+    rng = np.random.default_rng(opts.seed)
+
+    init = init.with_origin(origin)
+    if len(init) > opts.strategy.cap:
+        init = init.subset(np.sort(rng.choice(len(init), opts.strategy.cap, replace=False)))
+    params = make_parameters(tensors_from_set(init, centre, opts.sh_degree))
+    frozen = context_from_set(context.with_origin(origin), centre, 0) if context is not None and len(context) else None
+    caches = [project_context(frozen, v) for v in views]
+    context_total = len(frozen) if frozen is not None else 0
+    context_culled = 0
+    if frozen is not None:
+        used = torch.zeros(context_total, dtype=torch.bool)
+        for cache in caches:
+            if cache is not None:
+                used[cache.index] = True
+        context_culled = int((~used).sum())
+
+    lrs = {
+        "means": opts.lr_means * scale,
+        "quats": opts.lr_quats,
+        "log_scales": opts.lr_log_scales,
+        "logit_opacities": opts.lr_opacities,
+        "sh_dc": opts.lr_sh_dc,
+        "sh_rest": opts.lr_sh_rest,
+    }
+    optimizer = make_optimizer(params, lrs)
+    strategy = opts.strategy
+    state = strategy.initial_state(len(init))
+    background = torch.tensor(opts.background, dtype=torch.float32)
+    decay = opts.lr_means_final ** (1.0 / max(1, opts.iterations))
+
+    window = len(views) * math.ceil(opts.eval_every / len(views))  # whole epochs, so windows are comparable
+    history: list[Checkpoint] = []
+    snapshots: dict[int, GaussianSet] = {}
+    best, stale, stopped = -math.inf, 0, False
+    sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+    order = rng.permutation(len(views))
+    step = 0
+    psnr = float("nan")
+    while step < opts.iterations:
+        pos = step % len(views)
+        if pos == 0 and step > 0:
+            order = rng.permutation(len(views))
+        vi = int(order[pos])
+        view = views[vi]
+        degree = min(opts.sh_degree, step // opts.sh_degree_interval)
+        for group in optimizer.param_groups:
+            if group["name"] == "means":
+                group["lr"] = lrs["means"] * decay**step
+
+        out = render_step(params, view, caches[vi], degree, background, opts.backend)
+        terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
+        loss = terms.loss
+        if opts.scale_reg > 0:
+            loss = loss + opts.scale_reg * params["log_scales"].exp().mean() / scale
+        if opts.flat:
+            loss = loss + opts.flat_reg * params["log_scales"].exp().amin(dim=1).mean() / scale
+        loss = loss + strategy.regularisation(params)
+        loss.backward()
+        strategy.after_backward(state, out.means2d, view.width, view.height, step)
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        step += 1
+        lr_now = lrs["means"] * decay ** (step - 1)
+        strategy.refine(state, params, optimizer, step, opts.iterations, scale, gen, lr_means=lr_now)
+
+        with torch.no_grad():
+            hold = view.holdout_mask
+            if bool(hold.any()):
+                diff = (out.colour.detach().clamp(0, 1) - view.image)[hold]
+                sq_err += float((diff * diff).sum())
+                n_err += int(diff.numel())
+        loss_sum += float(terms.loss.detach())
+        n_loss += 1
+        if step in opts.snapshot_iterations:
+            snapshots[step] = _with_normals(set_from_tensors(params, centre, origin))
+        if step % window == 0 or step == opts.iterations:
+            psnr = -10.0 * math.log10(max(sq_err / max(n_err, 1), 1e-10)) if n_err else float("nan")
+            n_now = int(params["means"].shape[0])
+            history.append(Checkpoint(step, loss_sum / max(n_loss, 1), psnr, n_now, time.perf_counter() - t0))
+            sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+            if psnr > best + opts.min_improvement_db:
+                best, stale = psnr, 0
+            else:
+                stale += 1
+            if stale >= opts.patience and step >= opts.min_iterations and step < opts.iterations:
+                stopped = True
+                break
+        if progress is not None:
+            progress(StepInfo(step, opts.iterations, float(terms.loss.detach()), psnr, int(params["means"].shape[0])))
+
+    splats = _with_normals(set_from_tensors(params, centre, origin))
+    return TrainResult(
+        splats=splats,
+        snapshots=snapshots,
+        history=history,
+        iterations=step,
+        stopped_early=stopped,
+        views_used=len(views),
+        views_without_mask=len(images) - len(views),
+        mask_pixels=int(sum(v.mask_pixels for v in views)),
+        context_total=context_total,
+        context_culled=context_culled,
+        initial_gaussians=len(init),
+        refine=state.totals,
+        seconds=time.perf_counter() - t0,
+        scene_scale=scale,
+        resolution=(views[0].width, views[0].height),
+    )

@@ -1,0 +1,179 @@
+"""Stage ``train``: new splats trained inside the region masks next to the frozen MVS Gaussians (splats/trained.ply
+and splats/snapshots/), see fusion.train.
+
+Reads the undistorted photos and model of the dense workspace (held-out photos excluded), the classified cloud
+(``needs_splats`` per MVS point), the masks (classify/masks/<image name>.png, 255 = needs splats), the MVS Gaussians
+(export/mvs_gaussians.ply, one per fused point) and the SfM points. Skipped when the scene has no classification or
+no mask pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import ConfigError, DataError
+from hybridsplat.stages.base import Stage, StageContext, read_project_model
+
+
+@dataclass(frozen=True)
+class TrainStageOptions:
+    """Options of the ``train`` stage (see fusion.train.TrainOptions for the training defaults).
+
+    iterations: maximum steps (early stop on the hold-out mask pixels). downscale: integer factor for photos and
+    masks. cap: hard Gaussian budget, further limited to ``splats_per_mask_pixel`` × the mask pixels of all
+    training photos (at least 1000) so that small regions get small budgets. sh_degree: highest SH degree.
+    flat: surface-aligned splats. rays_per_view:
+    ray seeds per photo. snapshot_iterations: steps after which the splats are kept in splats/snapshots/.
+    """
+
+    iterations: int = 2000
+    downscale: int = 1
+    cap: int = 60_000
+    splats_per_mask_pixel: float = 0.25
+    sh_degree: int = 3
+    flat: bool = False
+    rays_per_view: int = 400
+    snapshot_iterations: tuple[int, ...] = (500, 1000, 1500)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.downscale < 1 or self.cap < 1:
+            raise ConfigError("iterations, downscale and cap must be >= 1")
+        if not self.splats_per_mask_pixel > 0:
+            raise ConfigError(f"splats_per_mask_pixel must be > 0, got {self.splats_per_mask_pixel}")
+
+
+def read_masks(ctx: StageContext, cameras) -> dict[str, np.ndarray]:
+    """Masks (bool, at each camera's size; resized nearest when classify wrote another size) by image name."""
+    import cv2
+
+    from core.io.images import read_image
+
+    masks = {}
+    for view in cameras:
+        path = ctx.layout.mask_path(view.name)
+        if not path.is_file():
+            continue
+        m = read_image(path, grayscale=True) > 127
+        cam = cameras.camera_of(view)
+        if m.shape != (cam.height, cam.width):
+            m = cv2.resize(m.astype(np.uint8), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST) > 0
+        masks[view.name] = m
+    return masks
+
+
+def needs_splats_per_gaussian(ctx: StageContext, mvs) -> np.ndarray:
+    """``needs_splats`` of the classified cloud, one per MVS Gaussian (same order, or matched by nearest position)."""
+    from scipy.spatial import cKDTree
+
+    from core.io import read_point_cloud
+
+    cloud = read_point_cloud(ctx.layout.classified_points)
+    if "needs_splats" not in cloud.fields:
+        raise DataError("classified cloud has no 'needs_splats' field", ctx.layout.classified_points)
+    needs = np.asarray(cloud.fields["needs_splats"]).astype(bool)
+    if len(cloud) == len(mvs):
+        return needs
+    _, idx = cKDTree(cloud.world_positions).query(mvs.world_means, k=1, workers=-1)
+    return needs[idx]
+
+
+class TrainStage(Stage):
+    name = "train"
+    Options = TrainStageOptions
+    title = "masked splat training"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        ws = ctx.layout.dense_workspace
+        return [ctx.layout.classified_points, ctx.layout.masks_dir, ctx.layout.mvs_gaussians, ws.sparse, ws.images]
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        return [ctx.layout.trained_splats, ctx.layout.snapshots_dir]
+
+    def needs(self, ctx: StageContext) -> str | None:
+        if not ctx.layout.classified_points.is_file():
+            return "no classified cloud (classify/points.ply): no region to train splats in"
+        masks = ctx.layout.masks_dir
+        if not masks.is_dir() or not any(masks.glob("*.png")):
+            return "no region masks (classify/masks): nothing needs splats"
+        record = ctx.layout.record("masks")
+        if record.is_file():
+            from core.io.json_io import read_json_object
+
+            if read_json_object(record).get("training_needed") is False:
+                return "every region mask is empty: no non-collaborative region or hole needs splats"
+        return None
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
+        from core.io.images import read_image
+        from fusion.train import DefaultStrategy, TrainOptions, train_splats
+        from fusion.train.init import InitOptions, seed_splats
+
+        opts: TrainStageOptions = ctx.options(self)
+        layout = ctx.layout
+        ws = layout.dense_workspace
+        cameras, _ = read_project_model(ctx, ws.sparse)
+        _, sfm = read_project_model(ctx, layout.sparse)
+        held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
+        masks = {k: m for k, m in read_masks(ctx, cameras).items() if k not in held_out}  # never train on those
+        if not any(m.any() for m in masks.values()):
+            return {"trained": 0, "reason": "masks are empty"}
+        images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
+        mvs = read_gaussian_ply(layout.mvs_gaussians).with_origin(cameras.origin)
+        needs = needs_splats_per_gaussian(ctx, mvs)
+        sfm_local = sfm.world_positions - cameras.origin if len(sfm) else None
+        seeds = seed_splats(cameras, masks, images, mvs.means, np.clip(mvs.base_colors * 255, 0, 255), needs,
+                            sfm_local, sfm.colors if len(sfm) else None,
+                            InitOptions(rays_per_view=opts.rays_per_view, seed=ctx.config.seed))  # fmt: skip
+        mask_pixels = sum(int(m.sum()) for m in masks.values()) / opts.downscale**2
+        cap = min(opts.cap, max(1000, round(opts.splats_per_mask_pixel * mask_pixels)))
+        train_opts = TrainOptions(iterations=opts.iterations, downscale=opts.downscale, seed=ctx.config.seed,
+                                  sh_degree=opts.sh_degree, flat=opts.flat,
+                                  snapshot_iterations=opts.snapshot_iterations,
+                                  strategy=DefaultStrategy(cap=cap))  # fmt: skip
+
+        def progress(info) -> None:
+            ctx.progress(
+                f"loss {info.loss:.4f} masked PSNR {info.holdout_psnr:.2f} dB, {info.gaussians} splats",
+                info.step,
+                info.iterations,
+            )
+
+        result = train_splats(cameras, images, masks, seeds.gaussians, mvs.subset(~needs), train_opts, progress)
+        write_gaussian_ply(layout.trained_splats, result.splats)
+        layout.snapshots_dir.mkdir(parents=True, exist_ok=True)
+        for step, snap in sorted(result.snapshots.items()):
+            write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
+        return {
+            "trained": len(result.splats),
+            "cap": cap,
+            "iterations": result.iterations,
+            "stopped_early": result.stopped_early,
+            "holdout_psnr_db": result.final_holdout_psnr,
+            "views_used": result.views_used,
+            "views_without_mask": result.views_without_mask,
+            "mask_pixels": result.mask_pixels,
+            "context_gaussians": result.context_total,
+            "context_culled": result.context_culled,
+            "seeds": {
+                "mvs": seeds.from_mvs,
+                "sfm": seeds.from_sfm,
+                "rays": seeds.from_rays,
+                "rays_without_depth": seeds.rays_without_depth,
+            },  # fmt: skip
+            "refine": vars(result.refine),
+            "resolution": list(result.resolution),
+            "seconds_training": result.seconds,
+        }
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        if not counts.get("trained"):
+            return "no splats trained"
+        return (
+            f"{counts['trained']} splats after {counts['iterations']} steps, "
+            f"masked PSNR {counts['holdout_psnr_db']:.2f} dB"
+        )

@@ -1,0 +1,75 @@
+"""The train, clean and merge stages as thin shells over fusion.train / fusion.clean / fusion.merge, on a hand-made
+project (ring cameras around a known Gaussian scene; the right half of it is the region that needs splats)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+from test_train_trainer import alpha_masks, blob_set, render_all, ring_cameras
+
+from core.gaussians import GaussianSet
+from core.io import write_point_cloud
+from core.io.colmap import write_model
+from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
+from core.io.images import write_image
+from core.pointcloud import PointCloud
+from fusion.convert import Source
+from hybridsplat.config import ProjectConfig
+from hybridsplat.layout import ProjectLayout
+from hybridsplat.stages.base import StageContext
+from hybridsplat.stages.clean import CleanStage
+from hybridsplat.stages.merge import MergeStage
+from hybridsplat.stages.train import TrainStage, TrainStageOptions
+
+
+def make_project(root) -> tuple[ProjectLayout, GaussianSet, np.ndarray]:
+    layout = ProjectLayout(root)
+    cams = ring_cameras(6)
+    truth = blob_set(200, 0)
+    needs = truth.means[:, 0] > 0
+    ws = layout.dense_workspace
+    ws.make_dirs()
+    write_model(ws.sparse, cams)
+    write_model(layout.sparse, cams)
+    for name, img in render_all(truth, cams).items():
+        write_image(ws.images / name, np.clip(img * 255, 0, 255).astype(np.uint8))
+    for name, m in alpha_masks(truth.subset(needs), cams, 0.5).items():
+        write_image(layout.mask_path(name), (m * 255).astype(np.uint8))
+    colours = np.clip(truth.base_colors * 255, 0, 255).astype(np.uint8)
+    cloud = PointCloud(truth.means, colors=colours, fields={"needs_splats": needs.astype(np.uint8)})
+    write_point_cloud(layout.classified_points, cloud)
+    mvs = truth.subset(slice(None))
+    mvs.fields = {"source": np.full(len(mvs), 1, np.uint8)}
+    write_gaussian_ply(layout.mvs_gaussians, mvs, extra_fields=True)
+    return layout, truth, needs
+
+
+def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
+    layout, truth, needs = make_project(tmp_path / "p")
+    config = ProjectConfig().with_stage_options(
+        "train", TrainStageOptions(iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,))
+    )
+    ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
+    train, clean, merge = TrainStage(), CleanStage(), MergeStage()
+    assert train.needs(ctx) is None
+    counts = train.run(ctx)
+    assert counts["iterations"] == 24 and counts["views_used"] > 0
+    assert counts["seeds"]["mvs"] == int(needs.sum()) and counts["context_gaussians"] == int((~needs).sum())
+    trained = read_gaussian_ply(layout.trained_splats)
+    assert len(trained) == counts["trained"] and (layout.snapshots_dir / "splats_000012.ply").is_file()
+    assert clean.needs(ctx) is None
+    c = clean.run(ctx)
+    assert c["kept"] + c["outside_masks"] + c["low_opacity"] + c["extreme_scale"] + c["isolated"] == c["input"]
+    m = merge.run(ctx)
+    merged = read_gaussian_ply(layout.merged_ply)
+    assert m["mvs"] == int((~needs).sum()) and m["splats"] == c["kept"]
+    assert int((merged.fields["source"] == Source.MVS).sum()) == m["mvs"]
+    assert layout.splats_export.is_file()
+
+
+def test_train_is_skipped_without_classification(tmp_path) -> None:
+    layout = ProjectLayout(tmp_path / "empty")
+    ctx = StageContext(layout=layout, config=ProjectConfig(), source=SimpleNamespace(holdout_names=()))
+    assert "classified" in TrainStage().needs(ctx)
+    assert "no trained splats" in CleanStage().needs(ctx)
