@@ -125,7 +125,12 @@ def run_cli(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except typer.Exit as ex:
         return int(ex.exit_code)
-    except (typer.Abort, KeyboardInterrupt):
+    except (typer.Abort, KeyboardInterrupt) as err:
+        if isinstance(err.__cause__, EOFError):  # typer turns an uncaught EOFError into Abort
+            if debug:
+                raise
+            _error(f"internal error: unexpected end of data (EOFError: {err.__cause__})")
+            return EXIT_INTERNAL
         print("hybridsplat: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Terminated:

@@ -749,7 +749,7 @@ def _output_cases() -> list[FuzzCase]:
         FuzzCase("usage-unknown-option", usage(["convert", "--bogus"], "--bogus"), fast=True),
         FuzzCase("usage-missing-argument", usage(["convert"], "cloud")),
         FuzzCase("usage-invalid-choice", usage(["convert", "x.ply", "--out", "y.ply", "--mode", "zz"], "zz")),
-        FuzzCase("usage-bad-number", usage(["convert", "x.ply", "--out", "y.ply", "--k", "many"], "many")),
+        FuzzCase("usage-bad-number", usage(["convert", "x.ply", "--out", "y.ply", "--k", "many"], "--k")),
         FuzzCase("usage-unknown-command", usage(["frobnicate"], "frobnicate")),
     ]
 
