@@ -25,10 +25,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.io.ply import read_ply  # noqa: E402
+from recon.align import align_reconstruction_to_centers  # noqa: E402
+from recon.model import from_reconstruction, read_reconstruction  # noqa: E402
 from recon.mvs import MvsBackend, MvsOptions, MvsReport, run_mvs  # noqa: E402
 from recon.mvs_cpu import CpuMvsOptions  # noqa: E402
-from recon.sfm import SfmOptions  # noqa: E402
-from recon.stages import sfm_stage  # noqa: E402
+from recon.sfm import SfmOptions, run_sfm, triangulate_known_poses  # noqa: E402
 
 
 @dataclass
@@ -120,7 +121,10 @@ def main() -> None:
     elif args.reuse and (project / "sparse" / "points3D.bin").is_file():
         print(f"reusing the known-pose model in {project / 'sparse'}")
     else:
-        rep = sfm_stage(scene, project, known_poses=True, options=SfmOptions(num_threads=args.threads))
+        known = from_reconstruction(read_reconstruction(scene / "sparse" / "0"))
+        _, rep = triangulate_known_poses(
+            known, scene / "images", project / "sparse", SfmOptions(num_threads=args.threads)
+        )
         print(
             f"known-pose triangulation: {len(rep.registered)} images, {rep.num_points} points, "
             f"{rep.mean_reprojection_error:.3f} px, {time.perf_counter() - t0:.1f} s"
@@ -164,8 +168,11 @@ def main() -> None:
             print(f"  {size:>5}: time x{t / tr:.2f}  completeness x{c / ref_c:.2f}  accuracy x{a / ref_a:.2f}")
     if args.sfm:
         t1 = time.perf_counter()
-        srep = sfm_stage(scene, work / "full", known_poses=False, options=SfmOptions(num_threads=args.threads))
-        a = srep.alignment
+        rec, srep = run_sfm(scene / "images", work / "full" / "sparse", SfmOptions(num_threads=args.threads))
+        known = from_reconstruction(read_reconstruction(scene / "sparse" / "0"))
+        centers = {v.name: v.center for v in known}
+        extent = float(np.ptp(np.stack(list(centers.values())), axis=0).max())
+        a = align_reconstruction_to_centers(rec, centers, 0.02 * extent, seed=0)
         print(
             f"\nfull SfM: {len(srep.registered)}/{srep.num_images} registered, {srep.num_points} points, "
             f"{srep.mean_reprojection_error:.3f} px, {time.perf_counter() - t1:.1f} s; aligned centres: "

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from os import PathLike
@@ -16,20 +15,12 @@ from core.io.colmap import read_model
 from core.io.images import read_image
 from core.io.origin import read_origin
 from core.io.ply import load_ply_data, read_ply
+from core.io.scene_description import MaterialEntry, SceneDescription, read_scene_description
 from core.pointcloud import PointCloud
 from data_synth.geometry import SceneMesh
 from data_synth.layout import SceneLayout
 
-
-@dataclass(frozen=True)
-class MaterialInfo:
-    """A legend entry of ``scene.json``."""
-
-    id: int
-    name: str
-    kind: str
-    collaborative: bool
-    why: str
+MaterialInfo = MaterialEntry  # a legend entry of scene.json (the reader lives in core.io.scene_description)
 
 
 @dataclass
@@ -38,7 +29,7 @@ class Scene:
 
     train / test: true cameras (local frame; ``origin`` set from scene.json). gsd_m: median ground sample
     distance of the training views (metres per pixel at the median depth). materials: the legend.
-    ``gt_cloud`` and ``mesh`` load on first access. ``meta`` is the parsed scene.json.
+    ``gt_cloud`` and ``mesh`` load on first access. ``description`` is the parsed scene.json.
     """
 
     paths: SceneLayout
@@ -49,7 +40,7 @@ class Scene:
     train: Cameras
     test: Cameras
     materials: list[MaterialInfo]
-    meta: dict[str, object] = field(repr=False)
+    description: SceneDescription = field(repr=False)
 
     @cached_property
     def gt_cloud(self) -> PointCloud:
@@ -103,20 +94,17 @@ def load_scene(root: str | PathLike[str]) -> Scene:
     layout = SceneLayout(Path(root))
     if not layout.scene_json.is_file():
         raise InputFileError("not a synthetic scene: scene.json is missing", layout.root)
-    try:
-        meta = json.loads(layout.scene_json.read_text(encoding="utf-8"))
-        origin = np.asarray(meta["origin"], dtype=np.float64).reshape(3)
-        legend = [
-            MaterialInfo(int(m["id"]), str(m["name"]), str(m["kind"]), bool(m["collaborative"]), str(m["why"]))
-            for m in meta["materials"]
-        ]
-        preset, seed, gsd = str(meta["preset"]), int(meta["seed"]), float(meta["gsd_m"])
-    except (ValueError, KeyError, TypeError) as err:
-        raise FormatError(f"scene.json is not valid ({err})", layout.scene_json) from err
+    desc = read_scene_description(layout.scene_json)
+    for key, value in (("preset", desc.preset), ("seed", desc.seed), ("gsd_m", desc.gsd_m)):
+        if value is None:
+            raise FormatError(f"scene.json is not valid: '{key}' is missing", layout.scene_json)
+    origin = np.asarray(desc.origin, dtype=np.float64)
+    legend = list(desc.materials)
+    preset, seed, gsd = str(desc.preset), int(desc.seed), float(desc.gsd_m)
     train, _ = read_model(layout.sparse_train)
     test, _ = read_model(layout.sparse_test)
     train.origin = origin.copy()
     test.origin = origin.copy()
     if layout.mesh.is_file() and np.any(read_origin(layout.mesh) != origin):
         raise FormatError("mesh origin sidecar disagrees with scene.json", layout.mesh)
-    return Scene(layout, preset, seed, origin, gsd, train, test, legend, meta)
+    return Scene(layout, preset, seed, origin, gsd, train, test, legend, desc)

@@ -12,5 +12,5 @@ Modules (import them directly; this package imports nothing heavy on its own):
 - :mod:`eval.render_eval` — render Gaussian sets at held-out views (``fusion.render``) and score them.
 - :mod:`eval.metrics_io` — typed per-product results and ``PROJECT/eval/metrics.json``.
 - :mod:`eval.report` — ``report/report.{json,md,html}``.
-- :mod:`eval.plots` — SVG charts and colour-mapped previews without matplotlib.
+- :mod:`eval.plots` — matplotlib charts (SVG/JPEG), colour-mapped previews, JPEG thumbnails.
 """

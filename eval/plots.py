@@ -1,19 +1,24 @@
-"""Plots without matplotlib: SVG charts (histograms, per-view bars) and colour-mapped raster previews.
+"""Plots for reports: matplotlib charts (SVG text or PNG bytes), colour-mapped point previews, JPEG thumbnails.
 
-SVG is written by hand because it is a few lines of text, keeps the HTML report self-contained and
-needs no plotting dependency; rasters are numpy arrays encoded as PNG through core.io.images/OpenCV.
+Charts are drawn with matplotlib's object API (``matplotlib.figure.Figure`` on the Agg canvas): no display, no
+pyplot global state, safe to call from any thread. SVG keeps text as text (``svg.fonttype = none``) and a fixed
+hash salt, so the same data give the same bytes. Lengths arrive in metres and are drawn in the unit asked for
+(:class:`core.units.Units`); image rasters are uint8 RGB arrays.
 """
 
 from __future__ import annotations
 
 import base64
-import html
+import io
 from collections.abc import Sequence
+from os import PathLike
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from core.errors import DataError
+from core.errors import DataError, InputFileError
+from core.units import Units
 
 # Viridis sampled at 9 evenly spaced stops (perceptually uniform, readable in grey and by colour-blind readers).
 _VIRIDIS = np.array(
@@ -31,8 +36,10 @@ _VIRIDIS = np.array(
     dtype=np.float64,
 )
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
+_RC = {"svg.fonttype": "none", "svg.hashsalt": "hybridsplat", "font.size": 9, "axes.titlesize": 10}
 
 
+# -- rasters ----------------------------------------------------------------------------------------
 def colormap(values: np.ndarray, vmin: float = 0.0, vmax: float | None = None) -> np.ndarray:
     """(N, 3) uint8 viridis colours for (N,) values mapped linearly from [vmin, vmax] (clamped)."""
     v = np.asarray(values, dtype=np.float64).reshape(-1)
@@ -45,29 +52,32 @@ def colormap(values: np.ndarray, vmin: float = 0.0, vmax: float | None = None) -
     return np.round(_VIRIDIS[lo] * (1 - frac) + _VIRIDIS[lo + 1] * frac).astype(np.uint8)
 
 
+def _view_axes(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, normal) unit vectors: a map view for mostly horizontal data, a frontal z-up view otherwise."""
+    sample = centred[:: max(1, len(centred) // 200_000)]
+    _, _, vt = np.linalg.svd(sample, full_matrices=False)
+    normal = vt[2] if vt[2, 2] >= 0 else -vt[2]
+    up = np.array([0.0, 0.0, 1.0])
+    if abs(normal[2]) > 0.7:  # mostly horizontal data: map view, x right, y (north) up
+        return np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), up
+    right = np.cross(up, normal)
+    right /= np.linalg.norm(right)
+    return right, np.cross(normal, right), normal
+
+
 def preview_image(positions: np.ndarray, values: np.ndarray, width: int = 800, vmax: float | None = None) -> np.ndarray:
     """(H, W, 3) uint8 orthographic preview of points coloured by ``values`` (e.g. C2C distances).
 
     positions: (N, 3) float64 local coordinates (metres). The view looks along the cloud's axis of least
     variance: top-down (north up) for mostly horizontal data, frontal with z up for a façade; the nearest
-    point wins each pixel.
-    Background is white.
+    point wins each pixel. Background is white.
     """
     pts = np.asarray(positions, dtype=np.float64)
     vals = np.asarray(values, dtype=np.float64).reshape(-1)
     if len(pts) == 0:
         raise DataError("cannot preview an empty cloud")
     centred = pts - pts.mean(axis=0)
-    sample = centred[:: max(1, len(centred) // 200_000)]
-    _, _, vt = np.linalg.svd(sample, full_matrices=False)
-    normal = vt[2] if vt[2, 2] >= 0 else -vt[2]
-    up = np.array([0.0, 0.0, 1.0])
-    if abs(normal[2]) > 0.7:  # mostly horizontal data: map view, x right, y (north) up
-        right, up_axis, normal = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), up
-    else:  # a façade or an object side: horizontal right, z up
-        right = np.cross(up, normal)
-        right /= np.linalg.norm(right)
-        up_axis = np.cross(normal, right)
+    right, up_axis, normal = _view_axes(centred)
     u, v, depth = centred @ right, -(centred @ up_axis), centred @ normal
     span_u = max(float(np.ptp(u)), 1e-9)
     span_v = max(float(np.ptp(v)), 1e-9)
@@ -97,19 +107,61 @@ def data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(png_bytes(image)).decode("ascii")
 
 
-def _nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    span = max(hi - lo, 1e-12)
-    raw = span / n
-    mag = 10 ** np.floor(np.log10(raw))
-    step = min((m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw), default=raw)
-    start = np.ceil(lo / step) * step
-    return [float(t) for t in np.arange(start, hi + step * 1e-6, step)]
+def jpeg_thumbnail(image: np.ndarray | str | PathLike[str], max_side: int = 1200, quality: int = 82) -> bytes:
+    """JPEG bytes of an image (array (H, W, 3) RGB / (H, W) uint8, or an image file) downscaled so that its longer
+    side is at most ``max_side`` pixels (area interpolation; never upscaled)."""
+    if isinstance(image, (str, PathLike)):
+        path = Path(image)
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # BGR
+        if img is None:
+            raise InputFileError("cannot read image (missing, corrupt or unsupported format)", path)
+    else:
+        img = np.asarray(image)
+        if img.dtype != np.uint8:
+            raise DataError(f"thumbnail needs a uint8 image, got {img.dtype}")
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+    h, w = img.shape[:2]
+    scale = min(1.0, max_side / max(h, w))
+    if scale < 1.0:
+        img = cv2.resize(img, (max(1, round(w * scale)), max(1, round(h * scale))), interpolation=cv2.INTER_AREA)
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise DataError("JPEG encoding failed")
+    return buf.tobytes()
 
 
-def _fmt(v: float) -> str:
-    if v == int(v) and abs(v) < 1e7:
-        return f"{int(v):,}"
-    return f"{v:.3g}"
+def jpeg_data_uri(data: bytes) -> str:
+    return "data:image/jpeg;base64," + base64.b64encode(data).decode("ascii")
+
+
+# -- charts -----------------------------------------------------------------------------------------
+def _figure(width_in: float, height_in: float):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _svg(fig) -> str:
+    """The figure as an inline-ready SVG string (no XML declaration or DOCTYPE), deterministic bytes."""
+    import matplotlib
+
+    buf = io.StringIO()
+    with matplotlib.rc_context(_RC):
+        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": None})
+    text = buf.getvalue()
+    return text[text.index("<svg") :]
+
+
+def _jpeg(fig, dpi: int = 110, quality: int = 85) -> bytes:
+    import matplotlib
+
+    buf = io.BytesIO()
+    with matplotlib.rc_context(_RC):
+        fig.savefig(buf, format="jpg", dpi=dpi, pil_kwargs={"quality": int(quality)})
+    return buf.getvalue()
 
 
 def svg_bars(
@@ -122,66 +174,121 @@ def svg_bars(
     width: int = 640,
     height: int = 300,
 ) -> str:
-    """An SVG bar chart: one or more named series of equal length, grouped per category.
+    """An SVG bar chart: one or more named series of equal length, grouped per category (``labels``).
 
     With ``edges`` (len = categories + 1) the x axis is numeric (a histogram) and ``labels`` is ignored.
+    None values are drawn as missing bars. ``width``/``height`` in pixels at 100 dpi.
     """
+    import matplotlib
+
     if not series:
         raise DataError("nothing to plot")
-    n = len(series[0][1])
-    left, right, top, bottom = 60, 12, 28 + (14 if len(series) > 1 else 0), 44
-    pw, ph = width - left - right, height - top - bottom
-    ymax = max([max(vals, default=0.0) for _, vals in series] + [1e-12])
-    yticks = _nice_ticks(0.0, ymax)
-    ymax = max(ymax, yticks[-1]) if yticks else ymax
-    out = [
-        f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
-        f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
-        f'<text x="{width / 2}" y="16" text-anchor="middle" font-size="13">{html.escape(title)}</text>',
-    ]
-    for t in yticks:
-        y = top + ph - t / ymax * ph
-        out.append(f'<line x1="{left}" x2="{left + pw}" y1="{y:.1f}" y2="{y:.1f}" stroke="#ddd"/>')
-        out.append(f'<text x="{left - 4}" y="{y + 4:.1f}" text-anchor="end">{_fmt(t)}</text>')
-    slot = pw / max(n, 1)
-    bar = slot * 0.9 / len(series)
-    for s, (name, vals) in enumerate(series):
-        colour = PALETTE[s % len(PALETTE)]
-        for i, val in enumerate(vals):
-            h = max(float(val), 0.0) / ymax * ph
-            x = left + i * slot + slot * 0.05 + s * bar
-            out.append(
-                f'<rect x="{x:.2f}" y="{top + ph - h:.2f}" width="{max(bar, 0.5):.2f}" height="{h:.2f}" '
-                f'fill="{colour}"><title>{html.escape(name)}: {_fmt(float(val))}</title></rect>'
-            )
-    if edges is not None:
-        e0, e1 = float(edges[0]), float(edges[-1])
-        for t in _nice_ticks(e0, e1):
-            x = left + (t - e0) / max(e1 - e0, 1e-12) * pw
-            out.append(f'<text x="{x:.1f}" y="{top + ph + 14}" text-anchor="middle">{_fmt(t)}</text>')
-    else:
-        step = max(1, n // 12)
-        for i in range(0, n, step):
-            x = left + (i + 0.5) * slot
-            out.append(
-                f'<text x="{x:.1f}" y="{top + ph + 14}" text-anchor="middle">{html.escape(str(labels[i]))[:14]}</text>'
-            )
-    out.append(f'<line x1="{left}" x2="{left}" y1="{top}" y2="{top + ph}" stroke="#333"/>')
-    out.append(f'<line x1="{left}" x2="{left + pw}" y1="{top + ph}" y2="{top + ph}" stroke="#333"/>')
-    out.append(f'<text x="{left + pw / 2}" y="{height - 6}" text-anchor="middle">{html.escape(x_label)}</text>')
-    out.append(
-        f'<text x="14" y="{top + ph / 2}" text-anchor="middle" transform="rotate(-90 14 {top + ph / 2})">'
-        f"{html.escape(y_label)}</text>"
+    with matplotlib.rc_context(_RC):
+        fig = _figure(width / 100, height / 100)
+        ax = fig.add_subplot()
+        if edges is not None:
+            e = np.asarray(edges, dtype=np.float64)
+            for s, (name, vals) in enumerate(series):
+                ax.bar(e[:-1], np.asarray(vals, float), width=np.diff(e), align="edge", color=PALETTE[s % 6],
+                       label=name, edgecolor="white", linewidth=0.3)  # fmt: skip
+        else:
+            n = len(series[0][1])
+            x = np.arange(n)
+            bar = 0.85 / len(series)
+            for s, (name, vals) in enumerate(series):
+                v = np.array([np.nan if val is None else float(val) for val in vals])
+                ax.bar(x - 0.425 + (s + 0.5) * bar, v, width=bar, color=PALETTE[s % 6], label=name)
+            step = max(1, n // 16)
+            ax.set_xticks(x[::step], [str(lb)[:16] for lb in list(labels)[::step]], rotation=30 if n > 6 else 0,
+                          ha="right" if n > 6 else "center")  # fmt: skip
+        ax.set_title(title)
+        ax.set_xlabel(x_label)
+        ax.set_ylabel(y_label)
+        ax.grid(axis="y", color="#ddd", linewidth=0.6)
+        ax.set_axisbelow(True)
+        if len(series) > 1:
+            ax.legend(frameon=False, fontsize=8)
+        return _svg(fig)
+
+
+def svg_histogram(
+    edges: Sequence[float], counts: Sequence[int], title: str, x_label: str | None = None, units: Units = Units.M
+) -> str:
+    """An SVG histogram of C2C distances (``edges`` in metres, from :func:`eval.c2c.histogram`), drawn in ``units``."""
+    units = Units.parse(units)
+    e = units.from_metres(np.asarray(edges, dtype=np.float64))
+    return svg_bars(
+        [("points", [float(c) for c in counts])], [], title, x_label or f"distance ({units.value})", "points", edges=e
     )
-    if len(series) > 1:
-        for s, (name, _) in enumerate(series):
-            x = left + 8 + s * 110
-            out.append(f'<rect x="{x}" y="{top - 18}" width="10" height="10" fill="{PALETTE[s % len(PALETTE)]}"/>')
-            out.append(f'<text x="{x + 14}" y="{top - 9}">{html.escape(name)}</text>')
-    out.append("</svg>")
-    return "\n".join(out)
 
 
-def svg_histogram(edges: Sequence[float], counts: Sequence[int], title: str, x_label: str = "distance (m)") -> str:
-    """An SVG histogram of C2C distances from :func:`eval.c2c.histogram` output."""
-    return svg_bars([("points", [float(c) for c in counts])], [], title, x_label, "points", edges=list(edges))
+def metric_bars_svg(series: Sequence[tuple[str, Sequence[float | None]]], views: Sequence[str], metric: str) -> str:
+    """Per-view bars of one image metric (PSNR, SSIM, LPIPS ...), one series per product."""
+    width = int(np.clip(120 + 28 * len(views) * max(1, len(series)) ** 0.5, 480, 1100))
+    return svg_bars(series, views, f"{metric} per held-out view", "view", metric, width=width)
+
+
+def stage_bars_svg(names: Sequence[str], seconds: Sequence[float | None], peak_mb: Sequence[float | None]) -> str:
+    """Two horizontal bar charts side by side: time (s) and peak memory (MB) per pipeline stage."""
+    import matplotlib
+
+    if not names:
+        raise DataError("no stage to plot")
+    with matplotlib.rc_context(_RC):
+        fig = _figure(9.0, 0.6 + 0.28 * len(names))
+        y = np.arange(len(names))[::-1]
+        for k, (vals, label, colour) in enumerate(((seconds, "time (s)", PALETTE[0]), (peak_mb, "peak memory (MB)",
+                                                                                       PALETTE[1]))):  # fmt: skip
+            ax = fig.add_subplot(1, 2, k + 1)
+            v = np.array([np.nan if x is None else float(x) for x in vals])
+            ax.barh(y, v, color=colour)
+            ax.set_yticks(y, list(names) if k == 0 else [""] * len(names))
+            ax.set_xlabel(label)
+            ax.grid(axis="x", color="#ddd", linewidth=0.6)
+            ax.set_axisbelow(True)
+        return _svg(fig)
+
+
+def c2c_views_jpeg(
+    positions: np.ndarray,
+    distances_m: np.ndarray,
+    vmax_m: float,
+    title: str,
+    units: Units = Units.M,
+    max_points: int = 60_000,
+    seed: int = 0,
+) -> bytes:
+    """JPEG of two orthographic views (plan / main face, and a side view) of a cloud coloured by distance, with a
+    colour bar in ``units``. positions (N, 3) float64 metres (local frame), distances_m (N,) metres; at most
+    ``max_points`` points are drawn (a seeded random subset), far points first so that near ones stay visible."""
+    import matplotlib
+
+    units = Units.parse(units)
+    pts = np.asarray(positions, dtype=np.float64)
+    d = np.asarray(distances_m, dtype=np.float64).reshape(-1)
+    if len(pts) == 0 or len(pts) != len(d):
+        raise DataError(f"need N > 0 points with N distances, got {len(pts)} and {len(d)}")
+    if len(pts) > max_points:
+        keep = np.sort(np.random.default_rng(seed).choice(len(pts), max_points, replace=False))
+        pts, d = pts[keep], d[keep]
+    d = np.where(np.isfinite(d), d, vmax_m)
+    centred = pts - pts.mean(axis=0)
+    right, up, normal = _view_axes(centred)
+    views = (("plan" if normal[2] > 0.99 else "front", right, up, normal), ("side", normal, up, -right))
+    if normal[2] > 0.99:  # map view first, then a side view looking north (x right, z up)
+        views = (views[0], ("side", np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0])))
+    with matplotlib.rc_context(_RC):
+        fig = _figure(9.0, 4.2)
+        axes = fig.subplots(1, 2)
+        scale = units.from_metres(1.0)
+        for ax, (label, r, u, n) in zip(axes, views, strict=True):
+            order = np.argsort(-(centred @ n), kind="stable")  # far first
+            sc = ax.scatter((centred @ r)[order] * scale, (centred @ u)[order] * scale, c=d[order] * scale, s=0.6,
+                            cmap="viridis", vmin=0.0, vmax=max(vmax_m, 1e-12) * scale, linewidths=0,
+                            rasterized=True)  # fmt: skip
+            ax.set_aspect("equal", adjustable="datalim")
+            ax.set_title(f"{title} — {label}")
+            ax.set_xlabel(f"{units.value}")
+            ax.tick_params(labelsize=7)
+        fig.colorbar(sc, ax=axes, shrink=0.85, label=f"distance ({units.value})")
+        return _jpeg(fig)

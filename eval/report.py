@@ -12,14 +12,20 @@
 
 Every key is always present (null when not measured); the products ``mvs``, ``splats`` and ``merged`` are
 always listed (skipped with a reason when absent), ``baseline_gs`` and others when measured. Distances in
-metres, image metrics on colours in [0, 1]. The HTML page is self-contained (SVG plots inline, PNG as base64).
+report.json are metres, whatever the user's unit; ``units`` (added, optional for readers) names the unit the
+Markdown and HTML print lengths in: the ``units`` argument, else ``units`` recorded in metrics.json, else the
+manifest's ``config.units``, else metres. Image metrics on colours in [0, 1].
+
+The HTML page is self-contained: matplotlib plots inline as SVG (C2C histograms, per-view metric bars, stage
+time and memory) or JPEG (C2C colour-mapped views), and render panels as downscaled JPEG thumbnails (at most
+``max_panels`` per product, the views with the lowest PSNR), so that a 50-photo project stays within a few MB.
 """
 
 from __future__ import annotations
 
-import base64
 import html
 import json
+import math
 import platform
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -29,10 +35,13 @@ from os import PathLike
 from pathlib import Path
 from typing import Any
 
-from core.errors import FormatError, InputFileError
+import numpy as np
+
+from core.errors import DataError, FormatError, InputFileError
 from core.io.atomic import write_text_atomic
+from core.units import Units
 from eval.metrics_io import read_metrics
-from eval.plots import svg_bars, svg_histogram
+from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
 
 SCHEMA = "hybridsplat.report/1"
 REQUIRED_PRODUCTS = ("mvs", "splats", "merged")
@@ -50,6 +59,9 @@ IMAGE_LABELS = {
     "delta_e": "ΔE",
 }
 STAGE_KEYS = ("seconds", "peak_mb", "skipped", "reason")
+DEFAULT_MAX_PANELS = 4
+THUMBNAIL_MAX_SIDE = 1500  # px, longer side of a render panel thumbnail (a panel is render | photo | error)
+LENGTH_KEYS = ("mean", "std", "median", "rmse", "p90", "p95", "p99", "max", "tau")  # metres in report.json
 _PACKAGES = (
     "hybridsplat",
     "numpy",
@@ -134,8 +146,21 @@ def _product_block(raw: Mapping[str, Any] | None, missing_reason: str) -> dict[s
     }
 
 
-def build_report(project: str | PathLike[str]) -> dict[str, Any]:
-    """The report.json content for a project folder (reads ``manifest.json`` and ``eval/metrics.json``)."""
+def _units(units: Units | str | None, metrics: Mapping[str, Any], manifest: Mapping[str, Any] | None) -> Units:
+    """The unit lengths are printed in: the argument, else metrics.json's ``units``, else the manifest config's."""
+    if units is not None:
+        return Units.parse(units)
+    for candidate in (metrics.get("units"), ((manifest or {}).get("config") or {}).get("units")):
+        if isinstance(candidate, str):
+            return Units.parse(candidate)
+    return Units.M
+
+
+def build_report(project: str | PathLike[str], units: Units | str | None = None) -> dict[str, Any]:
+    """The report.json content for a project folder (reads ``manifest.json`` and ``eval/metrics.json``).
+
+    units: the unit the Markdown/HTML print lengths in (recorded as ``units``; report.json stays in metres).
+    """
     root = Path(project)
     if not root.is_dir():
         raise InputFileError("project folder does not exist", root)
@@ -171,6 +196,7 @@ def build_report(project: str | PathLike[str]) -> dict[str, Any]:
         "config": config,
         "timings": {"total_seconds": total, "stages": {n: s["seconds"] for n, s in stages.items()}},
         "manifest_found": manifest is not None,
+        "units": _units(units, metrics, manifest).value,
         "products": products,
         "stages": stages,
     }
@@ -194,6 +220,18 @@ def _num(v: Any, digits: int = 4, sci: bool = False) -> str:
     return str(v)
 
 
+def _len(v: Any, units: Units) -> str:
+    """A length given in metres, printed in ``units`` to 0.1 mm (metres: 4 decimals, mm: 1, cm: 2, ft: 3)."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return _num(v)
+    digits = max(0, 4 + round(math.log10(units.metres)))
+    return _num(float(units.from_metres(float(v))), digits)
+
+
+def _report_units(report: Mapping[str, Any]) -> Units:
+    return Units.parse(report.get("units") or "m")
+
+
 def _pm(block: Mapping[str, Any] | None, key: str) -> str:
     if block is None or block.get(key) is None:
         return "–"
@@ -206,6 +244,8 @@ def _pm(block: Mapping[str, Any] | None, key: str) -> str:
 def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of every table, shared by Markdown and HTML."""
     products = report["products"]
+    u = _report_units(report)
+    unit_name = "metres" if u is Units.M else u.value
     c2c_rows = []
     for name, p in products.items():
         c = p["c2c"]
@@ -213,13 +253,13 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
             c2c_rows.append([name, "–", "–", "–", "–", "–", "–", "–", "–", "–", p["reason"] or "not measured"])
             continue
         c2c_rows.append(
-            [name, _num(c["mean"]), _num(c["std"]), _num(c["median"]), _num(c["rmse"]), _num(c["p95"]),
-             _num(c["max"]), _num(c["completeness"]), _num(c["fscore"]), _num(c["count"]),
+            [name, _len(c["mean"], u), _len(c["std"], u), _len(c["median"], u), _len(c["rmse"], u),
+             _len(c["p95"], u), _len(c["max"], u), _num(c["completeness"]), _num(c["fscore"]), _num(c["count"]),
              f"{c.get('method') or 'c2c'}" + (", ICP" if c.get("registration") else "")]
         )  # fmt: skip
     tables = [
         (
-            "Table 2 — distance to the reference (metres)",
+            f"Table 2 — distance to the reference ({unit_name})",
             [
                 "product",
                 "mean",
@@ -249,25 +289,26 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
                 rows.append([name] + [_pm(block, k) for k in IMAGE_KEYS] + [_num(block.get("views")), ""])
         tables.append((title, ["product"] + [IMAGE_LABELS[k] for k in IMAGE_KEYS] + ["views", "note"], rows))
     class_rows = [
-        [name, str(k), _num(st.get("count")), _num(st.get("mean")), _num(st.get("std")), _num(st.get("rmse")),
-         _num(st.get("p95")), _num(st.get("max")), _num(st.get("outlier_count"))]
+        [name, str(k), _num(st.get("count")), _len(st.get("mean"), u), _len(st.get("std"), u),
+         _len(st.get("rmse"), u), _len(st.get("p95"), u), _len(st.get("max"), u), _num(st.get("outlier_count"))]
         for name, p in products.items() if p["c2c"] is not None
         for k, st in (p["c2c"].get("per_class") or {}).items()
     ]  # fmt: skip
     if class_rows:
         header = ["product", "class", "points", "mean", "st. dev.", "RMSE", "P95", "max", "outliers"]
-        tables.append(("Distances per class (metres)", header, class_rows))
+        tables.append((f"Distances per class ({unit_name})", header, class_rows))
     reg_rows = []
     for name, p in products.items():
         reg = (p["c2c"] or {}).get("registration")
         if reg:
             # about the local origin: a world-frame translation of a UTM block mixes in rotation × origin
             t = reg.get("local_transform") or reg.get("world_transform") or [[0.0] * 4] * 3
-            shift = ", ".join(_num(t[i][3], 4) for i in range(3))
-            reg_rows.append([name, reg.get("method", "icp"), _num(reg.get("fitness")), _num(reg.get("inlier_rmse")),
+            shift = ", ".join(_len(t[i][3], u) for i in range(3))
+            reg_rows.append([name, reg.get("method", "icp"), _num(reg.get("fitness")), _len(reg.get("inlier_rmse"), u),
                              f"({shift})", json.dumps([[round(v, 6) for v in row[:3]] for row in t[:3]])])  # fmt: skip
     if reg_rows:
-        header = ["product", "method", "fitness", "inlier RMSE (m)", "translation at origin (m)", "rotation"]
+        header = ["product", "method", "fitness", f"inlier RMSE ({u.value})", f"translation at origin ({u.value})",
+                  "rotation"]  # fmt: skip
         tables.append(("Registration applied before measuring", header, reg_rows))
     stage_rows = [
         [name, _num(s["seconds"], 2), _num(s["peak_mb"], 0), _num(s["skipped"]), s["reason"] or ""]
@@ -310,26 +351,96 @@ body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1200px;color:#22
 table{border-collapse:collapse;margin:0.5em 0 1.5em}th,td{border:1px solid #ccc;padding:4px 8px;text-align:right}
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left;font-weight:600}
 figure{display:inline-block;margin:0.5em;vertical-align:top}figcaption{font-size:0.85em;color:#555}
-img{max-width:100%;border:1px solid #ddd}.note{color:#777}
+img{max-width:100%;border:1px solid #ddd}.note{color:#777}svg{max-width:100%;height:auto}
 """
 
 
-def _img_tag(path: Path, alt: str) -> str:
+def _thumbnail_tag(path: Path, alt: str, max_side: int = THUMBNAIL_MAX_SIDE) -> str:
+    """An <img> with the image at ``path`` as an inline JPEG thumbnail ('' when the file is missing/unreadable)."""
     if not path.is_file():
         return ""
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
-    return f'<img src="data:image/png;base64,{data}" alt="{html.escape(alt)}">'
+    try:
+        data = jpeg_thumbnail(path, max_side=max_side)
+    except (InputFileError, DataError):
+        return ""
+    return f'<img src="{jpeg_data_uri(data)}" alt="{html.escape(alt)}">'
 
 
-def to_html(report: Mapping[str, Any], eval_dir: Path | None, metrics: Mapping[str, Any] | None) -> str:
-    """A self-contained HTML page: tables, C2C histograms and previews, per-view PSNR, render panels."""
+def _c2c_views_tag(eval_dir: Path, name: str, c2c: Mapping[str, Any], units: Units) -> str:
+    """The C2C colour-mapped views of a product from its distance cloud (``files.cloud_ply``, field ``c2c``);
+    falls back to the stored preview image; '' when neither can be read."""
+    from core.io.ply import read_ply
+
+    files = c2c.get("files") or {}
+    cloud_file = eval_dir / files["cloud_ply"] if files.get("cloud_ply") else None
+    if cloud_file is not None and cloud_file.is_file():
+        try:
+            cloud = read_ply(cloud_file)
+            dist = cloud.fields.get("c2c") if cloud.fields else None
+            if dist is not None and len(cloud):
+                p95 = c2c.get("p95")
+                vmax = float(p95) if isinstance(p95, (int, float)) and p95 > 0 else float(np.percentile(dist, 95))
+                data = c2c_views_jpeg(cloud.positions, dist, vmax, name, units)
+                return f'<img src="{jpeg_data_uri(data)}" alt="C2C views {html.escape(name)}">'
+        except (InputFileError, FormatError, DataError):
+            pass  # fall back to the preview written by the eval stage
+    if files.get("preview"):
+        return _thumbnail_tag(eval_dir / files["preview"], f"C2C preview {name}", max_side=900)
+    return ""
+
+
+def _per_view(raw_products: Mapping[str, Any]) -> dict[str, list[Mapping[str, Any]]]:
+    return {
+        name: list(((raw or {}).get("images") or {}).get("per_view") or [])
+        for name, raw in raw_products.items()
+        if ((raw or {}).get("images") or {}).get("per_view")
+    }
+
+
+def _metric_series(per_view: Mapping[str, list[Mapping[str, Any]]], key: str) -> tuple[list[str], list]:
+    """Views (in the first product's order) and one series per product of metric ``key`` (None where missing)."""
+    labels: list[str] = []
+    for views in per_view.values():
+        for v in views:
+            if str(v["view"]) not in labels:
+                labels.append(str(v["view"]))
+    series = []
+    for name, views in per_view.items():
+        by_view = {str(v["view"]): (v.get("full") or {}).get(key) for v in views}
+        vals = [by_view.get(label) for label in labels]
+        if any(isinstance(x, (int, float)) for x in vals):
+            series.append((name, vals))
+    return labels, series
+
+
+def _panel_views(per_view: Mapping[str, list[Mapping[str, Any]]], max_panels: int) -> list[str]:
+    """The views shown as panels: those with a panel file, lowest mean PSNR first, at most ``max_panels``."""
+    psnr: dict[str, list[float]] = {}
+    for views in per_view.values():
+        for v in views:
+            if (v.get("files") or {}).get("panel"):
+                value = (v.get("full") or {}).get("psnr")
+                psnr.setdefault(str(v["view"]), []).append(float(value) if isinstance(value, (int, float)) else 1e9)
+    ranked = sorted(psnr, key=lambda view: (sum(psnr[view]) / len(psnr[view]), view))
+    return ranked[: max(0, int(max_panels))]
+
+
+def to_html(
+    report: Mapping[str, Any],
+    eval_dir: Path | None,
+    metrics: Mapping[str, Any] | None,
+    max_panels: int = DEFAULT_MAX_PANELS,
+) -> str:
+    """A self-contained HTML page: tables, C2C histograms and colour-mapped views, per-view metric bars, stage
+    time/memory bars and render panels (JPEG thumbnails, at most ``max_panels`` views per product)."""
     e = html.escape
+    u = _report_units(report)
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridsplat report</title>",
         f"<style>{_CSS}</style></head><body>",
         "<h1>hybridsplat evaluation report</h1>",
         f"<p>Project <code>{e(report['project'])}</code> · generated {e(report['generated_utc'])} · "
-        f"total pipeline time {_num(report['timings']['total_seconds'], 1)} s</p>",
+        f"total pipeline time {_num(report['timings']['total_seconds'], 1)} s · lengths in {e(u.value)}</p>",
     ]
     for title, header, rows in _tables(report):
         parts.append(f"<h2>{e(title)}</h2>")
@@ -347,39 +458,43 @@ def to_html(report: Mapping[str, Any], eval_dir: Path | None, metrics: Mapping[s
             continue
         hist = c2c.get("histogram") or {}
         if hist.get("edges") and hist.get("counts"):
-            figs.append(f"<figure>{svg_histogram(hist['edges'], hist['counts'], f'C2C distances: {name}')}</figure>")
-        preview = (c2c.get("files") or {}).get("preview")
-        if preview and eval_dir is not None:
-            tag = _img_tag(eval_dir / preview, f"C2C preview {name}")
+            title = f"{(c2c.get('method') or 'c2c').upper()} distances: {name}"
+            figs.append(f"<figure>{svg_histogram(hist['edges'], hist['counts'], title, units=u)}</figure>")
+        if eval_dir is not None:
+            tag = _c2c_views_tag(eval_dir, name, c2c, u)
             if tag:
-                figs.append(f"<figure style='max-width:560px'>{tag}<figcaption>{e(name)}: distances colour-mapped "
-                            "(viridis, 0 to max distance or P95)</figcaption></figure>")  # fmt: skip
+                caption = f"{e(name)}: distance to the reference, colour-mapped (viridis, 0 to P95, {e(u.value)})"
+                figs.append(f"<figure style='max-width:900px'>{tag}<figcaption>{caption}</figcaption></figure>")
     if figs:
         parts += ["<h2>Distance distributions</h2>"] + figs
-    per_view_series = []
-    labels: list[str] = []
+    per_view = _per_view(raw_products)
+    metric_figs = []
+    for key in ("psnr", "ssim", "lpips"):
+        labels, series = _metric_series(per_view, key)
+        if series:
+            metric_figs.append(f"<figure>{metric_bars_svg(series, labels, IMAGE_LABELS[key])}</figure>")
+    if metric_figs:
+        parts += ["<h2>Image metrics per held-out view</h2>"] + metric_figs
+    chosen = _panel_views(per_view, max_panels)
     panels = []
-    for name, raw in raw_products.items():
-        views = ((raw or {}).get("images") or {}).get("per_view") or []
-        if views:
-            if not labels:
-                labels = [str(v["view"]) for v in views]
-            if [str(v["view"]) for v in views] == labels:
-                per_view_series.append((name, [float(v["full"]["psnr"]) for v in views]))
+    for name, views in per_view.items():
         for v in views:
             panel = (v.get("files") or {}).get("panel")
-            if panel and eval_dir is not None:
-                tag = _img_tag(eval_dir / panel, f"{name} {v['view']}")
+            if panel and str(v["view"]) in chosen and eval_dir is not None:
+                tag = _thumbnail_tag(eval_dir / panel, f"{name} {v['view']}")
                 if tag:
                     panels.append(f"<figure style='max-width:1150px'>{tag}<figcaption>{e(name)} · {e(str(v['view']))}: "
                                   "render | photo | RMS colour error (0–0.25)</figcaption></figure>")  # fmt: skip
-    if per_view_series:
-        parts += [
-            "<h2>Per-view PSNR</h2>",
-            svg_bars(per_view_series, labels, "PSNR per held-out view", "view", "PSNR (dB)", width=900),
-        ]
     if panels:
-        parts += ["<h2>Renders and error maps</h2>"] + panels
+        parts += [f"<h2>Renders and error maps</h2><p class='note'>The {len(chosen)} held-out view(s) with the "
+                  "lowest PSNR (downscaled).</p>"] + panels  # fmt: skip
+    stages = report.get("stages") or {}
+    if stages:
+        names = list(stages)
+        parts += [
+            "<h2>Stage time and memory</h2>",
+            stage_bars_svg(names, [stages[n].get("seconds") for n in names], [stages[n].get("peak_mb") for n in names]),
+        ]
     parts.append("<h2>Versions</h2><ul>")
     parts += [f"<li>{e(k)}: {e(str(v))}</li>" for k, v in report["versions"].items()]
     parts.append("</ul>")
@@ -389,15 +504,24 @@ def to_html(report: Mapping[str, Any], eval_dir: Path | None, metrics: Mapping[s
     return "\n".join(parts)
 
 
-def write_report(project: str | PathLike[str], out_dir: str | PathLike[str] | None = None) -> ReportPaths:
-    """Build and write ``report.json``, ``report.md`` and ``report.html`` (default ``PROJECT/report/``), atomically."""
+def write_report(
+    project: str | PathLike[str],
+    out_dir: str | PathLike[str] | None = None,
+    max_panels: int = DEFAULT_MAX_PANELS,
+    units: Units | str | None = None,
+) -> ReportPaths:
+    """Build and write ``report.json``, ``report.md`` and ``report.html`` (default ``PROJECT/report/``), atomically.
+
+    max_panels: render panels shown per product (the lowest-PSNR views). units: the unit lengths are printed in
+    (default: as recorded in metrics.json or the manifest, else metres).
+    """
     root = Path(project)
-    report = build_report(root)
+    report = build_report(root, units)
     out = Path(out_dir) if out_dir is not None else root / "report"
     eval_dir = root / "eval"
     metrics = read_metrics(eval_dir / "metrics.json") if (eval_dir / "metrics.json").is_file() else None
     paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
     write_text_atomic(paths.json, json.dumps(report, indent=2, default=str) + "\n")
     write_text_atomic(paths.markdown, to_markdown(report))
-    write_text_atomic(paths.html, to_html(report, eval_dir, metrics))
+    write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels))
     return paths

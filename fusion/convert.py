@@ -68,6 +68,9 @@ class ConvertMode(str, Enum):
     ADAPTIVE = "adaptive"
 
 
+DEFAULT_MODE = ConvertMode.ADAPTIVE  # the toolkit's one default (pipeline and ``hybridsplat convert``)
+
+
 class ConversionWarning(UserWarning):
     """A clamp or fallback changed values during conversion (the message gives the count)."""
 
@@ -149,7 +152,7 @@ class ConvertResult:
 
 
 def points_to_gaussians(
-    cloud: PointCloud, mode: ConvertMode | str = ConvertMode.PAPER, options: ConvertOptions | None = None
+    cloud: PointCloud, mode: ConvertMode | str = DEFAULT_MODE, options: ConvertOptions | None = None
 ) -> GaussianSet:
     """Gaussians from an MVS point cloud (see the module docstring for both modes).
 
@@ -167,7 +170,7 @@ def points_to_gaussians(
 
 
 def convert_points(
-    cloud: PointCloud, mode: ConvertMode | str = ConvertMode.PAPER, options: ConvertOptions | None = None
+    cloud: PointCloud, mode: ConvertMode | str = DEFAULT_MODE, options: ConvertOptions | None = None
 ) -> ConvertResult:
     """As :func:`points_to_gaussians`, also returning :class:`ConvertStats`."""
     t0 = time.perf_counter()

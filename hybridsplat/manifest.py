@@ -1,9 +1,8 @@
 """The project manifest: what every stage did, and whether it must run again.
 
 ``PROJECT/manifest.json`` holds, per stage: the hashes of its inputs, its configuration, the package versions,
-wall-clock seconds, peak resident memory, counts, its outputs, and whether it was skipped and why. A stage is
-skipped on re-run ("up to date") when its inputs' hashes and configuration are unchanged and its outputs
-still exist; a stage the scene does not need is skipped with a reason of its own.
+wall-clock seconds, peak resident memory, counts, its outputs, and whether it was skipped and why. Whether a
+stage reruns is the runner's decision (``hybridsplat.runner``); this module stores the records.
 """
 
 from __future__ import annotations
@@ -11,8 +10,6 @@ from __future__ import annotations
 import hashlib
 import json
 import threading
-import time
-from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
@@ -21,24 +18,17 @@ from typing import Any
 import psutil
 
 from core.errors import FormatError
-from core.io.atomic import write_text_atomic
+from core.io.json_io import read_json, to_jsonable, write_json_atomic
 from hybridsplat import __version__
-
-MANIFEST_NAME = "manifest.json"
-
-
-@dataclass
-class StageOutcome:
-    """What a stage function returns: counts to record, or a skip with its reason."""
-
-    counts: dict[str, Any] = field(default_factory=dict)
-    skipped: bool = False
-    reason: str | None = None
 
 
 @dataclass
 class StageRecord:
-    """One stage's entry in the manifest (seconds and peak_mb refer to the run that produced the outputs)."""
+    """One stage's entry in the manifest (seconds and peak_mb refer to the run that produced the outputs).
+
+    config: the stage's options and fingerprint as plain JSON data; inputs: relative path -> SHA-256.
+    cached: true when the last pipeline run found the stage up to date and did not run it.
+    """
 
     name: str
     seconds: float = 0.0
@@ -52,22 +42,37 @@ class StageRecord:
     outputs: list[str] = field(default_factory=list)
     finished_at: str = ""
 
+    def is_current(self, inputs: dict[str, str], config: dict[str, Any], project: Path) -> bool:
+        """Whether a run with these inputs and configuration would reproduce this record's outputs."""
+        return (
+            not self.skipped
+            and self.inputs == inputs
+            and self.config == config
+            and all((project / o).exists() for o in self.outputs)
+        )
+
+    def content(self) -> dict[str, Any]:
+        """The record without what changes when nothing ran (the cached flag and its reason)."""
+        data = asdict(self)
+        data.pop("cached")
+        if not self.skipped:
+            data.pop("reason")
+        return data
+
 
 class Manifest:
-    """The stages of one project folder, loaded from and saved to ``PROJECT/manifest.json``."""
+    """The stage records of one project, loaded from and saved to its manifest file (``ProjectLayout.manifest``)."""
 
-    def __init__(self, project: str | PathLike[str]) -> None:
-        self.project = Path(project)
-        self.path = self.project / MANIFEST_NAME
+    def __init__(self, path: str | PathLike[str]) -> None:
+        self.path = Path(path)
+        self.project = self.path.parent
         self.stages: dict[str, StageRecord] = {}
         if self.path.exists():
+            payload = read_json(self.path)
             try:
-                payload = json.loads(self.path.read_text(encoding="utf-8"))
                 self.stages = {name: StageRecord(**rec) for name, rec in payload.get("stages", {}).items()}
-            except (ValueError, TypeError) as err:
-                raise FormatError(
-                    f"manifest is not valid JSON of this version ({err}); delete it to rerun", self.path
-                ) from err
+            except (AttributeError, TypeError) as err:
+                raise FormatError(f"not a manifest of this version ({err}); delete it to rerun", self.path) from err
 
     def save(self) -> None:
         payload = {
@@ -75,56 +80,32 @@ class Manifest:
             "versions": package_versions(),
             "stages": {name: asdict(rec) for name, rec in self.stages.items()},
         }
-        self.project.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(self.path, json.dumps(payload, indent=2, default=_json_default) + "\n")
+        write_json_atomic(self.path, payload)
 
-    def run_stage(
-        self,
-        name: str,
-        fn: Callable[[], StageOutcome],
-        *,
-        inputs: Iterable[Path],
-        outputs: Iterable[Path],
-        config: dict[str, Any] | None = None,
-        force: bool = False,
-    ) -> StageRecord:
-        """Run ``fn`` unless the recorded run is still valid; record timings, memory and counts; save."""
-        config = json.loads(json.dumps(config or {}, default=_json_default))
-        input_hashes = {str(_rel(p, self.project)): hash_path(p) for p in inputs}
-        output_list = [str(_rel(p, self.project)) for p in outputs]
-        previous = self.stages.get(name)
-        if (
-            not force
-            and previous is not None
-            and not previous.skipped
-            and previous.inputs == input_hashes
-            and previous.config == config
-            and all((self.project / o).exists() for o in previous.outputs)
-        ):
-            previous.cached = True
-            previous.reason = "up to date: inputs and configuration unchanged"
-            self.save()
-            return previous
+    def relative(self, path: Path) -> str:
+        """``path`` relative to the project (absolute when outside it), as recorded."""
+        return str(_rel(path, self.project))
 
-        with PeakMemory() as memory:
-            start = time.perf_counter()
-            outcome = fn()
-            seconds = time.perf_counter() - start
-        record = StageRecord(
-            name=name,
-            seconds=round(seconds, 4),
-            peak_mb=round(memory.peak_mb, 1),
-            skipped=outcome.skipped,
-            reason=outcome.reason,
-            counts=outcome.counts,
-            config=config,
-            inputs=input_hashes,
-            outputs=output_list if not outcome.skipped else [],
-            finished_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        )
-        self.stages[name] = record
+    def record(self, record: StageRecord) -> StageRecord:
+        self.stages[record.name] = record
         self.save()
         return record
+
+    def mark_cached(self, name: str) -> StageRecord:
+        record = self.stages[name]
+        record.cached, record.reason = True, "up to date: inputs and configuration unchanged"
+        self.save()
+        return record
+
+    def invalidate(self, name: str) -> None:
+        """Forget stage ``name`` (before it reruns: a failure must not leave a record of older outputs)."""
+        if self.stages.pop(name, None) is not None:
+            self.save()
+
+    def content_digest(self, exclude: tuple[str, ...] = ()) -> str:
+        """SHA-256 of every stage's record content (see :meth:`StageRecord.content`), except ``exclude``."""
+        data = {n: r.content() for n, r in sorted(self.stages.items()) if n not in exclude}
+        return hashlib.sha256(json.dumps(to_jsonable(data), sort_keys=True).encode()).hexdigest()
 
 
 class PeakMemory:
@@ -189,13 +170,3 @@ def _rel(path: Path, root: Path) -> Path:
         return Path(path).resolve().relative_to(root.resolve())
     except ValueError:
         return Path(path).resolve()
-
-
-def _json_default(value: object) -> object:
-    if isinstance(value, PathLike):
-        return str(value)
-    if hasattr(value, "tolist"):
-        return value.tolist()  # numpy scalars and arrays
-    if hasattr(value, "value"):
-        return value.value  # enums
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")

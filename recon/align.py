@@ -9,6 +9,7 @@ pycolmap's own alignment works on whole reconstructions, not on arbitrary point 
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,3 +167,58 @@ def align_reconstruction_to_centers(
     result = ransac_similarity(src, dst, threshold, seed=seed)
     transform_reconstruction(rec, result.transform)
     return result
+
+
+@dataclass(frozen=True)
+class ReferenceAlignment:
+    """An SfM model aligned to a reference (``--reference``).
+
+    origin: (3,) float64 world coordinates (metres) of the local frame the aligned model is written in (zeros
+    for references near the origin; the rounded centroid of the reference centres for georeferenced ones, so that
+    float32 products such as fused.ply keep millimetres). result: the fit, with residuals in metres.
+    threshold_m: the RANSAC inlier distance used.
+    """
+
+    result: AlignmentResult
+    origin: np.ndarray
+    threshold_m: float
+
+
+# Coordinates beyond this (metres) are georeferenced (UTM: ~1e5-1e7): the model gets a local origin, because
+# float32 (fused.ply, GPU) resolves only ~1 m at 1e7 m.
+LOCAL_ORIGIN_ABOVE_M = 1e4
+
+
+def local_origin(points: np.ndarray) -> np.ndarray:
+    """(3,) float64 origin for points (N, 3) metres: zeros when they lie within ``LOCAL_ORIGIN_ABOVE_M`` of the
+    world origin, else their centroid rounded to whole metres (a stable, readable offset)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0 or np.abs(p).max() <= LOCAL_ORIGIN_ABOVE_M:
+        return np.zeros(3)
+    return np.round(p.mean(axis=0))
+
+
+def align_to_reference(
+    rec, centers: Mapping[str, np.ndarray], threshold_m: float | None = None, seed: int = 0
+) -> ReferenceAlignment:
+    """Align a ``pycolmap.Reconstruction`` in place to reference camera centres (metres, e.g.
+    ``recon.reference.Reference.centers``), into a local frame around :func:`local_origin` of the centres.
+
+    threshold_m: RANSAC inlier distance; default 2 % of the reference centres' extent (a GNSS-tagged block of
+    100 m tolerates 2 m errors; tighten it for survey-grade references).
+    """
+    names = sorted(rec.image(i).name for i in rec.reg_image_ids())
+    common = [n for n in names if n in centers]
+    if len(common) < 3:
+        raise ReconstructionError(
+            f"alignment needs >= 3 registered images with reference centres, got {len(common)} "
+            f"(registered: {len(names)}, in the reference: {len(centers)}; do the image names match?)"
+        )
+    dst = np.stack([np.asarray(centers[n], dtype=np.float64) for n in common])
+    origin = local_origin(dst)
+    if threshold_m is None:
+        extent = float(np.linalg.norm(dst.max(axis=0) - dst.min(axis=0)))
+        threshold_m = max(0.02 * extent, 1e-6)
+    local = {n: np.asarray(centers[n], dtype=np.float64) - origin for n in common}
+    result = align_reconstruction_to_centers(rec, local, float(threshold_m), seed=seed)
+    return ReferenceAlignment(result, origin, float(threshold_m))

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import ConfigError, InputFileError, ReconstructionError
+from recon.colmap_log import native_output_to
 from recon.mvs_colmap import colmap_available, run_patch_match
 from recon.mvs_cpu import CpuMvsOptions, estimate_depth, geometric_filter, normals_from_depth
 from recon.view_selection import select_views
@@ -50,6 +51,7 @@ class MvsOptions:
     fusion: FusionOptions = field(default_factory=FusionOptions)
     num_threads: int | None = None  # torch threads for the CPU backend (None = torch's default)
     map_cache: int = 16  # depth maps held in memory during the geometric pass (bounds memory)
+    held_out: frozenset[str] = frozenset()  # image names never used for depth (as reference or source) nor fusion
 
 
 @dataclass
@@ -65,6 +67,7 @@ class MvsReport:
     seconds_fusion: float = 0.0
     valid_fraction: dict[str, float] = field(default_factory=dict)  # per image, after the geometric filter
     num_points: int = 0
+    warnings: list[str] = field(default_factory=list)  # COLMAP warnings (one line each) when a log was kept
 
     @property
     def megapixels(self) -> float:
@@ -97,23 +100,40 @@ def run_mvs(
     dense_dir: str | Path,
     options: MvsOptions = MvsOptions(),
     progress: Progress | None = None,
+    log_path: str | Path | None = None,
 ) -> MvsReport:
-    """Undistort, estimate depth/normal maps, fuse. Returns an :class:`MvsReport`."""
+    """Undistort, estimate depth/normal maps, fuse. Returns an :class:`MvsReport`.
+
+    log_path: COLMAP's output (undistortion, PatchMatch, fusion) is appended there instead of reaching the terminal;
+    its warnings are in ``MvsReport.warnings``. ``progress`` callbacks still reach the terminal.
+    """
     backend = resolve_backend(options.backend)
+    warnings: list[str] = []
     t0 = time.perf_counter()
-    ws = setup_dense_workspace(sparse_dir, image_dir, dense_dir, options.max_image_size)
+    with native_output_to(log_path) as log:
+        ws = setup_dense_workspace(sparse_dir, image_dir, dense_dir, options.max_image_size)
+    warnings += log.warnings if log else []
     t_undistort = time.perf_counter() - t0
     if backend is MvsBackend.COLMAP:
         t1 = time.perf_counter()
-        run_patch_match(ws.root, options.max_image_size)
+        with native_output_to(log_path) as log:
+            run_patch_match(ws.root, options.max_image_size)
+        warnings += log.warnings if log else []
         report = _report_for(ws, backend.value)
+        if options.held_out:  # PatchMatch computed every view; held-out ones are left out of fusion
+            import pycolmap
+
+            rec = pycolmap.Reconstruction(str(ws.sparse))
+            names = [rec.image(i).name for i in sorted(rec.reg_image_ids())]
+            ws.write_fusion_cfg([n for n in names if n not in options.held_out])
         report.seconds_depth = time.perf_counter() - t1
     else:
         report = compute_depth_maps_cpu(ws, options, progress)
     report.seconds_undistort = t_undistort
     t2 = time.perf_counter()
-    report.num_points = fuse(ws, options.fusion)
+    report.num_points = fuse(ws, options.fusion, log_path=log_path, warnings=warnings)
     report.seconds_fusion = time.perf_counter() - t2
+    report.warnings = warnings
     return report
 
 
@@ -161,12 +181,13 @@ def compute_depth_maps_cpu(
     if options.num_threads:
         torch.set_num_threads(int(options.num_threads))
     rec = pycolmap.Reconstruction(str(ws.sparse))
-    ids = sorted(int(i) for i in rec.reg_image_ids())
+    ids = sorted(int(i) for i in rec.reg_image_ids() if rec.image(i).name not in options.held_out)
     if len(ids) < 2:
         raise ReconstructionError(
             f"dense reconstruction needs at least 2 registered images, the model has {len(ids)}", ws.sparse
         )
-    sel = select_views(rec, num_sources=options.cpu.num_sources)
+    held_out_ids = frozenset(int(i) for i in rec.reg_image_ids() if rec.image(i).name in options.held_out)
+    sel = select_views(rec, num_sources=options.cpu.num_sources, exclude=held_out_ids)
     names = {i: rec.image(i).name for i in ids}
     Ks = {i: np.asarray(rec.image(i).camera.calibration_matrix(), dtype=np.float64) for i in ids}
     poses = {}
@@ -230,11 +251,17 @@ def compute_depth_maps_cpu(
     return report
 
 
-def fuse(ws: DenseWorkspace | str | Path, options: FusionOptions = FusionOptions()) -> int:
+def fuse(
+    ws: DenseWorkspace | str | Path,
+    options: FusionOptions = FusionOptions(),
+    log_path: str | Path | None = None,
+    warnings: list[str] | None = None,
+) -> int:
     """``pycolmap.stereo_fusion`` (CPU) of the workspace's geometric maps (photometric when those are absent).
 
     Writes ``fused.ply`` and ``fused.ply.vis``; returns the number of fused points. Raises
-    :class:`ReconstructionError` when fusion yields no point.
+    :class:`ReconstructionError` when fusion yields no point. log_path: COLMAP's output goes there (appended);
+    its warnings are appended to ``warnings`` when a list is given.
     """
     import pycolmap
 
@@ -258,7 +285,10 @@ def fuse(ws: DenseWorkspace | str | Path, options: FusionOptions = FusionOptions
         opts.num_threads = 1
     for p in (ws.fused_ply, ws.fused_vis):
         p.unlink(missing_ok=True)
-    rec = pycolmap.stereo_fusion(str(ws.fused_ply), str(ws.root), input_type=kind, options=opts, output_type="PLY")
+    with native_output_to(log_path) as log:
+        rec = pycolmap.stereo_fusion(str(ws.fused_ply), str(ws.root), input_type=kind, options=opts, output_type="PLY")
+    if log is not None and warnings is not None:
+        warnings.extend(log.warnings)
     n = int(rec.num_points3D()) if rec is not None else 0
     if n == 0 or not ws.fused_ply.is_file():
         raise ReconstructionError(

@@ -6,6 +6,22 @@ fixed and only matches and triangulates, so dense fusion gets sparse points with
 
 Bad input: unreadable/corrupt images are listed and skipped (warning), fewer than two usable images or
 images that do not overlap raise :class:`core.errors` errors; images of different sizes get one camera each.
+
+Determinism (``SfmOptions.deterministic``, on by default): two runs with the same images, options and seed write
+byte-identical models. What varied before, measured on the ``tiny`` preset (bench/bench_sfm_determinism.py):
+
+- multi-threaded feature extraction gives image (and per-image camera) ids in completion order, not name order;
+  every later step depends on ids (known-pose runs too: their frames/images/points files differed) → extraction
+  runs on one thread;
+- two-view geometry RANSAC draws from thread-local generators when unseeded → its seed is set (matching itself
+  stays multi-threaded: each pair is then independent of the thread that verifies it);
+- the mapper's, the triangulator's and the global generator's seeds are set; the mapper and the bundle
+  adjustments run on one thread. This last part is a precaution, not a measurement: Ceres multi-threads only
+  problems above 50 000 residuals (``min_num_residuals_for_cpu_multi_threading``), which ``tiny`` never reaches,
+  and its Schur-complement updates from several threads may sum in a different order run to run.
+
+COLMAP's output goes to ``log_path`` (see :mod:`recon.colmap_log`) when given; its warnings land in
+``SfmReport.warnings`` as one line each.
 """
 
 from __future__ import annotations
@@ -23,8 +39,9 @@ import numpy as np
 
 from core.cameras import Cameras
 from core.errors import ConfigError, InputFileError, ReconstructionError
+from recon.colmap_log import native_output_to
+from recon.inputs import IMAGE_SUFFIXES
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 Progress = Callable[[str, int, int], None]
 
 
@@ -37,13 +54,17 @@ class Matcher(str, Enum):
 
 @dataclass(frozen=True)
 class SfmOptions:
-    matcher: Matcher = Matcher.EXHAUSTIVE
+    """Options of :func:`run_sfm` and :func:`triangulate_known_poses` (defaults suit a set of photos from one
+    camera: one shared SIMPLE_RADIAL camera, exhaustive matching, features at 1600 px, deterministic)."""
+
+    matcher: Matcher = Matcher.EXHAUSTIVE  # sequential for video-like sequences, vocabtree for > ~500 photos
     max_image_size: int = 1600  # feature extraction works on images downscaled to this longer side (px)
     max_num_features: int = 8192
-    camera_model: str = "SIMPLE_RADIAL"  # COLMAP model for unknown cameras
-    single_camera: bool = True  # one shared camera when all images have the same size
-    num_threads: int = -1
-    seed: int = 0  # mapper RANSAC / initialisation seed (determinism)
+    camera_model: str = "SIMPLE_RADIAL"  # COLMAP model for unknown cameras (e.g. OPENCV for strong distortion)
+    single_camera: bool = True  # one camera shared by all photos (when they all have the same size)
+    num_threads: int = -1  # matching threads (-1 = all cores); everything else too when deterministic=False
+    seed: int = 0  # RANSAC / mapper initialisation / triangulation seed
+    deterministic: bool = True  # byte-identical models run to run (see the module docstring); False = faster
     vocab_tree_path: str | None = None  # needed by the vocabtree matcher
     mask_dir: str | None = None  # PNG masks NAME.png (0 = ignore features there), as COLMAP expects
     database_path: str | None = None  # keep the feature database here (default: a temporary folder)
@@ -130,7 +151,7 @@ def _extract_and_match(
     import pycolmap
 
     reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = options.camera_model
+    reader.camera_model = _camera_model(options.camera_model)
     if options.mask_dir:
         mask_dir = Path(options.mask_dir)
         if not mask_dir.is_dir():
@@ -138,7 +159,7 @@ def _extract_and_match(
         reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = int(options.max_image_size)
-    extraction.num_threads = int(options.num_threads)
+    extraction.num_threads = 1 if options.deterministic else int(options.num_threads)
     extraction.sift.max_num_features = int(options.max_num_features)
     mode = pycolmap.CameraMode.PER_IMAGE if per_image else pycolmap.CameraMode.SINGLE
     t0 = time.perf_counter()
@@ -150,19 +171,22 @@ def _extract_and_match(
     t1 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = int(options.num_threads)
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = int(options.seed)  # unseeded: thread-local generators, order-dependent
+    kw = {"matching_options": matching, "verification_options": verification, "device": pycolmap.Device.cpu}
     m = Matcher(options.matcher)
     if m is Matcher.EXHAUSTIVE:
-        pycolmap.match_exhaustive(db, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_exhaustive(db, **kw)
     elif m is Matcher.SEQUENTIAL:
-        pycolmap.match_sequential(db, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_sequential(db, **kw)
     elif m is Matcher.SPATIAL:
-        pycolmap.match_spatial(db, matching_options=matching, device=pycolmap.Device.cpu)
+        pycolmap.match_spatial(db, **kw)
     else:
         if not options.vocab_tree_path:
             raise ConfigError("the vocabtree matcher needs vocab_tree_path (a COLMAP vocabulary tree file)")
         pairing = pycolmap.VocabTreePairingOptions()
         pairing.vocab_tree_path = str(options.vocab_tree_path)
-        pycolmap.match_vocabtree(db, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+        pycolmap.match_vocabtree(db, pairing_options=pairing, **kw)
     report.seconds_matching = time.perf_counter() - t1
 
 
@@ -209,11 +233,35 @@ def _fill_report(rec, report: SfmReport) -> None:
     report.mean_track_length = float(rec.compute_mean_track_length()) if report.num_points else 0.0
 
 
-def _robust_bundle_adjustment(rec, loss_px: float) -> None:
+def _camera_model(name: str) -> str:
+    """A COLMAP camera model name, checked (ConfigError listing the valid ones otherwise)."""
+    import pycolmap
+
+    valid = [m for m in pycolmap.CameraModelId.__members__ if m != "INVALID"]
+    if str(name).upper() not in valid:
+        raise ConfigError(f"unknown camera model {name!r} (COLMAP models: {', '.join(valid)})")
+    return str(name).upper()
+
+
+def _mapper_options(options: SfmOptions):
+    """Incremental pipeline options with every seed set and, when deterministic, single-threaded solves."""
+    import pycolmap
+
+    pycolmap.set_random_seed(int(options.seed))  # the global generator some COLMAP code paths draw from
+    mapper = pycolmap.IncrementalPipelineOptions()
+    mapper.num_threads = 1 if options.deterministic else int(options.num_threads)
+    mapper.random_seed = int(options.seed)
+    mapper.mapper.random_seed = int(options.seed)
+    mapper.triangulation.random_seed = int(options.seed)
+    return mapper
+
+
+def _robust_bundle_adjustment(rec, loss_px: float, deterministic: bool = True) -> None:
     import pycolmap
 
     ba = pycolmap.BundleAdjustmentOptions()
     ba.refine_principal_point = False  # as in the mapper: the principal point is poorly constrained
+    ba.print_summary = False
     ba.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     ba.ceres.loss_function_scale = float(loss_px)
     solver = ba.ceres.solver_options
@@ -221,6 +269,8 @@ def _robust_bundle_adjustment(rec, loss_px: float) -> None:
     solver.function_tolerance = 1e-10
     solver.gradient_tolerance = 1e-10
     solver.parameter_tolerance = 1e-10
+    if deterministic:  # multi-threaded Ceres sums in thread order: last bits differ run to run
+        solver.num_threads = 1
     pycolmap.bundle_adjustment(rec, ba)
 
 
@@ -238,10 +288,10 @@ def _refine_model(rec, options: SfmOptions) -> None:
 
     if options.refine_loss_px <= 0 or rec.num_points3D() == 0:
         return
-    _robust_bundle_adjustment(rec, options.refine_loss_px)
+    _robust_bundle_adjustment(rec, options.refine_loss_px, options.deterministic)
     if options.refine_filter_px > 0:
         pycolmap.ObservationManager(rec).filter_all_points3D(float(options.refine_filter_px), 1.5)
-        _robust_bundle_adjustment(rec, options.refine_loss_px)
+        _robust_bundle_adjustment(rec, options.refine_loss_px, options.deterministic)
 
 
 def _write_model(rec, out_dir: Path) -> None:
@@ -266,25 +316,42 @@ def _db_path(options: SfmOptions, tmp: Path) -> Path:
     return db
 
 
-def run_sfm(image_dir: str | Path, out_dir: str | Path, options: SfmOptions = SfmOptions()):
+def run_sfm(
+    image_dir: str | Path,
+    out_dir: str | Path,
+    options: SfmOptions = SfmOptions(),
+    log_path: str | Path | None = None,
+    image_names: list[str] | None = None,
+):
     """Full SfM; writes the largest model to ``out_dir``. Returns (``pycolmap.Reconstruction``, :class:`SfmReport`).
 
-    Raises :class:`ReconstructionError` when no model can be built (images do not overlap).
+    image_names: the photos of ``image_dir`` to use (default: every photo at its top level). log_path: append
+    COLMAP's output there instead of the terminal. Raises :class:`ReconstructionError` when no model can be built
+    (images do not overlap).
     """
-    import pycolmap
-
     image_dir, out_dir = Path(image_dir), Path(out_dir)
-    check = check_images(image_dir)
+    _camera_model(options.camera_model)
+    check = check_images(image_dir, image_names)
     report = SfmReport(len(check.valid) + len(check.skipped), [], {}, dict(check.skipped))
     if check.mixed_sizes:
         report.warnings.append("images have different sizes: one camera per image")
+    with native_output_to(log_path) as log:
+        try:
+            rec = _run_sfm(image_dir, out_dir, options, check, report)
+        finally:
+            if log is not None:
+                report.warnings.extend(log.warnings)
+    return rec, report
+
+
+def _run_sfm(image_dir: Path, out_dir: Path, options: SfmOptions, check: ImageCheck, report: SfmReport):
+    import pycolmap
+
     with tempfile.TemporaryDirectory(prefix="hybridsplat_sfm_") as tmpname:
         tmp = Path(tmpname)
         db = _db_path(options, tmp)
         _extract_and_match(db, image_dir, check, options, check.mixed_sizes or not options.single_camera, report)
-        mapper = pycolmap.IncrementalPipelineOptions()
-        mapper.num_threads = int(options.num_threads)
-        mapper.random_seed = int(options.seed)
+        mapper = _mapper_options(options)
         mapper.min_model_size = 2
         t0 = time.perf_counter()
         models = pycolmap.incremental_mapping(db, image_dir, tmp / "models", options=mapper)
@@ -312,29 +379,43 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path, options: SfmOptions = Sf
         report.seconds_refinement = time.perf_counter() - t1
         _fill_report(rec, report)
         _write_model(rec, out_dir)
-    return rec, report
+    return rec
 
 
 def triangulate_known_poses(
-    cameras: Cameras, image_dir: str | Path, out_dir: str | Path, options: SfmOptions = SfmOptions()
+    cameras: Cameras,
+    image_dir: str | Path,
+    out_dir: str | Path,
+    options: SfmOptions = SfmOptions(),
+    log_path: str | Path | None = None,
 ):
     """Match features and triangulate with the given cameras fixed. Returns (Reconstruction, :class:`SfmReport`).
 
     Images of ``cameras`` missing from or unreadable in ``image_dir`` are skipped with a reason; poses and
-    intrinsics are not refined.
+    intrinsics are not refined. log_path: append COLMAP's output there instead of the terminal.
     """
+    with native_output_to(log_path) as log:
+        report = SfmReport(len(cameras), [], {}, {})
+        try:
+            rec = _triangulate_known_poses(cameras, Path(image_dir), Path(out_dir), options, report)
+        finally:
+            if log is not None:
+                report.warnings.extend(log.warnings)
+    return rec, report
+
+
+def _triangulate_known_poses(cameras: Cameras, image_dir: Path, out_dir: Path, options: SfmOptions, report):
     import pycolmap
 
     from core.io.colmap import camera_to_pycolmap
 
-    image_dir, out_dir = Path(image_dir), Path(out_dir)
     names = [v.name for v in cameras]
     missing = {
         n: "listed in the model but not found in the image folder" for n in names if not (image_dir / n).is_file()
     }
     check = check_images(image_dir, [n for n in names if n not in missing])
     check.skipped.update(missing)
-    report = SfmReport(len(names), [], {}, dict(check.skipped))
+    report.skipped = dict(check.skipped)
     with tempfile.TemporaryDirectory(prefix="hybridsplat_tri_") as tmpname:
         tmp = Path(tmpname)
         db = _db_path(options, tmp)
@@ -356,9 +437,7 @@ def triangulate_known_poses(
             rec.add_camera_with_trivial_rig(pc)
             image = pycolmap.Image(name=name, camera_id=int(im.camera_id), image_id=int(im.image_id))
             rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(view.cam_from_world))
-        mapper = pycolmap.IncrementalPipelineOptions()
-        mapper.num_threads = int(options.num_threads)
-        mapper.random_seed = int(options.seed)
+        mapper = _mapper_options(options)
         t0 = time.perf_counter()
         rec = pycolmap.triangulate_points(rec, db, image_dir, tmp / "tri", options=mapper)
         report.seconds_mapping = time.perf_counter() - t0
@@ -367,7 +446,7 @@ def triangulate_known_poses(
         if report.num_points == 0:
             raise ReconstructionError("no 3D point could be triangulated from the known poses (no overlap?)", image_dir)
         _write_model(rec, out_dir)
-    return rec, report
+    return rec
 
 
 def centers_by_name(cameras: Cameras) -> dict[str, np.ndarray]:

@@ -30,12 +30,15 @@ def select_views(
     min_angle_deg: float = 2.0,
     best_angle_deg: float = 10.0,
     depth_margin: float = 0.15,
+    exclude: frozenset[int] = frozenset(),
 ) -> ViewSelection:
     """Choose up to ``num_sources`` source views per registered image and its depth range.
 
+    Images in ``exclude`` (image ids, e.g. held-out photos) are neither given sources nor used as one.
+
     Raises :class:`ReconstructionError` when the model has no 3D points (fusion and depth ranges need them).
     """
-    image_ids = sorted(int(i) for i in rec.reg_image_ids())
+    image_ids = sorted(int(i) for i in rec.reg_image_ids() if int(i) not in exclude)
     if rec.num_points3D() == 0:
         raise ReconstructionError("the sparse model has no 3D points: triangulate first (hybridsplat sfm)")
     index = {iid: k for k, iid in enumerate(image_ids)}

@@ -110,9 +110,10 @@ def test_report_files_self_contained(project):
     assert "no non-collaborative region" in md
     page = paths.html.read_text()
     assert page.count("<svg") >= 3  # two C2C histograms + per-view PSNR
-    assert page.count("data:image/png;base64,") >= 2 + 2 * 3  # previews + render panels
+    # C2C colour-mapped views + render panels (3 views of 2 products, within max_panels), as JPEG thumbnails
+    assert page.count("data:image/jpeg;base64,") >= 2 + 2 * 3
     # self-contained: no external references
-    assert not re.search(r"""(src|href)=["'](?!data:)""", page)
+    assert not re.search(r"""(src|href)=["'](?!data:|#)""", page)
     assert "fusion.train" in page
 
 

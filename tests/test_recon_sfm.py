@@ -89,12 +89,12 @@ def test_cli_sfm_known_poses_then_mvs(scene_dir, tmp_path: Path, capsys):
 
     _, root = scene_dir
     project = tmp_path / "project"
-    main(["sfm", str(root), "--out", str(project), "--known-poses"])
+    main(["sfm", str(root), "--out", str(project)])  # the scene's own cameras: known poses
     assert (project / "sparse" / "points3D.bin").is_file()
     main(["mvs", str(project), "--backend", "cpu", "--max-image-size", "100", "--threads", "1"])
     assert (project / "dense" / "fused.ply").is_file() and (project / "dense" / "fused.ply.vis").is_file()
-    out = capsys.readouterr().out
-    assert "10/10 images registered" in out and "fused points" in out
+    err = capsys.readouterr().err
+    assert "10/10 photos registered" in err and "fused points" in err
 
 
 def test_cli_bad_backend_and_missing_project_exit_2(tmp_path: Path, capsys):

@@ -32,12 +32,16 @@ def test_tabletop_known_poses_cpu_mvs_per_material(tabletop: Path, tmp_path: Pat
     sys.path.insert(0, str(REPO / "bench"))
     from bench_mvs import evaluate
 
-    from recon.mvs import MvsBackend, MvsOptions
-    from recon.stages import mvs_stage, sfm_stage
+    from hybridsplat.config import InputOptions, ProjectConfig
+    from hybridsplat.pipeline import run_pipeline
+    from hybridsplat.stages import stage_named
+    from hybridsplat.stages.mvs import MvsStageOptions
 
-    sfm_stage(tabletop, tmp_path, known_poses=True)
-    report = mvs_stage(tmp_path, MvsOptions(backend=MvsBackend.CPU))
-    assert report.num_points > 10_000
+    config = ProjectConfig(
+        input=InputOptions(path=str(tabletop)), stages={"mvs": MvsStageOptions(backend="cpu", max_image_size=-1)}
+    )
+    manifest = run_pipeline(tmp_path, config, [stage_named("sfm"), stage_named("mvs")])
+    assert manifest.stages["mvs"].counts["points"] > 10_000
     _, scores = evaluate(tabletop, tmp_path / "dense" / "fused.ply", tau_gsd=3.0)
     collab = [s for s in scores if s.collaborative]
     non = [s for s in scores if not s.collaborative]
@@ -52,16 +56,21 @@ def test_tabletop_known_poses_cpu_mvs_per_material(tabletop: Path, tmp_path: Pat
 def test_tabletop_full_sfm_registers_all_and_aligns(tabletop: Path, tmp_path: Path):
     import json
 
-    from recon.stages import sfm_stage
+    from hybridsplat.config import InputOptions, ProjectConfig
+    from hybridsplat.layout import ProjectLayout
+    from hybridsplat.pipeline import run_pipeline
+    from hybridsplat.stages import stage_named
 
-    report = sfm_stage(tabletop, tmp_path, known_poses=False)
+    config = ProjectConfig(input=InputOptions(path=str(tabletop), use_scene_cameras=False))
+    counts = run_pipeline(tmp_path, config, [stage_named("sfm")]).stages["sfm"].counts
     n_train = len(list((tabletop / "images").iterdir()))
-    assert len(report.registered) == n_train, report.unregistered
+    assert counts["registered"] == n_train, counts["unregistered"]
     gsd = json.loads((tabletop / "scene.json").read_text())["gsd_m"]
     # measured (seed 0, 72 views, all cameras in the alignment): median 0.09 GSD, 90th percentile 0.23 GSD,
     # max 0.36-0.54 GSD over runs (lowest ring); without the robust final BA: median 0.19-0.25, max 1.4-2.4 GSD
-    residuals = report.alignment.residuals
-    assert report.alignment.num_inliers == n_train
+    alignment = json.loads(ProjectLayout(tmp_path).record("sfm").read_text())["report"]["alignment"]
+    residuals = np.asarray(alignment["residuals"])
+    assert alignment["num_inliers"] == n_train
     assert np.median(residuals) <= 0.2 * gsd
     assert np.percentile(residuals, 90) <= 0.5 * gsd
     assert np.max(residuals) <= 1.0 * gsd

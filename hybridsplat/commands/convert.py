@@ -12,7 +12,7 @@ from core.io import read_point_cloud
 from core.io.atomic import check_output_file, output_transaction
 from core.io.colmap_vis import read_vis
 from core.pointcloud import PointCloud
-from fusion.convert import ConversionWarning, ConvertMode, ConvertOptions, convert_points
+from fusion.convert import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, convert_points
 from fusion.export import ExportOptions, ExportReport, export_gaussians
 
 
@@ -48,7 +48,9 @@ def print_export(report: ExportReport) -> None:
 def convert(
     cloud: Path = typer.Argument(..., help="MVS point cloud (.ply, .las, .laz, .e57); a CLOUD.vis next to it is used."),
     out: Path = typer.Option(..., "--out", "-o", help="Output: .ply (3DGS PLY), .splat, or .las/.laz (points)."),
-    mode: ConvertMode = typer.Option(ConvertMode.PAPER, "--mode", help="paper: Eq. 1-4 exactly; adaptive: surfels."),
+    mode: ConvertMode = typer.Option(
+        DEFAULT_MODE, "--mode", help="adaptive (default): surfels; paper: Eq. 1-4 exactly."
+    ),
     visibility: Path | None = typer.Option(None, help="COLMAP fused.ply.vis file (default: CLOUD.vis if present)."),
     k: int = typer.Option(8, "--k", help="adaptive: neighbours for the per-point spacing."),
     tangent_scale: float = typer.Option(0.4, help="adaptive: in-surface sigma as a multiple of the spacing."),

@@ -1,4 +1,8 @@
-"""``hybridsplat report PROJECT``: JSON, Markdown and self-contained HTML reports of a project's evaluation."""
+"""``hybridsplat report PROJECT``: the ``report`` stage alone (report/report.{json,md,html}).
+
+On a folder that is not a project (no config.toml: e.g. only an ``eval/metrics.json`` from ``hybridsplat eval``),
+the report is written from whatever it holds.
+"""
 
 from __future__ import annotations
 
@@ -7,19 +11,23 @@ from pathlib import Path
 import typer
 
 
-def report(
-    project: Path = typer.Argument(..., help="Project folder (reads manifest.json and eval/metrics.json)."),
-    out: Path | None = typer.Option(None, "--out", help="Output folder (default: PROJECT/report)."),
-) -> None:
-    """Build report.json (stable schema), report.md and a self-contained report.html.
-
-    Tables of C2C (mean, st. dev., ...) and image metrics (whole image and masked) per product, plots,
-    stage timings and versions, from PROJECT/manifest.json and PROJECT/eval/metrics.json."""
-    from eval.report import write_report
-
-    paths = write_report(project, out)
-    typer.echo(f"wrote {paths.json}, {paths.markdown}, {paths.html}")
-
-
 def register(app: typer.Typer) -> None:
-    app.command("report")(report)
+    @app.command("report")
+    def report(
+        project: Path = typer.Argument(..., help="Project folder (reads manifest.json and eval/metrics.json)."),
+        force: bool = typer.Option(True, "--force/--if-changed", help="Rewrite even when up to date."),
+    ) -> None:
+        """Build report.json (stable schema), report.md and a self-contained report.html of a project."""
+        from hybridsplat.layout import ProjectLayout
+
+        layout = ProjectLayout(project)
+        if layout.config.is_file():
+            from hybridsplat.commands.common import print_result, run_project_stage
+
+            terminal, manifest = run_project_stage(project, "report", {}, force=force)
+            print_result(terminal, project, manifest)
+            return
+        from eval.report import write_report
+
+        paths = write_report(layout.root, layout.report_dir)
+        typer.echo(f"wrote {paths.json}, {paths.markdown}, {paths.html}")

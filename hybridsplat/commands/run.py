@@ -1,4 +1,4 @@
-"""``hybridsplat run`` (the whole pipeline) and ``hybridsplat demo`` (synthetic scene + pipeline)."""
+"""``hybridsplat run`` (every stage on an input) and ``hybridsplat demo`` (the built-in synthetic scene + run)."""
 
 from __future__ import annotations
 
@@ -6,70 +6,89 @@ from pathlib import Path
 
 import typer
 
-
-def _print_summary(manifest: object) -> None:
-    for name, rec in manifest.stages.items():  # type: ignore[attr-defined]
-        if rec.skipped:
-            status = f"skipped: {rec.reason}"
-        elif rec.cached:
-            status = "up to date"
-        else:
-            status = f"{rec.seconds:.1f} s, peak {rec.peak_mb:.0f} MB"
-        typer.echo(f"  {name:<9} {status}")
+from hybridsplat.commands.common import input_options_from_cli, print_result, stage_options_from_cli
 
 
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run(
-        input_path: Path = typer.Argument(..., help="A folder of photos, or a data_synth scene folder."),
-        out: Path = typer.Option(
-            ..., "--out", help="Project folder (created); see docs/conventions.md for its layout."
+        input_path: Path = typer.Argument(
+            ..., help="A folder of photos (or with images/), a COLMAP workspace, or a data_synth scene."
         ),
-        known_poses: bool = typer.Option(
-            True, "--known-poses/--full-sfm", help="Use the scene's known cameras, or run full SfM (and align)."
+        out: Path = typer.Option(..., "--out", help="Project folder (created); its layout: docs/conventions.md."),
+        model: int | None = typer.Option(None, help="Model N of a COLMAP workspace with several (default: largest)."),
+        cameras: Path | None = typer.Option(
+            None, help="COLMAP model of known cameras: poses fixed, only matching and triangulation."
         ),
+        full_sfm: bool = typer.Option(
+            False, "--full-sfm", help="Ignore the cameras a scene or workspace brings; run SfM and align to them."
+        ),
+        reference: Path | None = typer.Option(
+            None, help="Align to these camera centres: a text file 'NAME X Y Z' per line, or a COLMAP model."
+        ),
+        units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
+        crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N), written to sidecars and LAS."),
+        holdout: int = typer.Option(
+            -1, help="Hold out every N-th photo for evaluation (default: the input's own test views, else 8; 0: none)."
+        ),
+        splat_masks: Path | None = typer.Option(None, help="Masks of regions that need splats (white), NAME.png."),
+        feature_masks: Path | None = typer.Option(None, help="COLMAP masks for feature extraction (black = ignore)."),
+        camera_model: str = typer.Option("SIMPLE_RADIAL", help="COLMAP camera model for SfM."),
+        single_camera: bool = typer.Option(
+            True, "--single-camera/--camera-per-photo", help="One camera for all photos, or one per photo."
+        ),
+        matcher: str = typer.Option("exhaustive", help="exhaustive | sequential | spatial | vocabtree."),
         mvs_backend: str = typer.Option("auto", help="auto | cpu | colmap (COLMAP PatchMatch needs CUDA)."),
-        max_image_size: int = typer.Option(-1, help="Longer side of the dense images in pixels (-1: full size)."),
-        convert_mode: str = typer.Option("adaptive", help="MVS-to-Gaussian conversion: paper | adaptive."),
+        max_image_size: int = typer.Option(1000, help="Longer side of the dense images, px (-1: full size)."),
+        convert_mode: str = typer.Option("adaptive", help="MVS-to-Gaussian conversion: adaptive | paper."),
         lpips_weights: Path | None = typer.Option(None, help="LPIPS v0.1 AlexNet weights (.npz)."),
         seed: int = typer.Option(0, help="Seed of every random choice."),
+        force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """Run every stage end to end: SfM, MVS, conversion, merge/export, evaluation, report."""
-        from hybridsplat.pipeline import PipelineConfig, run_pipeline
+        """Run every stage end to end; stages already up to date are skipped, and say so."""
+        from hybridsplat.config import ProjectConfig
+        from hybridsplat.pipeline import run_pipeline
+        from hybridsplat.terminal import Terminal
 
-        config = PipelineConfig(
-            known_poses=known_poses,
-            mvs_backend=mvs_backend,
-            max_image_size=max_image_size,
-            convert_mode=convert_mode,
-            lpips_weights=str(lpips_weights) if lpips_weights else None,
+        config = ProjectConfig(
+            input=input_options_from_cli(
+                input_path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks, feature_masks
+            ),
             seed=seed,
+            stages=stage_options_from_cli(
+                sfm={"camera_model": camera_model, "single_camera": single_camera, "matcher": matcher},
+                mvs={"backend": mvs_backend, "max_image_size": max_image_size},
+                convert={"mode": convert_mode},
+                eval={"lpips_weights": str(lpips_weights.resolve()) if lpips_weights else ""},
+            ),
         )
-        manifest = run_pipeline(input_path, out, config, progress=lambda m: typer.echo(f"[run] {m}", err=True))
-        typer.echo(f"project {out}:")
-        _print_summary(manifest)
-        typer.echo(f"report: {out / 'report' / 'report.html'}")
+        terminal = Terminal(quiet=quiet)
+        terminal.line(f"hybridsplat run: {input_path} -> {out}")
+        manifest = run_pipeline(out, config, terminal=terminal, force=force)
+        print_result(terminal, out, manifest)
 
     @app.command("demo")
     def demo(
-        out: Path = typer.Option(
-            Path("demo_project"), "--out", help="Folder for the scene (OUT/scene) and the project."
-        ),
+        out: Path = typer.Option(Path("demo_project"), "--out", help="Folder for the scene (OUT/scene) and project."),
         preset: str = typer.Option("tiny", help="data_synth preset of the built-in scene."),
         seed: int = typer.Option(0, help="Seed of the scene and the pipeline."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """The main job on the built-in synthetic scene: generate it, then run the whole pipeline on it."""
+        """The main job on the built-in synthetic scene: generate it, then run every stage on it."""
         from data_synth import generate_scene
-        from hybridsplat.pipeline import PipelineConfig, run_pipeline
+        from hybridsplat.config import InputOptions, ProjectConfig
+        from hybridsplat.pipeline import run_pipeline
+        from hybridsplat.terminal import Terminal
 
+        terminal = Terminal(quiet=quiet)
         scene = out / "scene"
         if not (scene / "scene.json").is_file():
-            typer.echo(f"[demo] generating the {preset} scene into {scene}", err=True)
+            terminal.line(f"hybridsplat demo: generating the {preset} scene into {scene}")
             generate_scene(preset, scene, seed=seed, overwrite=True)
+        else:
+            terminal.line(f"hybridsplat demo: using the scene in {scene}")
         project = out / "project"
-        manifest = run_pipeline(
-            scene, project, PipelineConfig(seed=seed), progress=lambda m: typer.echo(f"[demo] {m}", err=True)
-        )
-        typer.echo(f"project {project}:")
-        _print_summary(manifest)
-        typer.echo(f"report: {project / 'report' / 'report.html'}")
+        config = ProjectConfig(input=InputOptions(path=str(scene.resolve())), seed=seed)
+        manifest = run_pipeline(project, config, terminal=terminal)
+        print_result(terminal, project, manifest)

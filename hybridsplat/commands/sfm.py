@@ -1,4 +1,4 @@
-"""``hybridsplat sfm``: structure from motion (or known-pose triangulation) into PROJECT/sparse."""
+"""``hybridsplat sfm INPUT --out PROJECT``: the ``sfm`` stage alone (camera poses and sparse model)."""
 
 from __future__ import annotations
 
@@ -11,62 +11,42 @@ def register(app: typer.Typer) -> None:
     @app.command("sfm")
     def sfm(
         input_path: Path = typer.Argument(
-            ..., help="A folder of photos, or a data_synth scene folder (images/, sparse/0/)."
+            ..., help="A folder of photos (or with images/), a COLMAP workspace, or a data_synth scene."
         ),
         out: Path = typer.Option(..., "--out", help="Project folder; the model is written to PROJECT/sparse/."),
-        known_poses: bool = typer.Option(
-            False,
-            "--known-poses",
-            help="Use the known cameras (scene sparse/0 or --reference): match + triangulate only.",
-        ),
-        masks: Path | None = typer.Option(
-            None, "--masks", help="Folder of PNG masks NAME.png (black = ignore features)."
-        ),
-        reference: Path | None = typer.Option(
-            None, "--reference", help="COLMAP model with reference cameras to align to (or to use with --known-poses)."
-        ),
+        cameras: Path | None = typer.Option(None, help="COLMAP model of known cameras (poses fixed)."),
+        full_sfm: bool = typer.Option(False, "--full-sfm", help="Ignore the cameras a scene or workspace brings."),
+        reference: Path | None = typer.Option(None, help="Camera centres to align to: 'NAME X Y Z' text or a model."),
+        units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
+        crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N)."),
+        feature_masks: Path | None = typer.Option(None, help="COLMAP masks NAME.png (black = ignore features)."),
+        camera_model: str = typer.Option("SIMPLE_RADIAL", help="COLMAP camera model."),
+        single_camera: bool = typer.Option(True, "--single-camera/--camera-per-photo"),
         matcher: str = typer.Option("exhaustive", help="exhaustive | sequential | spatial | vocabtree."),
-        max_image_size: int = typer.Option(
-            1600, help="Feature extraction on images downscaled to this longer side (px)."
-        ),
-        seed: int = typer.Option(0, help="Random seed of the mapper (same inputs + seed -> same model)."),
+        max_image_size: int = typer.Option(1600, help="Features are extracted at this longer side (px)."),
+        seed: int = typer.Option(0, help="Seed (same inputs + seed -> same model)."),
+        force: bool = typer.Option(False, "--force", help="Rerun even when up to date."),
     ) -> None:
-        """Structure from motion with pycolmap: SIFT, matching, mapping (or triangulation), alignment to a reference."""
-        import pycolmap
-        from rich.console import Console
-        from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+        """Structure from motion (or triangulation with known cameras) and alignment to a reference."""
+        from hybridsplat.commands.common import input_options_from_cli, stage_options_from_cli
+        from hybridsplat.config import ProjectConfig
+        from hybridsplat.pipeline import run_pipeline
+        from hybridsplat.stages import stage_named
+        from hybridsplat.terminal import Terminal
 
-        from core.errors import ConfigError
-        from recon.sfm import Matcher, SfmOptions
-        from recon.stages import sfm_stage
-
-        pycolmap.logging.minloglevel = 1  # COLMAP's INFO lines drown the progress bars
-        console = Console(stderr=True)
-        try:
-            parsed = Matcher(matcher)
-        except ValueError as err:
-            raise ConfigError(f"unknown matcher {matcher!r} ({err})") from err
-        options = SfmOptions(
-            matcher=parsed, max_image_size=max_image_size, seed=seed, mask_dir=str(masks) if masks else None
-        )
-        with Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(), console=console) as bar:
-            task = bar.add_task(
-                "triangulating known poses" if known_poses else "SfM: features, matching, mapping", total=1
-            )
-            report = sfm_stage(
-                input_path, out, known_poses, options, reference, progress=lambda s, d, t: bar.update(task, completed=d)
-            )
-        for name, why in sorted({**report.skipped, **report.unregistered}.items()):
-            console.print(f"[yellow]not registered[/]: {name}: {why}")
-        line = (
-            f"{len(report.registered)}/{report.num_images} images registered, {report.num_points} points, "
-            f"reprojection error {report.mean_reprojection_error:.3f} px, "
-            f"mean track length {report.mean_track_length:.2f}"
-        )
-        if report.alignment is not None:
-            a = report.alignment
-            line += (
-                f"; aligned to the reference: scale {a.transform.scale:.6g}, centre residual rms {a.rms_inliers:.4g} m "
-                f"({a.num_inliers}/{len(a.residuals)} inliers)"
-            )
-        typer.echo(line)
+        config = ProjectConfig(
+            input=input_options_from_cli(
+                input_path, cameras=cameras, full_sfm=full_sfm, reference=reference, units=units, crs=crs,
+                feature_masks=feature_masks,
+            ),
+            seed=seed,
+            stages=stage_options_from_cli(
+                sfm={
+                    "camera_model": camera_model,
+                    "single_camera": single_camera,
+                    "matcher": matcher,
+                    "max_image_size": max_image_size,
+                }
+            ),
+        )  # fmt: skip
+        run_pipeline(out, config, [stage_named("sfm")], Terminal(), ["sfm"] if force else [])

@@ -1,0 +1,205 @@
+"""The project folder: the one place that spells the paths under PROJECT/.
+
+Names are a contract with users and scripts (``docs/conventions.md``, section "The project folder", is checked
+against this class by ``tests/test_layout.py``); change them only with a migration note in the README. COLMAP's
+own names inside ``dense/`` belong to :class:`recon.workspace.DenseWorkspace`, which this layout hands out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+from recon.workspace import DenseWorkspace
+
+MESH_FORMATS = ("ply", "obj", "glb")
+
+
+@dataclass(frozen=True)
+class ProjectLayout:
+    """Paths of one project folder ``root`` (nothing is created here; stages create what they write)."""
+
+    root: Path
+
+    def __init__(self, root: str | PathLike[str]) -> None:
+        object.__setattr__(self, "root", Path(root))
+
+    # -- top level ------------------------------------------------------------------------------
+    @property
+    def manifest(self) -> Path:
+        """Every stage: inputs' hashes, configuration, versions, timings, peak memory, counts, skip reasons."""
+        return self.root / "manifest.json"
+
+    @property
+    def config(self) -> Path:
+        """The effective configuration (TOML), read back by the per-stage commands."""
+        return self.root / "config.toml"
+
+    @property
+    def logs_dir(self) -> Path:
+        return self.root / "logs"
+
+    def log(self, stage: str) -> Path:
+        """Text log of a stage (COLMAP and glog output go here, never to the terminal)."""
+        return self.logs_dir / f"{stage}.log"
+
+    def record(self, stage: str) -> Path:
+        """JSON record of what a stage found (e.g. the SfM report, the input description)."""
+        return self.logs_dir / f"{stage}.json"
+
+    # -- recon ----------------------------------------------------------------------------------
+    @property
+    def sparse(self) -> Path:
+        """COLMAP sparse model, aligned to the reference frame when one was given."""
+        return self.root / "sparse"
+
+    @property
+    def dense(self) -> Path:
+        return self.root / "dense"
+
+    @property
+    def dense_workspace(self) -> DenseWorkspace:
+        return DenseWorkspace(self.dense)
+
+    @property
+    def fused_ply(self) -> Path:
+        return self.dense_workspace.fused_ply
+
+    @property
+    def fused_vis(self) -> Path:
+        return self.dense_workspace.fused_vis
+
+    # -- classify -------------------------------------------------------------------------------
+    @property
+    def classify_dir(self) -> Path:
+        return self.root / "classify"
+
+    @property
+    def classified_points(self) -> Path:
+        """Dense cloud + ``classification``, ``probability``, ``needs_splats`` fields."""
+        return self.classify_dir / "points.ply"
+
+    @property
+    def classify_report(self) -> Path:
+        return self.classify_dir / "report.json"
+
+    @property
+    def masks_dir(self) -> Path:
+        """One PNG per photo (255 = needs splats)."""
+        return self.classify_dir / "masks"
+
+    def mask_path(self, image_name: str) -> Path:
+        """Region mask of photo ``image_name`` (COLMAP's convention: ``0001.jpg`` -> ``0001.jpg.png``)."""
+        return self.masks_dir / f"{image_name}.png"
+
+    @property
+    def user_masks_dir(self) -> Path:
+        """The user's ``--splat-masks``, normalised to ``<image name>.png``."""
+        return self.classify_dir / "user_masks"
+
+    # -- splats ---------------------------------------------------------------------------------
+    @property
+    def splats_dir(self) -> Path:
+        return self.root / "splats"
+
+    @property
+    def trained_splats(self) -> Path:
+        return self.splats_dir / "trained.ply"
+
+    @property
+    def cleaned_splats(self) -> Path:
+        return self.splats_dir / "cleaned.ply"
+
+    @property
+    def snapshots_dir(self) -> Path:
+        return self.splats_dir / "snapshots"
+
+    @property
+    def baseline_splats(self) -> Path:
+        """The whole-scene 3DGS baseline (for comparison)."""
+        return self.splats_dir / "baseline.ply"
+
+    # -- export ---------------------------------------------------------------------------------
+    @property
+    def export_dir(self) -> Path:
+        return self.root / "export"
+
+    @property
+    def mvs_gaussians(self) -> Path:
+        return self.export_dir / "mvs_gaussians.ply"
+
+    @property
+    def splats_export(self) -> Path:
+        return self.export_dir / "splats.ply"
+
+    @property
+    def merged_ply(self) -> Path:
+        """The product for splat viewers (3DGS PLY, local coordinates; origin in ``merged.origin.json``)."""
+        return self.export_dir / "merged.ply"
+
+    @property
+    def merged_points_ply(self) -> Path:
+        return self.export_dir / "merged_points.ply"
+
+    @property
+    def merged_points_las(self) -> Path:
+        return self.export_dir / "merged_points.las"
+
+    def mesh_path(self, fmt: str = "ply") -> Path:
+        if fmt not in MESH_FORMATS:
+            raise ValueError(f"mesh format must be one of {MESH_FORMATS}, got {fmt!r}")
+        return self.export_dir / f"mesh.{fmt}"
+
+    # -- eval and report ------------------------------------------------------------------------
+    @property
+    def eval_dir(self) -> Path:
+        return self.root / "eval"
+
+    @property
+    def metrics_json(self) -> Path:
+        return self.eval_dir / "metrics.json"
+
+    @property
+    def eval_masks_dir(self) -> Path:
+        """Masks of the held-out views used for the masked image metrics."""
+        return self.eval_dir / "masks"
+
+    @property
+    def report_dir(self) -> Path:
+        return self.root / "report"
+
+    @property
+    def report_html(self) -> Path:
+        return self.report_dir / "report.html"
+
+    # -- the documented contract ----------------------------------------------------------------
+    def documented_paths(self) -> dict[str, Path]:
+        """Every user-facing path, relative to the root, as listed in docs/conventions.md."""
+        paths = {
+            "manifest.json": self.manifest,
+            "config.toml": self.config,
+            "sparse/": self.sparse,
+            "dense/": self.dense,
+            "dense/fused.ply": self.fused_ply,
+            "dense/fused.ply.vis": self.fused_vis,
+            "classify/points.ply": self.classified_points,
+            "classify/report.json": self.classify_report,
+            "classify/masks/": self.masks_dir,
+            "classify/user_masks/": self.user_masks_dir,
+            "splats/trained.ply": self.trained_splats,
+            "splats/cleaned.ply": self.cleaned_splats,
+            "splats/snapshots/": self.snapshots_dir,
+            "splats/baseline.ply": self.baseline_splats,
+            "export/mvs_gaussians.ply": self.mvs_gaussians,
+            "export/splats.ply": self.splats_export,
+            "export/merged.ply": self.merged_ply,
+            "export/merged_points.ply": self.merged_points_ply,
+            "export/merged_points.las": self.merged_points_las,
+            **{f"export/mesh.{f}": self.mesh_path(f) for f in MESH_FORMATS},
+            "eval/metrics.json": self.metrics_json,
+            "eval/masks/": self.eval_masks_dir,
+            "report/": self.report_dir,
+            "logs/": self.logs_dir,
+        }
+        return {name: path.relative_to(self.root) for name, path in paths.items()}

@@ -1,0 +1,22 @@
+"""The pipeline's stages, in order. Adding a stage = one module here + one entry in ``STAGES`` (+ its test)."""
+
+from __future__ import annotations
+
+from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.convert import ConvertStage
+from hybridsplat.stages.evaluate import EvalStage
+from hybridsplat.stages.merge import MergeStage
+from hybridsplat.stages.mvs import MvsStage
+from hybridsplat.stages.report import ReportStage
+from hybridsplat.stages.sfm import SfmStage
+
+STAGES: tuple[Stage, ...] = (SfmStage(), MvsStage(), ConvertStage(), MergeStage(), EvalStage(), ReportStage())
+
+__all__ = ["STAGES", "Stage", "StageContext", "stage_named"]
+
+
+def stage_named(name: str) -> Stage:
+    for stage in STAGES:
+        if stage.name == name:
+            return stage
+    raise KeyError(name)

@@ -1,0 +1,73 @@
+"""What a pipeline stage is, and what it is given.
+
+A stage is a small class in its own module: a ``name``, an ``Options`` frozen dataclass with documented defaults
+(one TOML table in ``config.toml``), the files it reads (``inputs``) and writes (``outputs``), ``needs`` (a reason
+to skip, or None) and ``run`` (returns counts for the manifest). It is a thin shell: it reads files, calls a pure
+function of ``recon``/``classify``/``fusion``/``eval``, and writes files (atomically, through ``core.io``).
+The runner (``hybridsplat.runner``) decides whether it runs, times it and records it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+from hybridsplat.config import ProjectConfig
+from hybridsplat.layout import ProjectLayout
+from hybridsplat.source import Source
+from hybridsplat.terminal import ProgressCallback
+
+
+@dataclass(frozen=True)
+class NoOptions:
+    """A stage without options."""
+
+
+def _no_progress(label: str, done: int, total: int) -> None:
+    return None
+
+
+@dataclass
+class StageContext:
+    """Everything a stage may use: the project layout, the configuration, the input, a progress callback."""
+
+    layout: ProjectLayout
+    config: ProjectConfig
+    source: Source
+    progress: ProgressCallback = field(default=_no_progress)
+
+    def options(self, stage: Stage) -> Any:
+        return self.config.options(stage.name, stage.Options)
+
+
+class Stage:
+    """Base class of the pipeline's stages (see the module docstring)."""
+
+    name: ClassVar[str]
+    Options: ClassVar[type] = NoOptions
+    title: ClassVar[str] = ""  # a few words for the terminal
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        """Files and folders whose content decides the outputs (hashed by the runner)."""
+        return []
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        """Files and folders this stage writes; removed when it fails, is interrupted or becomes unneeded."""
+        return []
+
+    def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
+        """Extra values that decide the outputs besides inputs and options (compared like the options)."""
+        return {}
+
+    def needs(self, ctx: StageContext) -> str | None:
+        """None when the stage must run for this project, else the reason it is skipped."""
+        return None
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        """Do the work; return counts for the manifest (JSON-serialisable)."""
+        raise NotImplementedError
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        """A few words about what the stage produced, for the terminal's one-line summary."""
+        return ""

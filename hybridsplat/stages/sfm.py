@@ -1,0 +1,135 @@
+"""Stage ``sfm``: camera poses and a sparse model of the photos (PROJECT/sparse).
+
+Known cameras (``--cameras MODEL``, or a data_synth scene's / COLMAP workspace's own) are kept as they are and only
+matched and triangulated; otherwise full SfM with pycolmap, then a robust similarity alignment to the reference
+camera centres when a reference is given (``--reference``; a data_synth scene's true cameras by default).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import ConfigError
+from core.io.json_io import write_json_atomic
+from hybridsplat.stages.base import Stage, StageContext
+from recon.sfm import Matcher, SfmOptions
+
+
+@dataclass(frozen=True)
+class SfmStageOptions:
+    """Options of the ``sfm`` stage.
+
+    camera_model: COLMAP camera model for unknown cameras (SIMPLE_RADIAL, OPENCV, ...).
+    single_camera: one camera shared by all photos (same body and lens); per-photo cameras otherwise.
+    matcher: exhaustive | sequential | spatial | vocabtree.
+    max_image_size: features are extracted on photos downscaled to this longer side (pixels).
+    align_threshold_m: RANSAC inlier threshold of the alignment to reference centres, metres (0: 2 % of their extent).
+    """
+
+    camera_model: str = "SIMPLE_RADIAL"
+    single_camera: bool = True
+    matcher: str = "exhaustive"
+    max_image_size: int = 1600
+    align_threshold_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        try:
+            Matcher(self.matcher)
+        except ValueError as err:
+            raise ConfigError(
+                f"matcher must be one of {', '.join(m.value for m in Matcher)}, got {self.matcher!r}"
+            ) from err
+
+
+class SfmStage(Stage):
+    name = "sfm"
+    Options = SfmStageOptions
+    title = "camera poses and sparse model"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        src = ctx.source
+        extra = [
+            p
+            for p in (src.known_cameras, _path(ctx.config.input.reference), _path(ctx.config.input.feature_masks))
+            if p
+        ]
+        return [src.image_dir, *extra]
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        return [ctx.layout.sparse, ctx.layout.record(self.name)]
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from recon.align import align_reconstruction_to_centers
+        from recon.model import from_reconstruction, read_reconstruction
+        from recon.sfm import run_sfm, triangulate_known_poses
+
+        opts: SfmStageOptions = ctx.options(self)
+        src, layout = ctx.source, ctx.layout
+        sfm_options = SfmOptions(
+            matcher=Matcher(opts.matcher),
+            max_image_size=opts.max_image_size,
+            camera_model=opts.camera_model,
+            single_camera=opts.single_camera,
+            seed=ctx.config.seed,
+            mask_dir=ctx.config.input.feature_masks,
+        )
+        ctx.progress("features, matching, " + ("triangulation" if src.known_cameras else "mapping"), 0, 1)
+        if src.known_cameras is not None:
+            cameras = from_reconstruction(read_reconstruction(src.known_cameras))
+            rec, report = triangulate_known_poses(cameras, src.image_dir, layout.sparse, sfm_options)
+        else:
+            rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.image_names))
+            reference = _reference_centers(ctx)
+            if reference:
+                c = np.stack(list(reference.values()))
+                extent = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+                threshold = opts.align_threshold_m or max(0.02 * extent, 1e-6)
+                report.alignment = align_reconstruction_to_centers(rec, reference, threshold, seed=ctx.config.seed)
+                rec.write(str(layout.sparse))
+        ctx.progress("features, matching, " + ("triangulation" if src.known_cameras else "mapping"), 1, 1)
+        write_json_atomic(
+            layout.record(self.name),
+            {"image_dir": str(src.image_dir.resolve()), "origin": list(src.spec.origin), "report": report},
+        )
+        counts: dict[str, Any] = {
+            "images": report.num_images,
+            "registered": len(report.registered),
+            "unregistered": report.unregistered,
+            "points": report.num_points,
+            "reprojection_error_px": report.mean_reprojection_error,
+        }
+        if report.alignment is not None:
+            counts["alignment_rms_m"] = report.alignment.rms_inliers
+            counts["alignment_inliers"] = report.alignment.num_inliers
+        return counts
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        text = (
+            f"{counts['registered']}/{counts['images']} photos registered, {counts['points']} points, "
+            f"{counts['reprojection_error_px']:.2f} px"
+        )
+        if "alignment_rms_m" in counts:
+            text += f", aligned (centre rms {counts['alignment_rms_m']:.3g} m)"
+        return text
+
+
+def _path(value: str | None) -> Path | None:
+    return Path(value) if value else None
+
+
+def _reference_centers(ctx: StageContext) -> dict[str, np.ndarray]:
+    """Camera centres to align a full-SfM model to (metres): ``--reference``, else the input's known cameras."""
+    from recon.model import from_reconstruction, read_reconstruction
+
+    reference = ctx.config.input.reference
+    if reference is None:
+        if ctx.source.spec.known_cameras is None:
+            return {}
+        return {v.name: v.center for v in from_reconstruction(read_reconstruction(ctx.source.spec.known_cameras))}
+    from recon.reference import read_reference
+
+    return dict(read_reference(reference, ctx.config.input.units).centers)
