@@ -1,3 +1,9 @@
-from hybridsplat.cli import main
+import sys
+
+try:
+    from hybridsplat.cli import main
+except KeyboardInterrupt:  # Ctrl-C while the command modules are still being imported
+    print("hybridsplat: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 main()

@@ -51,7 +51,11 @@ def _register_commands() -> None:
             register(app)
 
 
-_register_commands()
+try:
+    _register_commands()
+except KeyboardInterrupt:  # Ctrl-C while the (heavy) command modules are imported: same exit as later
+    print("hybridsplat: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 
 class Terminated(BaseException):
