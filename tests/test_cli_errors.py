@@ -197,9 +197,10 @@ def test_mesh_face_index_out_of_range_in_eval(tmp_path, capsys) -> None:
 def test_report_on_metrics_with_wrong_types(tmp_path, capsys) -> None:
     (tmp_path / "eval").mkdir()
     (tmp_path / "eval" / "metrics.json").write_text('{"products": {"mvs": {"c2c": {"mean": "0.1"}}}}')
-    code, err = _cli(["report", tmp_path, "--out", tmp_path / "rep"], capsys)
+    code, err = _cli(["report", tmp_path], capsys)
     assert code == 2
     assert "products.mvs.c2c.mean" in _one_error_line(err, "metrics.json")
+    assert not (tmp_path / "report" / "report.json").exists()
 
 
 def test_truncated_lpips_weights(tmp_path, capsys) -> None:

@@ -685,8 +685,8 @@ def _eval_cases() -> list[FuzzCase]:
             project = d / "project"
             (project / "eval").mkdir(parents=True)
             (project / "eval" / "metrics.json").write_text(text)
-            out = d / "report"
-            return Invocation(["report", str(project), "--out", str(out)], "metrics.json", (out / "report.json",))
+            out = project / "report"
+            return Invocation(["report", str(project)], "metrics.json", (out / "report.json",))
 
         return build
 
@@ -696,6 +696,20 @@ def _eval_cases() -> list[FuzzCase]:
         FuzzCase("metrics-bare-nan", metrics('{"products": {"mvs": {"c2c": {"mean": NaN}}}}')),
         FuzzCase("metrics-not-json", metrics("{products")),
         FuzzCase("metrics-images-string", metrics('{"products": {"mvs": {"images": "none"}}}')),
+    ]
+
+    def manifest(text: str) -> Callable[[Path], Invocation]:
+        def build(d: Path) -> Invocation:
+            project = d / "project"
+            project.mkdir()
+            (project / "manifest.json").write_text(text)
+            return Invocation(["report", str(project)], "manifest.json", (project / "report" / "report.json",))
+
+        return build
+
+    cases += [
+        FuzzCase("manifest-stage-seconds-string", manifest('{"stages": {"mvs": {"seconds": "fast"}}}')),
+        FuzzCase("manifest-stages-list", manifest('{"stages": [1, 2]}')),
     ]
     return cases
 
