@@ -80,7 +80,12 @@ def interrupt_then_resume(scene: Path, project: Path, delay: float, expected) ->
     interrupted = proc.poll() is None
     if interrupted:
         proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=300)
+    try:
+        _, err = proc.communicate(timeout=300)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise AssertionError(f"interrupted after {delay:.1f} s, the process did not exit within 300 s") from None
     if interrupted:
         assert proc.returncode == 130, f"after {delay:.1f} s: exit {proc.returncode}\n{err}"
         assert "interrupted" in err and "Traceback" not in err, err
