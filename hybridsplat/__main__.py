@@ -1,9 +1,9 @@
 import sys
 
 try:
-    from hybridsplat.cli import main
+    from hybridsplat.cli import entry
 except KeyboardInterrupt:  # Ctrl-C while the command modules are still being imported
     print("hybridsplat: interrupted", file=sys.stderr)
     sys.exit(130)
 
-main()
+entry()

@@ -168,9 +168,32 @@ def main(argv: list[str] | None = None) -> None:
     """
     code = run_cli(argv)
     if code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os._exit(code)
+        _exit_now(code)
     if code != EXIT_OK:
         sys.exit(code)
+
+
+def _exit_now(code: int) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+def entry() -> None:
+    """The process entry point (console script and ``python -m hybridsplat``): :func:`main`, then exit.
+
+    Once the command is over, Ctrl-C and SIGTERM are ignored while the interpreter shuts down, so that a
+    signal arriving after a completed command cannot turn its exit status into a crash (-2).
+    """
+    try:
+        code = run_cli()
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    except KeyboardInterrupt:  # in the instant between the command's end and the lines above
+        print("hybridsplat: interrupted", file=sys.stderr)
+        code = EXIT_INTERRUPTED
+    if code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        _exit_now(code)
+    sys.exit(code)
