@@ -1,7 +1,7 @@
 """One call per product for the pipeline: geometry and image metrics, recorded in ``PROJECT/eval/metrics.json``.
 
 The pipeline's eval stage calls :func:`evaluate_product` for ``mvs``, ``splats``, ``merged`` (and
-``baseline_gs``), then ``eval.report.write_report(PROJECT)``. A product without inputs is recorded as
+``baseline_gs``), then ``eval.report.write_report``. A product without inputs is recorded as
 skipped with the reason, never left out.
 """
 
@@ -30,7 +30,7 @@ class ImageInputs:
 
 
 def evaluate_product(
-    project: str | PathLike[str],
+    metrics_file: str | PathLike[str],
     name: str,
     *,
     cloud: PointCloud | str | PathLike[str] | None = None,
@@ -41,13 +41,14 @@ def evaluate_product(
     lpips_model: object | None = None,
     skip_reason: str | None = None,
 ) -> ProductMetrics:
-    """Measure product ``name`` and record it in ``PROJECT/eval/metrics.json`` (other products kept).
+    """Measure product ``name`` and record it in the metrics file ``metrics_file`` (other products kept).
 
-    ``cloud`` + ``reference`` give C2C/C2M (outputs under ``PROJECT/eval``); ``gaussians`` + ``images`` give
+    ``cloud`` + ``reference`` give C2C/C2M (distance clouds, plots and renders go next to ``metrics_file``);
+    ``gaussians`` + ``images`` give
     image metrics (``lpips_model``: an :class:`eval.lpips.LPIPS`, or None to leave LPIPS out). With
     ``skip_reason``, or when neither part has inputs, the product is recorded as skipped.
     """
-    eval_dir = Path(project) / "eval"
+    eval_dir = Path(metrics_file).parent
     if skip_reason is None and (cloud is None or reference is None) and (gaussians is None or images is None):
         skip_reason = "nothing to measure: no cloud with a reference and no Gaussian set with held-out views"
     if skip_reason is not None:
@@ -64,5 +65,5 @@ def evaluate_product(
                 gaussians, images.cameras, images.views, images.photos, images.masks, lpips_model, eval_dir, name
             )
         product = ProductMetrics(c2c=c2c, images=image_eval)
-    update_metrics(project, name, product)
+    update_metrics(metrics_file, name, product)
     return product

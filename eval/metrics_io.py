@@ -159,41 +159,33 @@ class ProductMetrics:
         }
 
 
-def metrics_path(project: str | PathLike[str]) -> Path:
-    """``PROJECT/eval/metrics.json``."""
-    return Path(project) / "eval" / "metrics.json"
-
-
 def to_json_safe(value: Any) -> Any:
     """JSON-safe copy (numpy to Python, non-finite floats to None); alias of :func:`core.io.json_io.to_jsonable`."""
     return to_jsonable(value)
 
 
-def write_metrics(project: str | PathLike[str], products: Mapping[str, ProductMetrics]) -> Path:
-    """Write (replace) ``PROJECT/eval/metrics.json`` with ``products``; atomic. Returns the path."""
-    path = metrics_path(project)
+def write_metrics(path: str | PathLike[str], products: Mapping[str, ProductMetrics]) -> Path:
+    """Write (replace) the metrics file ``path`` with ``products``; atomic. Returns the path."""
     payload = {"schema": SCHEMA, "products": {name: p.as_dict() for name, p in products.items()}}
     return write_json_atomic(path, payload)
 
 
-def update_metrics(project: str | PathLike[str], name: str, product: ProductMetrics) -> Path:
-    """Add or replace one product in ``PROJECT/eval/metrics.json`` (other products are kept); atomic."""
-    path = metrics_path(project)
+def update_metrics(path: str | PathLike[str], name: str, product: ProductMetrics) -> Path:
+    """Add or replace one product in the metrics file ``path`` (other products are kept); atomic."""
+    path = Path(path)
     payload = read_metrics(path) if path.exists() else {"schema": SCHEMA, "products": {}}
     payload["products"][name] = product.as_dict()
     return write_json_atomic(path, payload)
 
 
 def read_metrics(path: str | PathLike[str]) -> dict[str, Any]:
-    """Read a metrics.json (path to the file or to the project folder) as plain JSON data, checked.
+    """Read a metrics file as plain JSON data, checked.
 
     Every value the report uses is checked for its JSON type (numbers or null for metrics, booleans,
     strings, objects and lists where the layout in this module's docstring has them); a wrong type raises
     :class:`FormatError` naming the file and the key path (e.g. ``products.mvs.c2c.mean``).
     """
     p = Path(path)
-    if p.is_dir():
-        p = metrics_path(p)
     if not p.exists():
         raise InputFileError("metrics file does not exist", p)
     payload = read_json(p)

@@ -156,22 +156,24 @@ def _units(units: Units | str | None, metrics: Mapping[str, Any], manifest: Mapp
     return Units.M
 
 
-def build_report(project: str | PathLike[str], units: Units | str | None = None) -> dict[str, Any]:
-    """The report.json content for a project folder (reads ``manifest.json`` and ``eval/metrics.json``).
+def build_report(
+    manifest_file: str | PathLike[str], metrics_file: str | PathLike[str], units: Units | str | None = None
+) -> dict[str, Any]:
+    """The report.json content from a project's manifest and metrics files (either may be missing).
 
     units: the unit the Markdown/HTML print lengths in (recorded as ``units``; report.json stays in metres).
     """
-    root = Path(project)
+    manifest_file, metrics_file = Path(manifest_file), Path(metrics_file)
+    root = manifest_file.parent
     if not root.is_dir():
         raise InputFileError("project folder does not exist", root)
-    manifest = _read_json(root / "manifest.json", "manifest")
-    metrics_file = root / "eval" / "metrics.json"
+    manifest = _read_json(manifest_file, "manifest")
     metrics = read_metrics(metrics_file) if metrics_file.is_file() else {"products": {}}
     measured: Mapping[str, Any] = metrics["products"]
     if metrics_file.is_file():
-        reason = "not evaluated: no entry for this product in eval/metrics.json"
+        reason = f"not evaluated: no entry for this product in {metrics_file.name}"
     else:
-        reason = "not evaluated: eval/metrics.json does not exist (run the eval stage)"
+        reason = f"not evaluated: {metrics_file.name} does not exist (run the eval stage)"
     names = list(REQUIRED_PRODUCTS) + sorted(n for n in measured if n not in REQUIRED_PRODUCTS)
     products = {n: _product_block(measured.get(n), reason) for n in names}
 
@@ -505,22 +507,22 @@ def to_html(
 
 
 def write_report(
-    project: str | PathLike[str],
-    out_dir: str | PathLike[str] | None = None,
+    manifest_file: str | PathLike[str],
+    metrics_file: str | PathLike[str],
+    paths: ReportPaths,
     max_panels: int = DEFAULT_MAX_PANELS,
     units: Units | str | None = None,
 ) -> ReportPaths:
-    """Build and write ``report.json``, ``report.md`` and ``report.html`` (default ``PROJECT/report/``), atomically.
+    """Build and write the report's JSON, Markdown and HTML files (``paths``) atomically.
 
-    max_panels: render panels shown per product (the lowest-PSNR views). units: the unit lengths are printed in
-    (default: as recorded in metrics.json or the manifest, else metres).
+    Renders and plots referenced by the metrics lie next to ``metrics_file``. max_panels: render panels shown per
+    product (the lowest-PSNR views). units: the unit lengths are printed in (default: as recorded in the metrics
+    or the manifest, else metres).
     """
-    root = Path(project)
-    report = build_report(root, units)
-    out = Path(out_dir) if out_dir is not None else root / "report"
-    eval_dir = root / "eval"
-    metrics = read_metrics(eval_dir / "metrics.json") if (eval_dir / "metrics.json").is_file() else None
-    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
+    metrics_file = Path(metrics_file)
+    report = build_report(manifest_file, metrics_file, units)
+    eval_dir = metrics_file.parent
+    metrics = read_metrics(metrics_file) if metrics_file.is_file() else None
     write_text_atomic(paths.json, json.dumps(report, indent=2, default=str) + "\n")
     write_text_atomic(paths.markdown, to_markdown(report))
     write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels))

@@ -151,6 +151,26 @@ class ProjectLayout:
             raise ValueError(f"mesh format must be one of {MESH_FORMATS}, got {fmt!r}")
         return self.export_dir / f"mesh.{fmt}"
 
+    # -- measurement (hybridsplat measure / view) --------------------------------------------------
+    @property
+    def measurements_csv(self) -> Path:
+        """Measured points: world coordinates, unit, σ, covariance, CRS (``eval.measure.export``)."""
+        return self.export_dir / "measurements.csv"
+
+    @property
+    def measurement_distances_csv(self) -> Path:
+        return self.export_dir / "measurements_distances.csv"
+
+    @property
+    def measurements_geojson(self) -> Path:
+        """The measurements in WGS84 (RFC 7946); written only when the project's CRS is known."""
+        return self.export_dir / "measurements.geojson"
+
+    @property
+    def picks_json(self) -> Path:
+        """The viewer's photo picks in the PICKS.json format of ``hybridsplat measure``."""
+        return self.export_dir / "picks.json"
+
     # -- eval and report ------------------------------------------------------------------------
     @property
     def eval_dir(self) -> Path:
@@ -172,6 +192,15 @@ class ProjectLayout:
     @property
     def report_html(self) -> Path:
         return self.report_dir / "report.html"
+
+    @property
+    def report_md(self) -> Path:
+        return self.report_dir / "report.md"
+
+    @property
+    def report_json(self) -> Path:
+        """The report's stable schema (``hybridsplat.report/1``)."""
+        return self.report_dir / "report.json"
 
     # -- the documented contract ----------------------------------------------------------------
     def documented_paths(self) -> dict[str, Path]:
@@ -197,6 +226,10 @@ class ProjectLayout:
             "export/merged_points.ply": self.merged_points_ply,
             "export/merged_points.las": self.merged_points_las,
             **{f"export/mesh.{f}": self.mesh_path(f) for f in MESH_FORMATS},
+            "export/measurements.csv": self.measurements_csv,
+            "export/measurements_distances.csv": self.measurement_distances_csv,
+            "export/measurements.geojson": self.measurements_geojson,
+            "export/picks.json": self.picks_json,
             "eval/metrics.json": self.metrics_json,
             "eval/masks/": self.eval_masks_dir,
             "report/": self.report_dir,

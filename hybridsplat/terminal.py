@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO
 
-ProgressCallback = Callable[[str, int, int], None]  # (label, done, total), as recon.mvs.Progress
+ProgressCallback = Callable[[str, int, int], None]  # (label, done, total), as recon.mvs.Progress; see stage()
 
 
 class Terminal:
@@ -65,9 +65,11 @@ class Terminal:
         tasks: dict[str, int] = {}
 
         def update(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = progress.add_task(label, total=max(int(total), 1))
-            progress.update(tasks[label], completed=int(done), total=max(int(total), 1))
+            # "name: details" keeps one bar per name while the details (a loss, a count) change
+            key = label.split(": ", 1)[0]
+            if key not in tasks:
+                tasks[key] = progress.add_task(label, total=max(int(total), 1))
+            progress.update(tasks[key], description=label, completed=int(done), total=max(int(total), 1))
 
         log_path.parent.mkdir(parents=True, exist_ok=True)
         with open(log_path, "a", encoding="utf-8") as log, _redirect_fds(log), _warnings_to(self, log):
@@ -120,6 +122,5 @@ def _warnings_to(terminal: Terminal, log: IO[str]) -> Iterator[None]:
         terminal.line(f"  warning: {text}")
 
     with warnings.catch_warnings():
-        warnings.simplefilter("default")
         warnings.showwarning = show
         yield

@@ -101,11 +101,11 @@ def list_images(folder: Path) -> tuple[str, ...]:
     return tuple(sorted(p.name for p in entries if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()))
 
 
-def _no_photos(folder: Path, also: Path | None = None) -> InputFileError:
-    where = f"{folder}" + (f" or {also}" if also else "")
+def _no_photos(folder: Path, also_images: bool = False) -> InputFileError:
+    where = "here nor in its images/ folder" if also_images else "here"
     return InputFileError(
-        f"found 0 photos in {where} (supported: {', '.join(IMAGE_SUFFIXES)}, any case; "
-        "INPUT must be a folder of photos, a folder holding images/, a COLMAP workspace or a data_synth scene)",
+        f"found no photos {where} (supported: {', '.join(IMAGE_SUFFIXES)}, any case; INPUT must be a folder of "
+        "photos, a folder holding images/, a COLMAP workspace or a data_synth scene)",
         folder,
     )
 
@@ -244,7 +244,7 @@ def resolve_input(path: str | Path, model: int | None = None) -> InputSpec:
         image_dir = root / "images"
         images = list_images(image_dir)
     if not images:
-        raise _no_photos(root, root / "images" if (root / "images").is_dir() else None)
+        raise _no_photos(root, (root / "images").is_dir())
     return InputSpec(root=root, kind=InputKind.PHOTOS, image_dir=image_dir, image_names=images)
 
 

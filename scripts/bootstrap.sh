@@ -19,6 +19,18 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
   fi
 fi
 
+# The viewer's browser test drives Debian's chromium through playwright's executable_path (never
+# `playwright install`, which downloads a browser). Optional: without it that test is skipped.
+if ! command -v chromium >/dev/null 2>&1; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
+    echo "bootstrap: installing chromium (browser test of 'hybridsplat view')" >&2
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null \
+      || echo "bootstrap: could not install chromium; the viewer's browser test will be skipped" >&2
+  else
+    echo "bootstrap: no chromium; the viewer's browser test will be skipped ('sudo apt-get install chromium')" >&2
+  fi
+fi
+
 if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
 fi

@@ -2,6 +2,7 @@
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +13,24 @@ from eval.geometry import GeometryOptions, evaluate_geometry
 from eval.image_metrics import psnr
 from eval.metrics_io import ProductMetrics, read_metrics, update_metrics, write_metrics
 from eval.render_eval import ImagePair, evaluate_folders, evaluate_pairs
-from eval.report import C2C_KEYS, IMAGE_KEYS, build_report, write_report
+from eval.report import C2C_KEYS, IMAGE_KEYS, ReportPaths, build_report, write_report
+from hybridsplat.layout import ProjectLayout
+
+
+def _metrics(project):
+    return ProjectLayout(project).metrics_json
+
+
+def _build(project, units=None):
+    layout = ProjectLayout(project)
+    return build_report(layout.manifest, layout.metrics_json, units)
+
+
+def _write(project, out=None, **options):
+    layout = ProjectLayout(project)
+    out = Path(out) if out is not None else layout.report_dir
+    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
+    return write_report(layout.manifest, layout.metrics_json, paths, **options)
 
 
 def _images(seed: int, n: int = 3, size=(48, 64)):
@@ -39,8 +57,10 @@ def project(tmp_path):
         c2c = evaluate_geometry(cmp, ref, eval_dir, name, GeometryOptions(tau=0.05))
         images = evaluate_pairs(_images(1 if name == "mvs" else 2), None, eval_dir, name)
         products[name] = ProductMetrics(c2c=c2c, images=images)
-    write_metrics(tmp_path, products)
-    update_metrics(tmp_path, "splats", ProductMetrics.skip("no non-collaborative region: splat training skipped"))
+    write_metrics(_metrics(tmp_path), products)
+    update_metrics(
+        _metrics(tmp_path), "splats", ProductMetrics.skip("no non-collaborative region: splat training skipped")
+    )
     manifest = {
         "version": "0.1.0",
         "stages": {
@@ -59,7 +79,7 @@ def project(tmp_path):
 
 
 def test_metrics_round_trip(project):
-    data = read_metrics(project)
+    data = read_metrics(_metrics(project))
     assert set(data["products"]) == {"mvs", "merged", "splats"}
     assert data["products"]["splats"]["skipped"] is True
     mvs = data["products"]["mvs"]
@@ -75,7 +95,7 @@ def test_metrics_round_trip(project):
 
 
 def test_report_json_schema(project):
-    rep = build_report(project)
+    rep = _build(project)
     assert list(rep["products"])[:3] == ["mvs", "splats", "merged"]
     for name in ("mvs", "merged"):
         p = rep["products"][name]
@@ -102,7 +122,7 @@ def test_report_json_schema(project):
 
 
 def test_report_files_self_contained(project):
-    paths = write_report(project)
+    paths = _write(project)
     rep = json.loads(paths.json.read_text())
     assert rep["schema"] == "hybridsplat.report/1"
     md = paths.markdown.read_text()
@@ -118,14 +138,14 @@ def test_report_files_self_contained(project):
 
 
 def test_report_without_inputs(tmp_path):
-    rep = build_report(tmp_path)
+    rep = _build(tmp_path)
     for name in ("mvs", "splats", "merged"):
         assert rep["products"][name]["skipped"] and "metrics.json" in rep["products"][name]["reason"]
     assert rep["stages"] == {} and rep["manifest_found"] is False
-    write_report(tmp_path)
+    _write(tmp_path)
     assert (tmp_path / "report" / "report.html").is_file()
     with pytest.raises(InputFileError):
-        build_report(tmp_path / "nope")
+        _build(tmp_path / "nope")
 
 
 def test_evaluate_folders_matches_pairs(tmp_path):
@@ -153,10 +173,10 @@ def test_evaluate_product_records_skips_and_geometry(tmp_path):
 
     rng = np.random.default_rng(5)
     ref = PointCloud(rng.uniform(0, 3, (500, 3)))
-    p = evaluate_product(tmp_path, "mvs", cloud=PointCloud(ref.positions[:200] + 0.01), reference=ref)
+    p = evaluate_product(_metrics(tmp_path), "mvs", cloud=PointCloud(ref.positions[:200] + 0.01), reference=ref)
     assert p.c2c is not None and p.images is None and not p.skipped
-    evaluate_product(tmp_path, "splats")  # no inputs: recorded as skipped with a reason
-    data = read_metrics(tmp_path)
+    evaluate_product(_metrics(tmp_path), "splats")  # no inputs: recorded as skipped with a reason
+    data = read_metrics(_metrics(tmp_path))
     assert data["products"]["mvs"]["c2c"]["mean"] == pytest.approx(np.sqrt(3) * 0.01, abs=1e-12)
     assert data["products"]["splats"]["skipped"] and "nothing to measure" in data["products"]["splats"]["reason"]
 
@@ -186,11 +206,11 @@ def test_registration_and_classes_reach_the_report(tmp_path):
     classes = rng.integers(1, 3, len(corner)).astype(np.uint8)
     moved = PointCloud(corner + [0.02, -0.01, 0.0], origin, fields={"classification": classes})
     opts = GeometryOptions(icp_max_correspondence=0.1, tau=0.01)
-    p = evaluate_product(tmp_path, "mvs", cloud=moved, reference=PointCloud(corner, origin), geometry=opts)
+    p = evaluate_product(_metrics(tmp_path), "mvs", cloud=moved, reference=PointCloud(corner, origin), geometry=opts)
     assert p.c2c.stats.max < 1e-6 and p.c2c.scores.fscore == 1.0  # ICP removed the 2 cm shift
     local = np.asarray(p.c2c.registration["local_transform"])
     np.testing.assert_allclose(local[:3, 3], [-0.02, 0.01, 0.0], atol=1e-6)
-    md = write_report(tmp_path).markdown.read_text()
+    md = _write(tmp_path).markdown.read_text()
     assert "Registration applied before measuring" in md and "-0.0200" in md
     assert "Distances per class" in md and "| mvs | 2 |" in md
 
@@ -200,7 +220,7 @@ def test_metrics_json_has_no_nan(tmp_path):
     from eval.metrics_io import C2CSummary
 
     stats = DistanceStats(1, float("nan"), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, float("inf"))
-    write_metrics(tmp_path, {"mvs": ProductMetrics(c2c=C2CSummary(stats=stats))})
+    write_metrics(_metrics(tmp_path), {"mvs": ProductMetrics(c2c=C2CSummary(stats=stats))})
     text = (tmp_path / "eval" / "metrics.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
-    assert read_metrics(tmp_path)["products"]["mvs"]["c2c"]["mean"] is None
+    assert read_metrics(_metrics(tmp_path))["products"]["mvs"]["c2c"]["mean"] is None

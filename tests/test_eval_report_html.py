@@ -16,9 +16,27 @@ from core.pointcloud import PointCloud
 from eval.geometry import GeometryOptions, evaluate_geometry
 from eval.metrics_io import ProductMetrics, write_metrics
 from eval.render_eval import ImagePair, evaluate_pairs, side_by_side
+from eval.report import ReportPaths, build_report, write_report
+from hybridsplat.layout import ProjectLayout
 
 NUM_VIEWS = 50
 PANEL_VIEWS = 5  # views per product that get a full-size panel file (the eval stage's own max_panels)
+
+
+def _metrics(project):
+    return ProjectLayout(project).metrics_json
+
+
+def _build(project, units=None):
+    layout = ProjectLayout(project)
+    return build_report(layout.manifest, layout.metrics_json, units)
+
+
+def _write(project, out=None, **options):
+    layout = ProjectLayout(project)
+    out = Path(out) if out is not None else layout.report_dir
+    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
+    return write_report(layout.manifest, layout.metrics_json, paths, **options)
 
 
 def _photo(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
@@ -49,7 +67,7 @@ def big_project(tmp_path_factory) -> Path:
         cmp = PointCloud(ref.positions[::2] + rng.normal(0, 0.002 * (k + 1), (1500, 3)))
         c2c = evaluate_geometry(cmp, ref, eval_dir, name, GeometryOptions(tau=0.01))
         products[name] = ProductMetrics(c2c=c2c, images=images)
-    write_metrics(root, products)
+    write_metrics(_metrics(root), products)
     return root
 
 
@@ -63,10 +81,10 @@ def _jpegs(page: str) -> list[np.ndarray]:
 
 
 def test_html_of_a_50_view_project_stays_small(big_project: Path, tmp_path: Path):
-    from eval.report import THUMBNAIL_MAX_SIDE, write_report
+    from eval.report import THUMBNAIL_MAX_SIDE
 
     panel_bytes = sum(p.stat().st_size for p in (big_project / "eval" / "plots").glob("render_*.png"))
-    paths = write_report(big_project, tmp_path / "r4")
+    paths = _write(big_project, tmp_path / "r4")
     page = paths.html.read_text()
     size = paths.html.stat().st_size
     assert size <= 5 * 2**20, f"report.html is {size / 2**20:.1f} MB"
@@ -85,27 +103,29 @@ def test_html_of_a_50_view_project_stays_small(big_project: Path, tmp_path: Path
 
 def test_max_panels_picks_the_lowest_psnr_views(big_project: Path, tmp_path: Path):
     from eval.metrics_io import read_metrics
-    from eval.report import write_report
 
-    page = write_report(big_project, tmp_path / "r2", max_panels=2).html.read_text()
+    page = _write(big_project, tmp_path / "r2", max_panels=2).html.read_text()
     shown = sorted(set(re.findall(r"(\d{4}\.jpg): render \| photo", page)))
-    per_view = {p: read_metrics(big_project)["products"][p]["images"]["per_view"] for p in ("mvs", "splats", "merged")}
+    per_view = {
+        p: read_metrics(_metrics(big_project))["products"][p]["images"]["per_view"] for p in ("mvs", "splats", "merged")
+    }
     with_panels = [v["view"] for v in per_view["mvs"] if v["files"].get("panel")]
     mean_psnr = {n: np.mean([next(v["full"]["psnr"] for v in per_view[p] if v["view"] == n) for p in per_view])
                  for n in with_panels}  # fmt: skip
     assert shown == sorted(sorted(with_panels, key=lambda n: mean_psnr[n])[:2])
-    page0 = write_report(big_project, tmp_path / "r0", max_panels=0).html.read_text()
+    page0 = _write(big_project, tmp_path / "r0", max_panels=0).html.read_text()
     assert "render | photo" not in page0
 
 
 def test_lengths_are_printed_in_the_users_unit(tmp_path: Path):
-    from eval.report import build_report, write_report
 
     ref = PointCloud(np.random.default_rng(1).uniform(0, 2, (800, 3)))
     cmp = PointCloud(ref.positions[:400] + [0.0123, 0.0, 0.0])  # every point 12.3 mm from its reference point
-    write_metrics(tmp_path, {"mvs": ProductMetrics(c2c=evaluate_geometry(cmp, ref, tmp_path / "eval", "mvs"))})
-    assert build_report(tmp_path)["units"] == "m"
-    md = write_report(tmp_path, units="mm").markdown.read_text()
+    write_metrics(
+        _metrics(tmp_path), {"mvs": ProductMetrics(c2c=evaluate_geometry(cmp, ref, tmp_path / "eval", "mvs"))}
+    )
+    assert _build(tmp_path)["units"] == "m"
+    md = _write(tmp_path, units="mm").markdown.read_text()
     assert "Table 2 — distance to the reference (mm)" in md
     row = next(line for line in md.splitlines() if line.startswith("| mvs |"))
     assert row.split("|")[2].strip() == "12.3"  # mean, to 0.1 mm
@@ -114,7 +134,7 @@ def test_lengths_are_printed_in_the_users_unit(tmp_path: Path):
     # recorded in metrics.json: picked up without the argument
     data = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     (tmp_path / "eval" / "metrics.json").write_text(json.dumps({**data, "units": "ft"}))
-    md = write_report(tmp_path).markdown.read_text()
+    md = _write(tmp_path).markdown.read_text()
     row = next(line for line in md.splitlines() if line.startswith("| mvs |"))
     assert "(ft)" in md and row.split("|")[2].strip() == f"{0.0123 / 0.3048:.3f}"
 

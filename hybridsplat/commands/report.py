@@ -15,6 +15,7 @@ def register(app: typer.Typer) -> None:
     @app.command("report")
     def report(
         project: Path = typer.Argument(..., help="Project folder (reads manifest.json and eval/metrics.json)."),
+        max_panels: int | None = typer.Option(None, help="Render panels per product (its lowest-PSNR views)."),
         force: bool = typer.Option(True, "--force/--if-changed", help="Rewrite even when up to date."),
     ) -> None:
         """Build report.json (stable schema), report.md and a self-contained report.html of a project."""
@@ -24,10 +25,10 @@ def register(app: typer.Typer) -> None:
         if layout.config.is_file():
             from hybridsplat.commands.common import print_result, run_project_stage
 
-            terminal, manifest = run_project_stage(project, "report", {}, force=force)
+            terminal, manifest = run_project_stage(project, "report", {"max_panels": max_panels}, force=force)
             print_result(terminal, project, manifest)
             return
-        from eval.report import write_report
+        from hybridsplat.stages.report import write_project_report
 
-        paths = write_report(layout.root, layout.report_dir)
+        paths = write_project_report(layout, max_panels=max_panels)
         typer.echo(f"wrote {paths.json}, {paths.markdown}, {paths.html}")

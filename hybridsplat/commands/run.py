@@ -8,6 +8,9 @@ import typer
 
 from hybridsplat.commands.common import input_options_from_cli, print_result, stage_options_from_cli
 
+DEMO_MESH_BUDGET = 2_000
+"""Triangles of the demo's mesh (export/mesh.*): small, so the demo stays quick."""
+
 
 def register(app: typer.Typer) -> None:
     @app.command("run")
@@ -41,7 +44,11 @@ def register(app: typer.Typer) -> None:
         mvs_backend: str = typer.Option("auto", help="auto | cpu | colmap (COLMAP PatchMatch needs CUDA)."),
         max_image_size: int = typer.Option(1000, help="Longer side of the dense images, px (-1: full size)."),
         convert_mode: str = typer.Option("adaptive", help="MVS-to-Gaussian conversion: adaptive | paper."),
+        lidar: Path | None = typer.Option(
+            None, help="Reference cloud (PLY/LAS/LAZ/E57, e.g. a LiDAR scan) for the C2C evaluation."
+        ),
         lpips_weights: Path | None = typer.Option(None, help="LPIPS v0.1 AlexNet weights (.npz)."),
+        mesh: int = typer.Option(0, "--mesh", help="Also write a mesh with this many triangles (0: no mesh)."),
         seed: int = typer.Option(0, help="Seed of every random choice."),
         force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -60,7 +67,11 @@ def register(app: typer.Typer) -> None:
                 sfm={"camera_model": camera_model, "single_camera": single_camera, "matcher": matcher},
                 mvs={"backend": mvs_backend, "max_image_size": max_image_size},
                 convert={"mode": convert_mode},
-                eval={"lpips_weights": str(lpips_weights.resolve()) if lpips_weights else ""},
+                mesh={"budget": mesh},
+                eval={
+                    "lpips_weights": str(lpips_weights.resolve()) if lpips_weights else "",
+                    "reference": str(lidar.resolve()) if lidar else "",
+                },
             ),
         )
         terminal = Terminal(quiet=quiet)
@@ -89,6 +100,10 @@ def register(app: typer.Typer) -> None:
         else:
             terminal.line(f"hybridsplat demo: using the scene in {scene}")
         project = out / "project"
-        config = ProjectConfig(input=InputOptions(path=str(scene.resolve())), seed=seed)
+        config = ProjectConfig(
+            input=InputOptions(path=str(scene.resolve())),
+            seed=seed,
+            stages=stage_options_from_cli(mesh={"budget": DEMO_MESH_BUDGET}),
+        )
         manifest = run_pipeline(project, config, terminal=terminal)
         print_result(terminal, project, manifest)

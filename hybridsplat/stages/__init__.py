@@ -3,14 +3,27 @@
 from __future__ import annotations
 
 from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.classify import ClassifyStage
 from hybridsplat.stages.convert import ConvertStage
 from hybridsplat.stages.evaluate import EvalStage
+from hybridsplat.stages.masks import MasksStage
 from hybridsplat.stages.merge import MergeStage
+from hybridsplat.stages.mesh import MeshStage
 from hybridsplat.stages.mvs import MvsStage
 from hybridsplat.stages.report import ReportStage
 from hybridsplat.stages.sfm import SfmStage
 
-STAGES: tuple[Stage, ...] = (SfmStage(), MvsStage(), ConvertStage(), MergeStage(), EvalStage(), ReportStage())
+STAGES: tuple[Stage, ...] = (
+    SfmStage(),
+    MvsStage(),
+    ClassifyStage(),
+    MasksStage(),
+    ConvertStage(),
+    MergeStage(),
+    MeshStage(),
+    EvalStage(),
+    ReportStage(),
+)
 
 __all__ = ["STAGES", "Stage", "StageContext", "stage_named"]
 

@@ -105,7 +105,7 @@ class EvalStage(Stage):
         for done, (name, (cloud, gaussians)) in enumerate(products.items()):
             ctx.progress("products", done, len(products))
             result = evaluate_product(
-                layout.root,
+                layout.metrics_json,
                 name,
                 cloud=cloud if reference is not None else None,
                 reference=reference,
@@ -119,7 +119,7 @@ class EvalStage(Stage):
             if result.images is not None:
                 counts[f"{name}_psnr"] = result.images.full.mean.psnr if result.images.full else None
         ctx.progress("products", len(products), len(products))
-        evaluate_product(layout.root, "splats", skip_reason="no splats were trained (no training stage yet)")
+        evaluate_product(layout.metrics_json, "splats", skip_reason="no splats were trained (no training stage yet)")
         return counts
 
     def _truth_masks(self, ctx: StageContext) -> Path | None:

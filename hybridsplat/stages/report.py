@@ -2,14 +2,26 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from hybridsplat.stages.base import Stage, StageContext
 
 
+@dataclass(frozen=True)
+class ReportStageOptions:
+    """Options of the ``report`` stage.
+
+    max_panels: render | photo | error panels shown per product (its lowest-PSNR held-out views).
+    """
+
+    max_panels: int = 4
+
+
 class ReportStage(Stage):
     name = "report"
+    Options = ReportStageOptions
     title = "report"
 
     def inputs(self, ctx: StageContext) -> list[Path]:
@@ -26,10 +38,18 @@ class ReportStage(Stage):
         return {"stages": Manifest(ctx.layout.manifest).content_digest(exclude=(self.name,))}
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from eval.report import write_report
-
-        paths = write_report(ctx.layout.root, ctx.layout.report_dir)
+        opts: ReportStageOptions = ctx.options(self)
+        paths = write_project_report(ctx.layout, units=ctx.config.input.units, max_panels=opts.max_panels)
         return {"html_bytes": paths.html.stat().st_size}
 
     def summary(self, counts: dict[str, Any]) -> str:
         return f"report.html {counts['html_bytes'] / 1e6:.1f} MB"
+
+
+def write_project_report(layout, units: str | None = None, max_panels: int | None = None):
+    """The report of the project at ``layout`` (also for folders that only hold metrics), see eval.report."""
+    from eval.report import DEFAULT_MAX_PANELS, ReportPaths, write_report
+
+    paths = ReportPaths(layout.report_json, layout.report_md, layout.report_html)
+    panels = DEFAULT_MAX_PANELS if max_panels is None else max_panels
+    return write_report(layout.manifest, layout.metrics_json, paths, max_panels=panels, units=units)

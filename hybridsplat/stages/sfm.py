@@ -63,12 +63,13 @@ class SfmStage(Stage):
         return [ctx.layout.sparse, ctx.layout.record(self.name)]
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from recon.align import align_reconstruction_to_centers
+        from recon.align import align_to_reference
         from recon.model import from_reconstruction, read_reconstruction
         from recon.sfm import run_sfm, triangulate_known_poses
 
         opts: SfmStageOptions = ctx.options(self)
         src, layout = ctx.source, ctx.layout
+        origin = np.asarray(src.spec.origin, dtype=np.float64)
         sfm_options = SfmOptions(
             matcher=Matcher(opts.matcher),
             max_image_size=opts.max_image_size,
@@ -83,17 +84,16 @@ class SfmStage(Stage):
             rec, report = triangulate_known_poses(cameras, src.image_dir, layout.sparse, sfm_options)
         else:
             rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.image_names))
-            reference = _reference_centers(ctx)
+            reference, reference_origin = _reference_centers(ctx)
             if reference:
-                c = np.stack(list(reference.values()))
-                extent = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
-                threshold = opts.align_threshold_m or max(0.02 * extent, 1e-6)
-                report.alignment = align_reconstruction_to_centers(rec, reference, threshold, seed=ctx.config.seed)
+                aligned = align_to_reference(rec, reference, opts.align_threshold_m or None, seed=ctx.config.seed)
+                report.alignment = aligned.result
+                origin = reference_origin + aligned.origin  # world = origin + local model coordinates
                 rec.write(str(layout.sparse))
         ctx.progress("features, matching, " + ("triangulation" if src.known_cameras else "mapping"), 1, 1)
         write_json_atomic(
             layout.record(self.name),
-            {"image_dir": str(src.image_dir.resolve()), "origin": list(src.spec.origin), "report": report},
+            {"image_dir": str(src.image_dir.resolve()), "origin": origin, "report": report},
         )
         counts: dict[str, Any] = {
             "images": report.num_images,
@@ -121,15 +121,18 @@ def _path(value: str | None) -> Path | None:
     return Path(value) if value else None
 
 
-def _reference_centers(ctx: StageContext) -> dict[str, np.ndarray]:
-    """Camera centres to align a full-SfM model to (metres): ``--reference``, else the input's known cameras."""
+def _reference_centers(ctx: StageContext) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Camera centres to align a full-SfM model to (metres) and the world origin of their frame: ``--reference``
+    (world coordinates, origin 0), else the input's own cameras (in the scene's local frame, at its origin)."""
     from recon.model import from_reconstruction, read_reconstruction
 
     reference = ctx.config.input.reference
     if reference is None:
-        if ctx.source.spec.known_cameras is None:
-            return {}
-        return {v.name: v.center for v in from_reconstruction(read_reconstruction(ctx.source.spec.known_cameras))}
+        known = ctx.source.spec.known_cameras
+        if known is None:
+            return {}, np.zeros(3)
+        centers = {v.name: v.center for v in from_reconstruction(read_reconstruction(known))}
+        return centers, np.asarray(ctx.source.spec.origin, dtype=np.float64)
     from recon.reference import read_reference
 
-    return dict(read_reference(reference, ctx.config.input.units).centers)
+    return dict(read_reference(reference, ctx.config.input.units).centers), np.zeros(3)

@@ -1,0 +1,311 @@
+"""Classification benchmark: quality on data_synth scenes and throughput on a 1-million-point cloud.
+
+Quality (``--part score``): models trained on the TRAINING scenes (default: tabletop and aerial, seed 7, the
+seeds of the shipped default model) are scored on SCORING scenes made with another seed (default 1):
+binary needs-splats F1, recall per material kind, mask coverage of the pixels that truly need splats and of
+the rest, a feature ablation (geometric / + radiometric / + multi-view), cross-scene generalisation
+(tabletop → aerial and back) and the no-model fallback. Scenes are reduced (24 views at 320×240) and
+reconstructed beforehand with the scene's known cameras; each folder holds ``scene/`` (``hybridsplat synth``)
+and ``proj/`` (``hybridsplat sfm`` + ``hybridsplat mvs``)::
+
+    for s in 7 1; do for p in tabletop aerial; do
+      hybridsplat synth --preset $p --seed $s --views 24 --test-views 2 --width 320 --height 240 --out D/${p}_s$s/scene
+      hybridsplat sfm D/${p}_s$s/scene --out D/${p}_s$s/proj && hybridsplat mvs D/${p}_s$s/proj
+    done; done
+    python bench/bench_classify.py --part score --data D
+
+Throughput (``--part speed``): geometric + radiometric features + prediction on 1 M points (file I/O
+excluded) with the numba kernel, the numpy twin, pgeof and jakteristics side by side; multi-view features
+separately (points/s and point-views/s); peak memory. Use ``--threads 2`` (and ``taskset -c 0,1``) for the
+2-core figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from classify.classes import UNLABELLED, load_classes  # noqa: E402
+from classify.fallback import fallback_predict  # noqa: E402
+from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
+from classify.masks import MaskOptions, region_masks  # noqa: E402
+from classify.model import ForestOptions, predict, scores, train  # noqa: E402
+from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
+from classify.synthetic import SceneData, load_scene_data  # noqa: E402
+
+GEO = (FeatureGroup.GEOMETRIC,)
+GEO_RAD = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC)
+ALL = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
+
+
+def load(root: Path, name: str, classes) -> SceneData:
+    d = root / name
+    return load_scene_data(d / "scene", d / "proj" / "dense", classes, FeatureOptions(), cache=d / "features.npz")
+
+
+def stack(datas: list[SceneData], groups) -> tuple[FeatureTable, np.ndarray]:
+    names = FeatureOptions(groups=groups).selected()
+    values = np.concatenate([s.table.select(names).values for s in datas])
+    codes = np.concatenate([s.truth.codes for s in datas])
+    return FeatureTable(names, values, 0.0), codes
+
+
+def fit(datas, groups, classes, seed=0):
+    table, codes = stack(datas, groups)
+    model, report = train(table, codes, classes, FeatureOptions(groups=groups), ForestOptions(seed=seed))
+    return model, report
+
+
+def point_scores(model, data: SceneData, classes) -> dict:
+    table = data.table.select(model.feature_names)
+    pred = predict(model, table)
+    truth = data.truth
+    b = scores(truth.needs_splats, pred.needs_splats, "needs_splats")
+    kinds = {m.id: m.kind for m in data.scene.materials}
+    per_kind = {}
+    kind_of_point = np.array([kinds.get(int(m), "?") for m in truth.material], dtype=object)
+    kind_of_point[truth.far] = "far (virtual/refracted/noise)"
+    for k in sorted(set(kind_of_point)):
+        sel = kind_of_point == k
+        need = truth.needs_splats[sel]
+        # Recall of needs-splats for non-collaborative kinds; for textured, the share correctly kept.
+        if need.any():
+            per_kind[k] = {"points": int(sel.sum()), "recall": float(pred.needs_splats[sel][need].mean())}
+        else:
+            per_kind[k] = {"points": int(sel.sum()), "kept_collaborative": float((~pred.needs_splats[sel]).mean())}
+    return {"f1": b.f1, "precision": b.precision, "recall": b.recall, "positives": b.support,
+            "points": len(truth.codes), "per_kind": per_kind, "pred": pred}  # fmt: skip
+
+
+def mask_scores(data: SceneData, needs: np.ndarray, classes) -> dict:
+    from core.io.colmap import read_model
+
+    scene = data.scene
+    cams, _ = read_model(data.dense / "sparse")
+    spacing = data.table.spacing
+    tau = 3.0 * scene.gsd_m
+    collab = {m.id for m in scene.materials if m.collaborative}
+    masks = region_masks(cams, data.cloud.positions, needs, spacing, MaskOptions())
+    tree = cKDTree(data.cloud.positions)
+    tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
+    empty = 0
+    for pm in masks:
+        view = cams.by_name(pm.name)
+        depth = scene.depth("train", pm.name)
+        dist = distance_to_cloud(cams, view, depth, tree)
+        truth = pixel_truth(scene.labels("train", pm.name), depth, collab, dist, tau)
+        m = pm.mask
+        tot["need"] += int(truth.needs.sum())
+        tot["need_hit"] += int((m & truth.needs).sum())
+        rest = ~truth.needs
+        tot["rest_all"] += int(rest.sum())
+        tot["rest_all_hit"] += int((m & rest).sum())
+        rs = rest & ~truth.background
+        tot["rest_scene"] += int(rs.sum())
+        tot["rest_scene_hit"] += int((m & rs).sum())
+        empty += pm.empty
+    return {
+        "views": len(masks),
+        "empty_masks": empty,
+        "coverage_of_needs": tot["need_hit"] / max(tot["need"], 1),
+        "coverage_of_rest_scene": tot["rest_scene_hit"] / max(tot["rest_scene"], 1),
+        "coverage_of_rest_incl_background": tot["rest_all_hit"] / max(tot["rest_all"], 1),
+        "truly_needs_share": tot["need"] / max(tot["need"] + tot["rest_all"], 1),
+    }
+
+
+def part_score(args) -> dict:
+    classes = load_classes()
+    root = Path(args.data)
+    t0 = time.perf_counter()
+    train_sets = {n: load(root, n, classes) for n in args.train}
+    test_sets = {n: load(root, n, classes) for n in args.score}
+    out: dict = {"train": args.train, "score": args.score, "load_s": time.perf_counter() - t0, "results": {}}
+    for n, d in {**train_sets, **test_sets}.items():
+        t = d.truth
+        counts = np.bincount(t.codes[t.codes != UNLABELLED], minlength=5)
+        print(f"{n}: {len(t.codes)} points, needs splats {t.needs_splats.mean():.3f}, far {t.far.mean():.3f}, "
+              f"tau {t.tau:.4f} m, class counts {counts}")  # fmt: skip
+    experiments = {
+        "all features (both scenes)": (list(train_sets.values()), ALL),
+        "geometric only": (list(train_sets.values()), GEO),
+        "geometric + radiometric": (list(train_sets.values()), GEO_RAD),
+    }
+    tab = [k for k in train_sets if k.startswith("tabletop")]
+    aer = [k for k in train_sets if k.startswith("aerial")]
+    if tab and aer:
+        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL)
+        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL)
+    for label, (datas, groups) in experiments.items():
+        model, report = fit(datas, groups, classes)
+        res = {"held_out_in_training_f1": report.binary.f1}
+        for n, d in test_sets.items():
+            s = point_scores(model, d, classes)
+            pred = s.pop("pred")
+            if label.startswith("all features"):
+                s["masks"] = mask_scores(d, pred.needs_splats, classes)
+                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes)
+                fb = fallback_predict(d.table, classes)
+                s["fallback_f1"] = scores(d.truth.needs_splats, fb.needs_splats, "fb").f1
+                s["importances_top10"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:10])
+            res[n] = s
+            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f})")
+        out["results"][label] = res
+    return out
+
+
+# -- throughput -----------------------------------------------------------------------------------------------
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process (all threads)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def synthetic_million(n: int, seed: int = 0):
+    """A 2.5D terrain with walls and poles, coloured, ~n points (a UAV-like survey cloud)."""
+    from core.pointcloud import PointCloud
+
+    rng = np.random.default_rng(seed)
+    m = int(n * 0.8)
+    xy = rng.uniform(0, 100, (m, 2))
+    z = 2 * np.sin(xy[:, 0] / 9) * np.cos(xy[:, 1] / 13) + rng.normal(0, 0.01, m)
+    terrain = np.c_[xy, z]
+    k = n - m
+    walls = np.c_[rng.uniform(20, 80, k), 50 + rng.normal(0, 0.01, k), rng.uniform(0, 10, k)]
+    pts = np.r_[terrain, walls]
+    colors = rng.integers(0, 255, (n, 3)).astype(np.uint8)
+    normals = np.tile([0, 0, 1.0], (n, 1)).astype(np.float32)
+    return PointCloud(pts, colors=colors, normals=normals)
+
+
+def part_speed(args) -> dict:
+    import numba
+
+    from classify.features import GeometricOptions, compute_features
+    from classify.features.geometric import point_spacing
+
+    threads = args.threads
+    numba.set_num_threads(threads)
+    out: dict = {"threads": threads, "n_points": args.n, "load_before": os.getloadavg()}
+    cloud = synthetic_million(args.n)
+    spacing = point_spacing(cloud.positions, workers=threads)
+    classes = load_classes()
+    # A geometric + radiometric model, as the default model's forest size, trained on random labels of a
+    # sample (prediction cost depends on the forest's size, not on the labels).
+    rng = np.random.default_rng(0)
+    names = FeatureOptions(groups=GEO_RAD).selected()
+    sample = FeatureTable(names, rng.normal(size=(20000, len(names))).astype(np.float32), 0.0)
+    labels = rng.choice(classes.codes, 20000)
+    model, _ = train(sample, labels, classes, FeatureOptions(groups=GEO_RAD), ForestOptions(n_jobs=threads))
+    for backend in args.backends.split(","):
+        opts = FeatureOptions(groups=GEO_RAD, geometric=GeometricOptions(backend=backend, workers=threads))
+        tracemalloc.start()
+        c0 = cpu_seconds()
+        t0 = time.perf_counter()
+        table = compute_features(cloud, opts)
+        t1 = time.perf_counter()
+        predict(model, table)
+        t2 = time.perf_counter()
+        cpu = cpu_seconds() - c0
+        _, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        out[backend] = {
+            "features_s": t1 - t0,
+            "predict_s": t2 - t1,
+            "points_per_s": args.n / (t2 - t0),
+            "cpu_s": cpu,
+            # On a shared, loaded machine the wall time mostly measures the load; CPU time / threads is the wall
+            # time the same work would take on `threads` idle cores if it parallelised perfectly (an upper bound).
+            "points_per_s_if_idle_upper_bound": args.n / (cpu / threads),
+            "peak_traced_MiB": peak / 2**20,
+        }
+        print(f"{backend}: features {t1 - t0:.2f} s + prediction {t2 - t1:.2f} s = {args.n / (t2 - t0):,.0f} points/s; "
+              f"CPU {cpu:.1f} s (≤ {args.n / (cpu / threads):,.0f} points/s on {threads} idle cores); "
+              f"peak traced {peak / 2**20:.0f} MiB")  # fmt: skip
+    try:
+        if args.no_jakteristics:
+            raise ImportError
+        import jakteristics
+
+        r = float(np.sqrt(16 / np.pi) * spacing * 1.1)  # ~16 neighbours on a surface, like k = 16
+        t0 = time.perf_counter()
+        wanted = ["eigenvalue1", "eigenvalue2", "eigenvalue3", "nx", "ny", "nz"]
+        jakteristics.compute_features(cloud.positions, r, num_threads=threads, feature_names=wanted)
+        dt = time.perf_counter() - t0
+        out["jakteristics_finest_scale_only_s"] = dt
+        print(f"jakteristics (radius search, finest scale only): {dt:.2f} s = {args.n / dt:,.0f} points/s")
+    except ImportError:
+        pass
+    if args.mv_scene:
+        out["multiview"] = multiview_speed(Path(args.mv_scene), args.n, threads)
+    out["ru_maxrss_MiB"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    out["load_after"] = os.getloadavg()
+    return out
+
+
+def multiview_speed(proj: Path, n: int, threads: int) -> dict:
+    """Multi-view features of a real fused cloud replicated (jittered) to n points, all its views."""
+    from classify.features import views_from_workspace
+    from classify.features.multiview import multiview_features
+    from recon.workspace import read_fused
+
+    cloud = read_fused(proj / "dense")
+    views = views_from_workspace(proj / "dense")
+    reps = int(np.ceil(n / len(cloud)))
+    rng = np.random.default_rng(0)
+    pts = np.tile(cloud.positions, (reps, 1))[:n] + rng.normal(0, 1e-4, (reps * len(cloud), 3))[:n]
+    vis = (cloud.visibility * reps)[:n]
+    for v in views.cameras:  # read the photos and depth maps once, outside the timing (file I/O excluded)
+        views.image(v.name), views.depth(v.name)
+    c0 = cpu_seconds()
+    t0 = time.perf_counter()
+    multiview_features(pts, vis, views)
+    dt = time.perf_counter() - t0
+    cpu = cpu_seconds() - c0
+    nv = len(views.cameras)
+    print(f"multi-view: {n / dt:,.0f} points/s over {nv} photos ({n * nv / dt:,.0f} point-photos/s); CPU {cpu:.1f} s")
+    return {"s": dt, "points_per_s": n / dt, "photos": nv, "point_photos_per_s": n * nv / dt, "cpu_s": cpu}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--part", choices=("score", "speed", "all"), default="all")
+    ap.add_argument("--data", default="/work/data_classify")
+    ap.add_argument("--train", nargs="+", default=["tabletop_s7", "aerial_s7"])
+    ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
+    ap.add_argument("--n", type=int, default=1_000_000)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--backends", default="numba,numpy,pgeof", help="eigen backends timed side by side")
+    ap.add_argument("--no-jakteristics", action="store_true")
+    ap.add_argument("--mv-scene", default=None, help="project folder whose fused cloud is replicated for multi-view")
+    ap.add_argument("--json", default=None, help="write the figures here")
+    args = ap.parse_args()
+    uptime = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    print("uptime:", uptime)
+    result: dict = {"uptime_before": uptime}
+    if args.part in ("score", "all"):
+        result["score"] = part_score(args)
+    if args.part in ("speed", "all"):
+        result["speed"] = part_speed(args)
+    result["uptime_after"] = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    print("uptime:", result["uptime_after"])
+    text = json.dumps(result, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+    if args.json:
+        Path(args.json).write_text(text, encoding="utf-8")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

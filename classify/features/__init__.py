@@ -1,0 +1,131 @@
+"""Per-point features of a dense cloud: geometric (multi-scale), radiometric and multi-view.
+
+``compute_features(cloud, options, views)`` returns a :class:`FeatureTable` (names + an (N, F) float32 matrix).
+Every feature is documented in :mod:`classify.features.registry` and selectable by name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from classify.features.geometric import GeometricOptions, geometric_features, point_spacing
+from classify.features.multiview import MultiViewOptions, ViewData, multiview_features, views_from_workspace
+from classify.features.radiometric import color_variance, rgb_hsv
+from classify.features.registry import (
+    FeatureGroup,
+    FeatureSpec,
+    feature_specs,
+    resolve_names,
+)
+from core.errors import ConfigError, DataError
+from core.pointcloud import PointCloud
+
+__all__ = [
+    "FeatureGroup",
+    "FeatureOptions",
+    "FeatureSpec",
+    "FeatureTable",
+    "GeometricOptions",
+    "MultiViewOptions",
+    "ViewData",
+    "compute_features",
+    "feature_specs",
+    "point_spacing",
+    "views_from_workspace",
+]
+
+ALL_GROUPS = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
+
+
+@dataclass(frozen=True)
+class FeatureOptions:
+    """Which features, and how.
+
+    names: feature names (full names, geometric base names or group names; None = every feature of ``groups``).
+    groups: the groups used when ``names`` is None (default: all three).
+    geometric / multiview: their options. chunk_size applies to every chunked step.
+    """
+
+    names: tuple[str, ...] | None = None
+    groups: tuple[FeatureGroup, ...] = ALL_GROUPS
+    geometric: GeometricOptions = field(default_factory=GeometricOptions)
+    multiview: MultiViewOptions = field(default_factory=MultiViewOptions)
+
+    @property
+    def n_scales(self) -> int:
+        return len(self.geometric.voxel_factors)
+
+    def selected(self) -> tuple[str, ...]:
+        """The resolved, ordered feature names."""
+        return resolve_names(self.names, self.n_scales, self.groups)
+
+
+@dataclass(frozen=True)
+class FeatureTable:
+    """names: F feature names; values: (N, F) float32, finite; spacing: the cloud's median point spacing (m)."""
+
+    names: tuple[str, ...]
+    values: np.ndarray
+    spacing: float
+
+    def column(self, name: str) -> np.ndarray:
+        """The (N,) column of feature ``name``."""
+        return self.values[:, self.names.index(name)]
+
+    def select(self, names: tuple[str, ...]) -> FeatureTable:
+        """The table restricted to ``names`` (in that order); a missing name raises :class:`DataError`."""
+        missing = [n for n in names if n not in self.names]
+        if missing:
+            raise DataError(f"features not computed: {', '.join(missing)}")
+        return FeatureTable(tuple(names), self.values[:, [self.names.index(n) for n in names]], self.spacing)
+
+
+def compute_features(
+    cloud: PointCloud,
+    options: FeatureOptions = FeatureOptions(),
+    views: ViewData | None = None,
+) -> FeatureTable:
+    """The selected features of every point of ``cloud`` (local positions, colours, normals, visibility).
+
+    Radiometric features need colours; multi-view features need ``views`` (and use ``cloud.visibility``).
+    A missing input for a selected feature raises :class:`ConfigError` naming it. Non-finite values are
+    replaced by 0 (counted: a :class:`DataError` if more than 1 % of a column is non-finite, which means a bug).
+    """
+    names = options.selected()
+    if not names:
+        raise ConfigError("no features selected")
+    if len(cloud) < 3:
+        raise DataError(f"features need at least 3 points, got {len(cloud)}")
+    cloud.validate("dense cloud")
+    specs = feature_specs(options.n_scales)
+    groups = {specs[n].group for n in names}
+    columns: dict[str, np.ndarray] = {}
+    geo = geometric_features(cloud.positions, cloud.normals, options.geometric)
+    spacing = geo.spacing
+    if FeatureGroup.GEOMETRIC in groups:
+        columns.update(geo.features)
+    if FeatureGroup.RADIOMETRIC in groups:
+        if cloud.colors is None:
+            raise ConfigError("radiometric features need point colours; the cloud has none")
+        columns.update(rgb_hsv(cloud.colors))
+        columns["color_variance"] = color_variance(
+            cloud.colors,
+            neighbours=geo.neighbours,
+            positions=cloud.positions,
+            k=options.geometric.k,
+            workers=options.geometric.workers,
+        )
+    if FeatureGroup.MULTIVIEW in groups:
+        if views is None:
+            raise ConfigError("multi-view features need the photos and cameras (a dense workspace)")
+        columns.update(multiview_features(cloud.positions, cloud.visibility, views, options.multiview))
+    values = np.empty((len(cloud), len(names)), dtype=np.float32)
+    for j, name in enumerate(names):
+        col = np.asarray(columns[name], dtype=np.float32)
+        bad = ~np.isfinite(col)
+        if bad.mean() > 0.01:
+            raise DataError(f"feature {name!r} is non-finite for {int(bad.sum())} of {len(col)} points")
+        values[:, j] = np.where(bad, 0.0, col)
+    return FeatureTable(names, values, spacing)

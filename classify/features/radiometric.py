@@ -1,0 +1,72 @@
+"""Radiometric features: RGB, HSV and the local colour variance."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def rgb_hsv(colors: np.ndarray) -> dict[str, np.ndarray]:
+    """red, green, blue, hue, saturation, value (each (N,) float32 in [0, 1]) from colours (N, 3) uint8.
+
+    Hue is HSV hue / 360 and 0 for grey pixels (scikit-image's ``rgb2hsv`` convention).
+    """
+    from skimage.color import rgb2hsv
+
+    rgb = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
+    hsv = rgb2hsv(rgb[None])[0] if len(rgb) else np.zeros((0, 3), np.float32)
+    names = ("red", "green", "blue", "hue", "saturation", "value")
+    cols = (rgb[:, 0], rgb[:, 1], rgb[:, 2], hsv[:, 0], hsv[:, 1], hsv[:, 2])
+    return {n: np.ascontiguousarray(c, dtype=np.float32) for n, c in zip(names, cols, strict=True)}
+
+
+def color_variance(
+    colors: np.ndarray,
+    neighbours: np.ndarray | None = None,
+    positions: np.ndarray | None = None,
+    k: int = 16,
+    chunk_size: int = 250_000,
+    workers: int = -1,
+) -> np.ndarray:
+    """Standard deviation of the colour over each point's neighbourhood, /255, averaged over R, G, B: (N,) float32.
+
+    neighbours: (N, k) int64 indices of each point's neighbours (the finest geometric level's); when None they
+    are found among ``positions`` (N, 3) with a k-NN query.
+    """
+    c = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
+    n = len(c)
+    if neighbours is not None:
+        return _color_std_kernel(c, np.ascontiguousarray(neighbours, dtype=np.int64))
+    out = np.empty(n, dtype=np.float32)
+    tree = None if neighbours is not None else cKDTree(np.asarray(positions, dtype=np.float64))
+    for start in range(0, n, chunk_size):
+        sl = slice(start, min(n, start + chunk_size))
+        if neighbours is not None:
+            idx = neighbours[sl]
+        else:
+            assert tree is not None and positions is not None
+            _, idx = tree.query(positions[sl], k=min(k, n), workers=workers)
+            idx = np.asarray(idx).reshape(sl.stop - sl.start, -1)
+        out[sl] = c[idx].std(axis=1).mean(axis=1)
+    return out
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _color_std_kernel(c: np.ndarray, neighbours: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Per row of ``neighbours``: the population std of ``c`` (N, 3) over those rows, averaged over channels."""
+    n, k = neighbours.shape
+    out = np.empty(n, dtype=np.float32)
+    for i in numba.prange(n):
+        acc = 0.0
+        for ch in range(3):
+            s = 0.0
+            s2 = 0.0
+            for j in range(k):
+                v = c[neighbours[i, j], ch]
+                s += v
+                s2 += v * v
+            mean = s / k
+            acc += np.sqrt(max(s2 / k - mean * mean, 0.0))
+        out[i] = acc / 3.0
+    return out

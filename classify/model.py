@@ -1,0 +1,346 @@
+"""The random forest: training with a held-out report, prediction, and persistence with skops (never pickle).
+
+A saved model is one ``.skops`` file holding the forest, the feature names it was trained on (in column
+order), the feature options that define those features (scales, k), and the class set. Loading checks that
+the file is a hybridsplat classifier and contains only trusted types; predicting checks the features.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from classify.classes import UNLABELLED, ClassSet
+from classify.features import FeatureOptions, FeatureTable
+from classify.features.geometric import GeometricOptions
+from classify.features.multiview import MultiViewOptions
+from core.errors import ConfigError, DataError, FormatError, InputFileError
+from core.io.atomic import atomic_path
+
+MODEL_FORMAT = "hybridsplat-classifier"
+MODEL_VERSION = 1
+
+
+@dataclass(frozen=True)
+class ForestOptions:
+    """Random-forest hyper-parameters (scikit-learn names). Defaults keep a model under 5 MB.
+
+    n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 10. class_weight: "balanced"
+    (classes weighted by inverse frequency; None = unweighted). max_samples_per_class: points per class drawn
+    (seeded) for training, bounding time and size (50 000). n_jobs: threads (-1: all). seed: every random choice.
+    """
+
+    n_estimators: int = 32
+    max_depth: int | None = 14
+    min_samples_leaf: int = 10
+    class_weight: str | None = "balanced"
+    max_samples_per_class: int = 50_000
+    n_jobs: int = -1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.n_estimators < 1 or self.min_samples_leaf < 1 or self.max_samples_per_class < 1:
+            raise ConfigError("n_estimators, min_samples_leaf and max_samples_per_class must be >= 1")
+        if self.class_weight not in (None, "balanced", "balanced_subsample"):
+            raise ConfigError(
+                f"class_weight must be None, 'balanced' or 'balanced_subsample', got {self.class_weight!r}"
+            )
+
+
+@dataclass
+class ClassifierModel:
+    """A trained forest with what defines its input and output.
+
+    forest: sklearn RandomForestClassifier. feature_names: the columns it expects, in order. feature_options:
+    the options that define those features (geometric scales, k, multi-view tolerance). classes: the class set.
+    info: free provenance (training scenes, seeds, report summary).
+    """
+
+    forest: object
+    feature_names: tuple[str, ...]
+    feature_options: FeatureOptions
+    classes: ClassSet
+    info: dict[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ClassScores:
+    """Held-out scores of one class: precision, recall, F1 and support (points)."""
+
+    name: str
+    precision: float
+    recall: float
+    f1: float
+    support: int
+
+
+@dataclass(frozen=True)
+class TrainingReport:
+    """Held-out evaluation of a training run.
+
+    per_class: scores per class. binary: scores of "needs splats" as the positive class. confusion: (C, C) int64,
+    rows true, columns predicted, in ``class_names`` order. importances: feature name → mean decrease in impurity.
+    n_train / n_test: points.
+    """
+
+    per_class: tuple[ClassScores, ...]
+    binary: ClassScores
+    confusion: np.ndarray
+    class_names: tuple[str, ...]
+    importances: dict[str, float]
+    n_train: int
+    n_test: int
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "per_class": [asdict(c) for c in self.per_class],
+            "needs_splats": asdict(self.binary),
+            "confusion": self.confusion.tolist(),
+            "class_names": list(self.class_names),
+            "importances": self.importances,
+            "n_train": self.n_train,
+            "n_test": self.n_test,
+        }
+
+
+def _balanced_sample(labels: np.ndarray, per_class: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    picked = []
+    for code in np.unique(labels):
+        idx = np.flatnonzero(labels == code)
+        picked.append(idx if len(idx) <= per_class else rng.choice(idx, per_class, replace=False))
+    return np.sort(np.concatenate(picked)) if picked else np.zeros(0, np.int64)
+
+
+def scores(truth: np.ndarray, pred: np.ndarray, name: str) -> ClassScores:
+    """Precision / recall / F1 of a boolean prediction (N,) against boolean truth (N,)."""
+    t, p = np.asarray(truth, bool), np.asarray(pred, bool)
+    tp = int(np.count_nonzero(t & p))
+    prec = tp / max(int(p.sum()), 1)
+    rec = tp / max(int(t.sum()), 1)
+    f1 = 2 * prec * rec / (prec + rec) if prec + rec > 0 else 0.0
+    return ClassScores(name, prec, rec, f1, int(t.sum()))
+
+
+def _best_threshold(forest: object, x: np.ndarray, truth: np.ndarray, classes: ClassSet) -> float:
+    """The needs-splats probability threshold (0.3..0.95, step 0.05) with the best held-out binary F1.
+
+    The balanced class weights favour the rare needs-splats classes; this moves the decision back."""
+    if len(x) == 0 or not truth.any():
+        return 0.5
+    p = forest.predict_proba(x)  # type: ignore[attr-defined]
+    bad = classes.needs_splats_of(np.asarray(forest.classes_, dtype=np.uint8))  # type: ignore[attr-defined]
+    pns = p[:, bad].sum(axis=1)
+    grid = np.round(np.arange(0.3, 0.951, 0.05), 2)
+    f1 = [scores(truth, pns >= t, "t").f1 for t in grid]
+    return float(grid[int(np.argmax(f1))])
+
+
+def _forest(options: ForestOptions) -> object:
+    from sklearn.ensemble import RandomForestClassifier
+
+    return RandomForestClassifier(
+        n_estimators=options.n_estimators,
+        max_depth=options.max_depth,
+        min_samples_leaf=options.min_samples_leaf,
+        class_weight=options.class_weight,
+        n_jobs=options.n_jobs,
+        random_state=options.seed,
+    )
+
+
+def train(
+    table: FeatureTable,
+    labels: np.ndarray,
+    classes: ClassSet,
+    feature_options: FeatureOptions,
+    options: ForestOptions = ForestOptions(),
+    test_fraction: float = 0.25,
+    info: dict[str, object] | None = None,
+) -> tuple[ClassifierModel, TrainingReport]:
+    """Train on the labelled rows of ``table`` (labels (N,) uint8 codes, UNLABELLED ignored), hold out a
+    stratified ``test_fraction`` for the report, then refit on all labelled rows (seeded throughout).
+
+    The held-out split is by point; points of one scene are spatially correlated, so these figures are
+    optimistic: score across scenes (``bench/bench_classify.py``) for the honest figure.
+    """
+    from sklearn.model_selection import train_test_split
+
+    y = np.asarray(labels, dtype=np.uint8)
+    if len(y) != len(table.values):
+        raise DataError(f"{len(y)} labels for {len(table.values)} points")
+    unknown = set(np.unique(y).tolist()) - set(classes.codes.tolist()) - {UNLABELLED}
+    if unknown:
+        raise DataError(f"labels use codes {sorted(unknown)} that the class set does not define")
+    rows = np.flatnonzero(y != UNLABELLED)
+    if len(rows) < 10:
+        raise DataError(f"training needs at least 10 labelled points, got {len(rows)}")
+    rows = rows[_balanced_sample(y[rows], options.max_samples_per_class, options.seed)]
+    x, yy = table.values[rows], y[rows]
+    present, counts = np.unique(yy, return_counts=True)
+    stratify = yy if counts.min() >= 2 and len(present) > 1 else None
+    xtr, xte, ytr, yte = train_test_split(x, yy, test_size=test_fraction, random_state=options.seed, stratify=stratify)
+    forest = _forest(options)
+    forest.fit(xtr, ytr)  # type: ignore[attr-defined]
+    pred = forest.predict(xte)  # type: ignore[attr-defined]
+    threshold = _best_threshold(forest, xte, classes.needs_splats_of(yte), classes)
+    per_class = tuple(scores(yte == c.code, pred == c.code, c.name) for c in classes.classes)
+    binary = scores(classes.needs_splats_of(yte), classes.needs_splats_of(pred), "needs_splats")
+    codes = classes.codes
+    conf = np.zeros((len(codes), len(codes)), dtype=np.int64)
+    pos = {int(c): i for i, c in enumerate(codes)}
+    for t, p in zip(yte, pred, strict=True):
+        conf[pos[int(t)], pos[int(p)]] += 1
+    final = _forest(options)
+    final.fit(x, yy)  # type: ignore[attr-defined]
+    imp = dict(zip(table.names, (float(v) for v in final.feature_importances_), strict=True))  # type: ignore[attr-defined]
+    report = TrainingReport(per_class, binary, conf, classes.names, imp, len(ytr), len(yte))
+    model = ClassifierModel(final, table.names, feature_options, classes, dict(info or {}))
+    model.info["forest_options"] = asdict(options)
+    model.info["held_out"] = {"needs_splats_f1": binary.f1, "n_test": len(yte)}
+    model.info["threshold"] = threshold
+    return model, report
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Per point: classification (N,) uint8 code, probability (N,) float32 of that class, needs_splats (N,) bool,
+    p_needs_splats (N,) float32 (summed probability of the needs-splats classes)."""
+
+    classification: np.ndarray
+    probability: np.ndarray
+    needs_splats: np.ndarray
+    p_needs_splats: np.ndarray
+
+
+def predict(
+    model: ClassifierModel, table: FeatureTable, chunk_size: int = 500_000, threshold: float = 0.5
+) -> Prediction:
+    """Classify every row of ``table``; its feature names must be the model's (else :class:`FormatError`).
+
+    needs_splats = summed probability of the needs-splats classes ≥ ``threshold`` (the binary decision the
+    masks use); classification = the most probable class.
+    """
+    if tuple(table.names) != tuple(model.feature_names):
+        missing = [n for n in model.feature_names if n not in table.names]
+        extra = [n for n in table.names if n not in model.feature_names]
+        raise FormatError(
+            f"the model expects {len(model.feature_names)} features, the data has {len(table.names)} "
+            f"(missing: {', '.join(missing) or 'none'}; extra: {', '.join(extra) or 'none'}; or another order)"
+        )
+    forest = model.forest
+    trained_codes = np.asarray(forest.classes_, dtype=np.uint8)  # type: ignore[attr-defined]
+    bad_mask = model.classes.needs_splats_of(trained_codes)
+    n = len(table.values)
+    cls = np.empty(n, dtype=np.uint8)
+    prob = np.empty(n, dtype=np.float32)
+    pns = np.empty(n, dtype=np.float32)
+    for start in range(0, n, chunk_size):
+        sl = slice(start, min(n, start + chunk_size))
+        p = forest.predict_proba(table.values[sl])  # type: ignore[attr-defined]
+        best = p.argmax(axis=1)
+        cls[sl] = trained_codes[best]
+        prob[sl] = p[np.arange(len(best)), best]
+        pns[sl] = p[:, bad_mask].sum(axis=1)
+    return Prediction(cls, prob, pns >= threshold, pns)
+
+
+# -- persistence ------------------------------------------------------------------------------------------------
+def _options_to_dict(o: FeatureOptions) -> dict[str, object]:
+    return {
+        "names": list(o.names) if o.names is not None else None,
+        "groups": [g.value for g in o.groups],
+        "geometric": asdict(o.geometric) | {"voxel_factors": list(o.geometric.voxel_factors)},
+        "multiview": asdict(o.multiview),
+    }
+
+
+def _options_from_dict(d: dict[str, object]) -> FeatureOptions:
+    from classify.features import FeatureGroup
+
+    g = dict(d["geometric"])  # type: ignore[arg-type]
+    g["voxel_factors"] = tuple(g["voxel_factors"])
+    names = d.get("names")
+    return FeatureOptions(
+        names=tuple(names) if names is not None else None,  # type: ignore[arg-type]
+        groups=tuple(FeatureGroup(x) for x in d["groups"]),  # type: ignore[union-attr]
+        geometric=GeometricOptions(**g),
+        multiview=MultiViewOptions(**d["multiview"]),  # type: ignore[arg-type]
+    )
+
+
+def save_model(model: ClassifierModel, path: str | PathLike[str]) -> Path:
+    """Write the model as a skops file, atomically. The feature list, options and classes travel as JSON."""
+    import skops.io as sio
+
+    path = Path(path)
+    payload = {
+        "format": MODEL_FORMAT,
+        "version": MODEL_VERSION,
+        "forest": model.forest,
+        "meta": json.dumps(
+            {
+                "feature_names": list(model.feature_names),
+                "feature_options": _options_to_dict(model.feature_options),
+                "classes": model.classes.to_dict(),
+                "info": model.info,
+            }
+        ),
+    }
+    with atomic_path(path) as tmp:
+        sio.dump(payload, tmp, compression=8)  # zipfile.ZIP_DEFLATED
+    return path
+
+
+def load_model(path: str | PathLike[str]) -> ClassifierModel:
+    """Read a model written by :func:`save_model`.
+
+    A missing file raises :class:`InputFileError`; a file that is not a skops archive, holds types other than
+    scikit-learn's forest (a tampered or foreign file: nothing untrusted is ever instantiated), or is not a
+    hybridsplat classifier raises :class:`FormatError`.
+    """
+    import skops.io as sio
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("model file does not exist", path)
+    try:
+        untrusted = sio.get_untrusted_types(file=path)
+    except Exception as err:  # skops raises zipfile / json / key errors for foreign files
+        raise FormatError(f"not a skops model file ({type(err).__name__}: {err})", path) from err
+    allowed = {
+        "sklearn.ensemble._forest.RandomForestClassifier",
+        "sklearn.tree._classes.DecisionTreeClassifier",
+        "sklearn.tree._tree.Tree",
+    }
+    foreign = sorted(set(untrusted) - allowed)
+    if foreign:
+        raise FormatError(f"model file holds untrusted types {foreign}: refusing to load it", path)
+    try:
+        payload = sio.load(path, trusted=sorted(set(untrusted)))
+    except Exception as err:
+        raise FormatError(f"model file is damaged ({type(err).__name__}: {err})", path) from err
+    if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
+        raise FormatError("not a hybridsplat classifier (format tag missing)", path)
+    if payload.get("version") != MODEL_VERSION:
+        got = payload.get("version")
+        raise FormatError(f"classifier version {got} is not supported (expected {MODEL_VERSION})", path)
+    from sklearn.ensemble import RandomForestClassifier
+
+    forest = payload.get("forest")
+    if not isinstance(forest, RandomForestClassifier):
+        raise FormatError(f"model holds {type(forest).__name__}, not a RandomForestClassifier", path)
+    try:
+        meta = json.loads(payload["meta"])
+        names = tuple(str(n) for n in meta["feature_names"])
+        options = _options_from_dict(meta["feature_options"])
+        classes = ClassSet.from_dict(meta["classes"], path)
+    except (KeyError, TypeError, ValueError) as err:
+        raise FormatError(f"model metadata is incomplete ({err})", path) from err
+    if getattr(forest, "n_features_in_", len(names)) != len(names):
+        raise FormatError(f"forest expects {forest.n_features_in_} features, the metadata lists {len(names)}", path)
+    return ClassifierModel(forest, names, options, classes, dict(meta.get("info", {})))

@@ -1,0 +1,62 @@
+"""Training data from a data_synth scene and its reconstruction: features of the fused cloud + truth labels."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from os import PathLike
+from pathlib import Path
+
+import numpy as np
+
+from classify.classes import ClassSet
+from classify.features import FeatureOptions, FeatureTable, compute_features, views_from_workspace
+from classify.labels import PointTruth, scene_point_truth
+from core.io.atomic import atomic_path
+from core.pointcloud import PointCloud
+
+
+@dataclass
+class SceneData:
+    """One reconstructed synthetic scene: the fused ``cloud``, its feature ``table``, the point ``truth``, the
+    ``scene`` (:class:`data_synth.Scene`) and the ``dense`` workspace folder."""
+
+    cloud: PointCloud
+    table: FeatureTable
+    truth: PointTruth
+    scene: object
+    dense: Path
+
+
+def load_scene_data(
+    scene_dir: str | PathLike[str],
+    dense_dir: str | PathLike[str],
+    classes: ClassSet,
+    options: FeatureOptions = FeatureOptions(),
+    tau_gsd: float = 3.0,
+    cache: str | PathLike[str] | None = None,
+) -> SceneData:
+    """Features and truth of ``dense_dir/fused.ply`` for the scene in ``scene_dir`` (τ = ``tau_gsd`` × GSD).
+
+    cache: an ``.npz`` file to reuse the feature table from (written when absent; it stores the names, so a
+    cache computed with other options is recomputed).
+    """
+    from data_synth import load_scene
+    from recon.workspace import read_fused
+
+    scene = load_scene(scene_dir)
+    dense = Path(dense_dir)
+    cloud = read_fused(dense)
+    names = options.selected()
+    table = None
+    if cache is not None and Path(cache).is_file():
+        data = np.load(cache)
+        if tuple(str(n) for n in data["names"]) == names and len(data["values"]) == len(cloud):
+            table = FeatureTable(names, data["values"], float(data["spacing"]))
+    if table is None:
+        table = compute_features(cloud, options, views_from_workspace(dense))
+        if cache is not None:
+            Path(cache).parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(cache) as tmp, open(tmp, "wb") as f:
+                np.savez(f, names=np.array(table.names), values=table.values, spacing=table.spacing)
+    truth = scene_point_truth(cloud, scene, classes, tau_gsd)
+    return SceneData(cloud, table, truth, scene, dense)

@@ -1,0 +1,225 @@
+"""A mesh with a triangle budget from a merged Gaussian set: the chain of :mod:`fusion.mesh` in one function.
+
+1. oriented points from the merged Gaussians (:mod:`fusion.mesh.oriented_points`), optionally only the MVS ones;
+2. plus, for transparent / reflective regions, the points of the union of training snapshots with opacity 1
+   (:mod:`fusion.mesh.transparent`);
+3. screened Poisson, density trimming, small-piece removal (:mod:`fusion.mesh.poisson`);
+4. decimation to the budget within 1 % (:mod:`fusion.mesh.decimate`);
+5. vertex colours from the merged Gaussians' SH DC (:mod:`fusion.mesh.colors`).
+
+Every step's counts and seconds come back in :class:`MeshResult`; the untrimmed and trimmed meshes are kept for
+checks (watertight / edge-manifold, boundary edges in :class:`fusion.mesh.quality.MeshQuality`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from core.errors import ConfigError, DataError
+from core.gaussians import GaussianSet
+from fusion.convert import Source
+from fusion.mesh.colors import vertex_colors_from_gaussians
+from fusion.mesh.decimate import DecimateOptions, DecimationStats, decimate
+from fusion.mesh.oriented_points import OrientedPointOptions, OrientedPointStats, oriented_points_from_gaussians
+from fusion.mesh.poisson import PoissonOptions, TrimStats, poisson_reconstruct, trim_mesh
+from fusion.mesh.quality import MeshQuality, mesh_quality
+from fusion.mesh.transparent import SnapshotOptions, SnapshotStats, snapshot_union
+from fusion.mesh.types import OrientedPoints, TriangleMesh, as_choice
+
+
+class MeshSource(str, Enum):
+    """Which Gaussians of the merged set are meshed: all (hybrid) or only those converted from MVS."""
+
+    ALL = "all"
+    MVS = "mvs"
+
+
+@dataclass(frozen=True)
+class MeshOptions:
+    """budget: triangles of the result (None: no decimation). source: see :class:`MeshSource` (default all).
+    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; source all only).
+    mvs_priority: splat points (trained or snapshot) closer to an MVS point than this many median MVS point
+    spacings are left out (default 2; 0 keeps all): where MVS measured the surface, its metric points alone shape
+    it, and splats fill only where MVS has none (splats float around surfaces by a fraction of their σ).
+    color_neighbors: Gaussians blended per vertex colour (default 8). Sub-options: see their classes."""
+
+    budget: int | None = 10_000
+    source: MeshSource = MeshSource.ALL
+    use_snapshots: bool = True
+    mvs_priority: float = 2.0
+    color_neighbors: int = 8
+    points: OrientedPointOptions = field(default_factory=OrientedPointOptions)
+    poisson: PoissonOptions = field(default_factory=PoissonOptions)
+    decimate: DecimateOptions = field(default_factory=DecimateOptions)
+    snapshots: SnapshotOptions = field(default_factory=SnapshotOptions)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "source", as_choice(MeshSource, self.source, "mesh source"))
+        b = self.budget
+        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
+            raise ConfigError(f"the triangle budget must be a positive integer (or None for no decimation), got {b!r}")
+        if not (np.isfinite(self.mvs_priority) and self.mvs_priority >= 0):
+            raise ConfigError(f"mvs_priority must be >= 0 (spacings), got {self.mvs_priority}")
+        if self.color_neighbors < 1:
+            raise ConfigError(f"color_neighbors must be >= 1, got {self.color_neighbors}")
+
+
+@dataclass
+class MeshTimings:
+    """Seconds per step."""
+
+    points: float = 0.0
+    poisson: float = 0.0
+    trim: float = 0.0
+    decimate: float = 0.0
+    colors: float = 0.0
+
+    @property
+    def total(self) -> float:
+        return self.points + self.poisson + self.trim + self.decimate + self.colors
+
+
+@dataclass
+class MeshResult:
+    """The final mesh (coloured, in the merged set's origin), the intermediate meshes, and every step's numbers."""
+
+    mesh: TriangleMesh
+    untrimmed: TriangleMesh
+    trimmed: TriangleMesh
+    points: OrientedPoints
+    point_stats: OrientedPointStats
+    snapshot_stats: SnapshotStats | None
+    snapshot_points: int
+    splat_points_dropped_near_mvs: int
+    poisson_depth: int
+    trim_stats: TrimStats
+    decimation: DecimationStats | None
+    quality_untrimmed: MeshQuality
+    quality_trimmed: MeshQuality
+    quality: MeshQuality
+    timings: MeshTimings
+
+    def summary(self) -> dict[str, object]:
+        """Counts for a manifest or a report (JSON-ready)."""
+        out: dict[str, object] = {
+            "oriented_points": len(self.points),
+            "snapshot_points": self.snapshot_points,
+            "splat_points_dropped_near_mvs": self.splat_points_dropped_near_mvs,
+            "poisson_depth": self.poisson_depth,
+            "triangles_untrimmed": self.quality_untrimmed.triangles,
+            "untrimmed_watertight": self.quality_untrimmed.watertight,
+            "triangles_trimmed": self.quality_trimmed.triangles,
+            "trimmed_edge_manifold": self.quality_trimmed.edge_manifold,
+            "trimmed_boundary_edges": self.quality_trimmed.boundary_edges,
+            "triangles": self.quality.triangles,
+            "vertices": self.quality.vertices,
+            "boundary_edges": self.quality.boundary_edges,
+            "non_manifold_edges": self.quality.non_manifold_edges,
+            "degenerate_triangles": self.quality.degenerate_triangles,
+            "seconds": round(self.timings.total, 3),
+        }
+        if self.decimation is not None:
+            out["budget"] = self.decimation.budget
+            out["within_budget_tolerance"] = self.decimation.within_tolerance
+        return out
+
+
+def drop_splat_points_near_mvs(points: OrientedPoints, spacings: float) -> tuple[OrientedPoints, int]:
+    """The points without splat points (source 2) closer to an MVS point (source 1) than ``spacings`` × the median
+    nearest-neighbour distance of the MVS points; and how many were dropped. Unchanged without MVS or splat points."""
+    from scipy.spatial import cKDTree
+
+    from fusion.mesh.poisson import median_spacing
+
+    is_mvs = points.source == Source.MVS
+    is_splat = points.source == Source.SPLAT
+    if is_mvs.sum() < 2 or not is_splat.any():
+        return points, 0
+    mvs = points.positions[is_mvs]
+    radius = spacings * median_spacing(mvs)
+    d, _ = cKDTree(mvs).query(points.positions[is_splat], k=1, distance_upper_bound=radius)
+    near = np.zeros(len(points), dtype=bool)
+    near[np.flatnonzero(is_splat)[np.isfinite(d)]] = True
+    return points.subset(~near), int(near.sum())
+
+
+def mesh_from_gaussians(
+    merged: GaussianSet,
+    options: MeshOptions | None = None,
+    snapshots: Sequence[GaussianSet] = (),
+    viewpoints: np.ndarray | None = None,
+) -> MeshResult:
+    """A coloured triangle mesh of ``merged`` (see the module docstring), in ``merged``'s local frame and origin.
+
+    merged: the merged Gaussians with a ``source`` field (1 MVS, 2 splat; needed for MeshSource.MVS and snapshots).
+    snapshots: early training snapshots (3DGS sets of the same run); only their parts in splat regions are used.
+    viewpoints: (M, 3) float64 camera centres relative to ``merged.origin`` (orient splat normals), or None.
+    """
+    options = options or MeshOptions()
+    timings = MeshTimings()
+    t = time.perf_counter()
+    gs = merged
+    if options.source is MeshSource.MVS:
+        if "source" not in merged.fields:
+            raise DataError("an MVS-only mesh needs the merged set's 'source' field (1 = MVS, 2 = splat)")
+        is_mvs = np.asarray(merged.fields["source"]) == Source.MVS
+        if not is_mvs.any():
+            raise DataError(f"the merged set holds no MVS Gaussians (of {len(merged)}): nothing to mesh MVS-only")
+        gs = merged.subset(is_mvs)
+    points, point_stats = oriented_points_from_gaussians(gs, options.points, viewpoints)
+    snap_stats = None
+    n_snap = 0
+    if snapshots and options.use_snapshots and options.source is MeshSource.ALL:
+        union, snap_stats = snapshot_union(snapshots, merged, options.snapshots)
+        if len(union):
+            extra, _ = oriented_points_from_gaussians(
+                union, options.points, viewpoints, weight_override=np.ones(len(union))
+            )
+            extra.gaussian_index[:] = -1  # indices into the snapshot union, not into ``merged``
+            n_snap = len(extra)
+            points = OrientedPoints.concatenate([points, extra])
+    dropped_near_mvs = 0
+    if options.mvs_priority > 0:
+        points, dropped_near_mvs = drop_splat_points_near_mvs(points, options.mvs_priority)
+    timings.points = time.perf_counter() - t
+
+    t = time.perf_counter()
+    result = poisson_reconstruct(points, options.poisson)
+    timings.poisson = time.perf_counter() - t
+    t = time.perf_counter()
+    trimmed, trim_stats = trim_mesh(result, options.poisson)
+    timings.trim = time.perf_counter() - t
+
+    t = time.perf_counter()
+    final = trimmed
+    dec = None
+    if options.budget is not None:
+        final, dec = decimate(trimmed, int(options.budget), options.decimate)
+    timings.decimate = time.perf_counter() - t
+
+    t = time.perf_counter()
+    colors = vertex_colors_from_gaussians(final.vertices, final.origin, merged, k=options.color_neighbors)
+    final = TriangleMesh(final.vertices, final.triangles, final.origin, colors)
+    timings.colors = time.perf_counter() - t
+    return MeshResult(
+        mesh=final,
+        untrimmed=result.mesh,
+        trimmed=trimmed,
+        points=points,
+        point_stats=point_stats,
+        snapshot_stats=snap_stats,
+        snapshot_points=n_snap,
+        splat_points_dropped_near_mvs=dropped_near_mvs,
+        poisson_depth=result.depth,
+        trim_stats=trim_stats,
+        decimation=dec,
+        quality_untrimmed=mesh_quality(result.mesh),
+        quality_trimmed=mesh_quality(trimmed),
+        quality=mesh_quality(final),
+        timings=timings,
+    )

@@ -1,0 +1,256 @@
+"""Screened Poisson reconstruction (open3d, Kazhdan & Hoppe 2013), low-density trimming, small-piece removal.
+
+The untrimmed Poisson surface is the zero set of an implicit function over the whole octree: closed (watertight)
+around closed samplings, but it bulges over regions no point supports, and around open scenes (a ground plane) it
+runs into the reconstruction cube and is open there. Trimming removes two kinds of vertices, and the triangles
+that use them: those whose Poisson density (the kernel density of the samples at the vertex, open3d's second return
+value) is below the ``density_quantile`` of all vertex densities (the usual low-density trim), and those farther than
+``support_factor`` × the median point spacing from every oriented point (surface that no sample supports: Poisson's
+bridges over holes; a quantile alone cannot tell a hole from a well-sampled closed surface, where it would cut the
+lowest few percent regardless). Edges shared by more than two triangles (PoissonRecon's iso-surface extraction
+emits a few at fine depths) are repaired with open3d's ``remove_non_manifold_edges`` (drops the smallest of the
+triangles on such an edge until two are left), so the trimmed mesh is edge-manifold. Pieces that are left with
+fewer triangles than ``min_component_fraction`` of the whole are then dropped (floaters, extrapolated blobs).
+
+Depth: the octree depth follows the sampling (``depth`` None): the finest cell is ``cell_factor`` × the median
+nearest-neighbour distance of the points, so depth = ceil(log2(1.1 · extent / cell)), clamped to
+[``min_depth``, ``max_depth``] (depth 10 ≈ 1024³ cells at most, memory grows about 4× per level on surfaces).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from core.errors import ConfigError, DataError
+from fusion.mesh.types import OrientedPoints, TriangleMesh
+
+
+@dataclass(frozen=True)
+class PoissonOptions:
+    """Options of :func:`poisson_reconstruct` and :func:`trim_mesh`.
+
+    depth: octree depth (None: from the sampling, see the module docstring). cell_factor: finest cell in units of
+    the median point spacing (default 1.5). min_depth / max_depth: clamp of the automatic depth (5 / 10).
+    scale: Poisson bounding cube / sample bounding cube (open3d's default 1.1). linear_fit: open3d's option.
+    point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). density_quantile: vertices below
+    this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
+    vertices farther than this many median point spacings from every point are trimmed (default 2; None: off).
+    min_component_fraction: pieces with fewer triangles than this share of the trimmed mesh are dropped (default
+    0.01). threads: open3d threads (default 1: deterministic; -1 uses all cores, faster, but the order of its
+    float reductions varies from run to run, vertices move by ~1e-7 m and decimation can turn that into a different
+    triangulation).
+    """
+
+    depth: int | None = None
+    cell_factor: float = 1.5
+    min_depth: int = 5
+    max_depth: int = 10
+    scale: float = 1.1
+    linear_fit: bool = False
+    point_weight: float = 2.0
+    density_quantile: float = 0.0
+    support_factor: float | None = 2.0
+    min_component_fraction: float = 0.01
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.depth is not None and not 2 <= self.depth <= 14:
+            raise ConfigError(f"Poisson depth must lie in 2..14, got {self.depth}")
+        if not 2 <= self.min_depth <= self.max_depth <= 14:
+            raise ConfigError(f"need 2 <= min_depth <= max_depth <= 14, got {self.min_depth}, {self.max_depth}")
+        if not (np.isfinite(self.cell_factor) and self.cell_factor > 0):
+            raise ConfigError(f"cell_factor must be positive, got {self.cell_factor}")
+        if not self.scale >= 1.0:
+            raise ConfigError(f"scale must be >= 1, got {self.scale}")
+        if not self.point_weight >= 0:
+            raise ConfigError(f"point_weight must be >= 0, got {self.point_weight}")
+        if not 0.0 <= self.density_quantile < 1.0:
+            raise ConfigError(f"density_quantile must lie in [0, 1), got {self.density_quantile}")
+        if self.support_factor is not None and not (np.isfinite(self.support_factor) and self.support_factor > 0):
+            raise ConfigError(f"support_factor must be positive (or None), got {self.support_factor}")
+        if not 0.0 <= self.min_component_fraction < 1.0:
+            raise ConfigError(f"min_component_fraction must lie in [0, 1), got {self.min_component_fraction}")
+
+
+@dataclass
+class PoissonResult:
+    """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours), its per-vertex densities
+    (V,) float64, the depth used, the distance (V,) float64 metres from each vertex to the nearest oriented point, and
+    the median point spacing (metres)."""
+
+    mesh: TriangleMesh
+    densities: np.ndarray
+    depth: int
+    support_distance: np.ndarray
+    point_spacing: float
+
+
+@dataclass
+class TrimStats:
+    """Triangles before, removed by the density cut, by the support cut, as small pieces, after; pieces kept /
+    dropped; the density threshold and the support distance (metres) used."""
+
+    triangles_in: int
+    removed_low_density: int
+    removed_unsupported: int
+    removed_non_manifold: int
+    removed_small_pieces: int
+    triangles_out: int
+    pieces_kept: int
+    pieces_dropped: int
+    density_threshold: float
+    support_distance: float
+
+
+def median_spacing(points: np.ndarray, max_sample: int = 200_000) -> float:
+    """Median nearest-neighbour distance (metres) of (N, 3) points, from a regular subsample of at most
+    ``max_sample`` points (thinning by f on a surface widens spacings by about √f, which is divided out)."""
+    sample = points if len(points) <= max_sample else points[:: len(points) // max_sample + 1]
+    d, _ = cKDTree(sample).query(sample, k=2)
+    spacing = float(np.median(d[:, 1]))
+    if len(sample) < len(points):
+        spacing /= math.sqrt(len(points) / len(sample))
+    return spacing
+
+
+def auto_depth(points: np.ndarray, options: PoissonOptions, spacing: float | None = None) -> int:
+    """Octree depth for (N, 3) points: finest cell = cell_factor × median nearest-neighbour distance."""
+    extent = float(np.max(points.max(axis=0) - points.min(axis=0)))
+    spacing = median_spacing(points) if spacing is None else spacing
+    if not (spacing > 0 and extent > 0):
+        return options.min_depth
+    depth = math.ceil(math.log2(options.scale * extent / (options.cell_factor * spacing)))
+    return int(min(max(depth, options.min_depth), options.max_depth))
+
+
+def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None = None) -> PoissonResult:
+    """Screened Poisson surface of oriented points (local frame; the mesh keeps ``points.origin``).
+
+    Raises :class:`DataError` for fewer than 4 points, non-finite values, or points spanning no volume-worthy extent
+    (all coincident), and when open3d returns no triangle.
+    """
+    import open3d as o3d
+
+    options = options or PoissonOptions()
+    n = len(points)
+    if n < 4:
+        raise DataError(f"screened Poisson needs at least 4 oriented points, got {n}")
+    if not (np.isfinite(points.positions).all() and np.isfinite(points.normals).all()):
+        raise DataError("oriented points hold NaN or infinite positions or normals")
+    lengths = np.linalg.norm(points.normals, axis=1)
+    if (lengths < 1e-6).any():
+        raise DataError(f"{int((lengths < 1e-6).sum())} oriented points have no normal (zero length)")
+    extent = points.positions.max(axis=0) - points.positions.min(axis=0)
+    if float(extent.max()) <= 0:
+        raise DataError(f"all {n} points coincide: there is no surface to reconstruct")
+    spread = np.linalg.svd(points.positions - points.positions.mean(axis=0), compute_uv=False)
+    if spread[1] <= 1e-9 * spread[0]:
+        raise DataError(f"all {n} points lie on one line: there is no surface to reconstruct")
+    spacing = median_spacing(points.positions)
+    depth = options.depth if options.depth is not None else auto_depth(points.positions, options, spacing)
+    # centre before open3d: it works in float32 internally, so coordinates must be small
+    centre = points.positions.mean(axis=0)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.positions - centre))
+    pcd.normals = o3d.utility.Vector3dVector(points.normals / lengths[:, None])
+    pcd.colors = o3d.utility.Vector3dVector(points.colors.astype(np.float64))
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+            pcd,
+            depth=int(depth),
+            scale=float(options.scale),
+            linear_fit=bool(options.linear_fit),
+            n_threads=int(options.threads),
+            point_weight=float(options.point_weight),
+        )
+    tris = np.asarray(mesh.triangles, dtype=np.int64)
+    if len(tris) == 0:
+        raise DataError(f"screened Poisson returned no surface from {n} points (depth {depth})")
+    verts = np.asarray(mesh.vertices, dtype=np.float64) + centre
+    colors = np.clip(np.asarray(mesh.vertex_colors, dtype=np.float64), 0.0, 1.0) if mesh.has_vertex_colors() else None
+    out = TriangleMesh(verts, tris, points.origin.copy(), colors)
+    support, _ = cKDTree(points.positions).query(verts, k=1)
+    return PoissonResult(out, np.asarray(dens, dtype=np.float64), int(depth), support, spacing)
+
+
+def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> tuple[TriangleMesh, TrimStats]:
+    """Density trimming then small-piece removal (module docstring); unused vertices are removed."""
+    options = options or PoissonOptions()
+    mesh = result.mesh
+    t0 = mesh.num_triangles
+    threshold = float(np.quantile(result.densities, options.density_quantile)) if options.density_quantile else -np.inf
+    low = result.densities < threshold
+    keep_tri = ~low[mesh.triangles].any(axis=1)
+    removed_low = int(t0 - keep_tri.sum())
+    max_support = options.support_factor * result.point_spacing if options.support_factor else np.inf
+    far = result.support_distance > max_support
+    keep_support = ~far[mesh.triangles].any(axis=1)
+    removed_far = int((keep_tri & ~keep_support).sum())
+    keep_tri &= keep_support
+    if not keep_tri.any():
+        raise DataError(
+            f"trimming (density quantile {options.density_quantile}, support {max_support:.4g} m) "
+            "removed every triangle"
+        )
+    trimmed = TriangleMesh(mesh.vertices, mesh.triangles[keep_tri], mesh.origin, mesh.vertex_colors).compact()
+    trimmed, removed_nm = repair_non_manifold_edges(trimmed)
+    labels = triangle_components(trimmed.triangles, len(trimmed.vertices))
+    sizes = np.bincount(labels)
+    small = sizes < options.min_component_fraction * len(labels)
+    keep = ~small[labels]
+    out = TriangleMesh(trimmed.vertices, trimmed.triangles[keep], trimmed.origin, trimmed.vertex_colors).compact()
+    stats = TrimStats(
+        triangles_in=t0,
+        removed_low_density=removed_low,
+        removed_unsupported=removed_far,
+        removed_non_manifold=removed_nm,
+        removed_small_pieces=int((~keep).sum()),
+        triangles_out=out.num_triangles,
+        pieces_kept=int((~small).sum()),
+        pieces_dropped=int(small.sum()),
+        density_threshold=threshold,
+        support_distance=float(max_support),
+    )
+    return out, stats
+
+
+def repair_non_manifold_edges(mesh: TriangleMesh) -> tuple[TriangleMesh, int]:
+    """The mesh with no edge used by more than two triangles (open3d's repair; see the module docstring) and the
+    number of triangles removed; the mesh itself when it is already edge-manifold."""
+    import open3d as o3d
+
+    from fusion.mesh.quality import edge_use_counts
+
+    _, counts = edge_use_counts(mesh.triangles)
+    if not (counts > 2).any():
+        return mesh, 0
+    o3m = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(mesh.vertices), o3d.utility.Vector3iVector(mesh.triangles.astype(np.int32))
+    )
+    if mesh.vertex_colors is not None:
+        o3m.vertex_colors = o3d.utility.Vector3dVector(mesh.vertex_colors.astype(np.float64))
+    o3m.remove_non_manifold_edges()
+    tris = np.asarray(o3m.triangles, dtype=np.int64)
+    # open3d keeps the vertex array as it is: same indices, so colours still line up
+    out = TriangleMesh(mesh.vertices, tris, mesh.origin, mesh.vertex_colors).compact()
+    return out, mesh.num_triangles - len(tris)
+
+
+def triangle_components(triangles: np.ndarray, num_vertices: int) -> np.ndarray:
+    """(T,) int64 label per triangle: triangles sharing a vertex are in the same piece (scipy connected components)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    t = len(triangles)
+    if t == 0:
+        return np.zeros(0, dtype=np.int64)
+    # bipartite graph triangles ↔ vertices; the components of its triangle nodes are the pieces
+    rows = np.repeat(np.arange(t), 3)
+    cols = t + triangles.reshape(-1)
+    graph = coo_matrix((np.ones(3 * t, dtype=np.int8), (rows, cols)), shape=(t + num_vertices, t + num_vertices))
+    _, labels = connected_components(graph, directed=False)
+    _, labels = np.unique(labels[:t], return_inverse=True)
+    return labels.astype(np.int64)

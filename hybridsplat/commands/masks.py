@@ -1,0 +1,31 @@
+"""``hybridsplat masks PROJECT``: the ``masks`` stage alone (classify/masks/<photo>.png, 255 = needs splats)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("masks")
+    def masks(
+        project: Path = typer.Argument(..., help="Project folder (after 'hybridsplat classify predict' or 'run')."),
+        footprint: float | None = typer.Option(None, help="Point radius in point spacings (default 1.5)."),
+        close_px: int | None = typer.Option(None, help="Closing radius in pixels (default 3)."),
+        dilate_px: int | None = typer.Option(None, help="Dilation radius in pixels (default 2)."),
+        holes: bool | None = typer.Option(None, "--holes/--no-holes", help="Add MVS holes to the masks."),
+        hole_area: str | None = typer.Option(None, help="Where holes are looked for: hull | below | enclosed."),
+        force: bool = typer.Option(False, "--force", help="Rerun even when up to date."),
+    ) -> None:
+        """Region masks per registered photo: non-collaborative points, MVS holes and user masks, united."""
+        from hybridsplat.commands.common import run_project_stage
+
+        overrides = {
+            "footprint": footprint,
+            "close_px": close_px,
+            "dilate_px": dilate_px,
+            "holes": holes,
+            "hole_area": hole_area,
+        }
+        run_project_stage(project, "masks", overrides, force=force)

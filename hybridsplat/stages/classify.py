@@ -1,0 +1,67 @@
+"""Stage ``classify``: per-point features of the dense cloud → random forest → classify/points.ply.
+
+The cloud keeps its positions, colours and normals and gains ``classification`` (uint8 class code),
+``probability`` (float32, of that class) and ``needs_splats`` (uint8 0/1). classify/report.json records the
+model, the classes, the point spacing (the masks stage uses it) and the counts per class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from core.errors import ConfigError
+from hybridsplat.stages.base import Stage, StageContext
+
+
+@dataclass(frozen=True)
+class ClassifyStageOptions:
+    """Options of the ``classify`` stage.
+
+    model: ``default`` (the model shipped in classify/models/default.skops), ``none`` (the documented no-model
+        fallback from MVS quality signals, :mod:`classify.fallback`), or the path of a ``.skops`` model
+        (``hybridsplat classify train``).
+    threshold: a point needs splats when the summed probability of the needs-splats classes reaches this;
+        None = the threshold stored with the model (chosen on its held-out data), else 0.5.
+    """
+
+    model: str = "default"
+    threshold: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.threshold is not None and not 0.0 < self.threshold < 1.0:
+            raise ConfigError(f"threshold must lie strictly between 0 and 1, got {self.threshold}")
+
+
+class ClassifyStage(Stage):
+    name = "classify"
+    Options = ClassifyStageOptions
+    title = "classify the dense cloud"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        from classify.run import resolve_model_path
+
+        paths = [ctx.layout.fused_ply, ctx.layout.fused_vis]
+        model = resolve_model_path(ctx.options(self).model)
+        return paths + ([model] if model is not None and model.is_file() else [])
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        return [ctx.layout.classified_points, ctx.layout.classify_report]
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from classify.run import classify_dense, write_classified
+        from core.io.json_io import write_json_atomic
+
+        opts: ClassifyStageOptions = ctx.options(self)
+        ctx.progress("features", 0, 1)
+        result = classify_dense(ctx.layout.dense, opts.model, opts.threshold)
+        ctx.progress("features", 1, 1)
+        write_classified(ctx.layout.classified_points, result)
+        report = result.report()
+        write_json_atomic(ctx.layout.classify_report, report)
+        return {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        share = counts["needs_splats"] / max(counts["points"], 1)
+        return f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"

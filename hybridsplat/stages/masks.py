@@ -1,0 +1,88 @@
+"""Stage ``masks``: one PNG per registered training photo (255 = needs splats) in classify/masks/.
+
+Non-collaborative points (classify/points.ply), MVS holes and the user's ``--splat-masks`` are united (see
+:mod:`classify.masks`). Held-out photos get no training mask. classify/masks.json (the stage record) lists each
+photo's coverage; empty masks are marked so that training skips the photo, and a project without any
+non-collaborative region or hole says that training is not needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from classify.masks import MaskOptions
+from hybridsplat.stages.base import Stage, StageContext
+
+
+@dataclass(frozen=True)
+class MasksStageOptions:
+    """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
+
+    footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
+    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
+    holes: add MVS holes (True). hole_area: hull | below | enclosed (hull).
+    """
+
+    footprint: float = 1.5
+    hole_footprint: float = 2.5
+    close_px: int = 3
+    dilate_px: int = 2
+    holes: bool = True
+    hole_area: str = "hull"
+
+    def mask_options(self) -> MaskOptions:
+        return MaskOptions(
+            footprint=self.footprint,
+            hole_footprint=self.hole_footprint,
+            close_px=self.close_px,
+            dilate_px=self.dilate_px,
+            holes=self.holes,
+            hole_area=self.hole_area,
+        )
+
+    def __post_init__(self) -> None:
+        self.mask_options()  # validates
+
+
+class MasksStage(Stage):
+    name = "masks"
+    Options = MasksStageOptions
+    title = "region masks per photo"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.sparse]
+        if ctx.config.input.splat_masks:
+            paths.append(Path(ctx.config.input.splat_masks))
+        return paths
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        return [ctx.layout.masks_dir, ctx.layout.record(self.name)]
+
+    def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
+        return {"held_out": sorted(ctx.source.holdout_names)}
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from classify.run import project_masks
+        from core.io.json_io import write_json_atomic
+
+        opts: MasksStageOptions = ctx.options(self)
+        user = Path(ctx.config.input.splat_masks) if ctx.config.input.splat_masks else None
+        result = project_masks(
+            ctx.layout.classified_points,
+            ctx.layout.classify_report,
+            ctx.layout.sparse,
+            ctx.layout.mask_path,
+            opts.mask_options(),
+            user_mask_dir=user,
+            held_out=set(ctx.source.holdout_names),
+            progress=ctx.progress,
+        )
+        write_json_atomic(ctx.layout.record(self.name), result)
+        return {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        if not counts["training_needed"]:
+            return f"{counts['photos']} masks, all empty: no splat training needed"
+        return f"{counts['photos']} masks, mean coverage {counts['mean_coverage']:.1%}, {counts['empty']} empty"

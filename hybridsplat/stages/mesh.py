@@ -1,0 +1,195 @@
+"""Stage ``mesh``: a triangle mesh with a polygon budget from the merged product (export/mesh.ply|obj|glb).
+
+Reads export/merged.ply (the ``source`` field from export/merged_points.ply when the 3DGS PLY carries none), the
+training snapshots in splats/snapshots/ (for transparent and reflective regions) and the cameras in sparse/ (a local
+frame at the origin recorded in logs/sfm.json; to orient splat normals); calls
+:func:`fusion.mesh.pipeline.mesh_from_gaussians` (or TSDF fusion of rendered depth with ``method = "tsdf"``) and writes
+each format through :func:`fusion.mesh.export.write_mesh`, with the origin sidecar export/mesh.origin.json (always
+written, zeros included). Skipped unless a budget is set (``run --mesh N``, ``hybridsplat mesh PROJECT --budget N``).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from core.errors import ConfigError, DataError
+from hybridsplat.layout import MESH_FORMATS
+from hybridsplat.stages.base import Stage, StageContext
+
+METHODS = ("poisson", "tsdf")
+SOURCES = ("all", "mvs")
+DECIMATORS = ("auto", "fast-simplification", "open3d")
+
+
+@dataclass(frozen=True)
+class MeshStageOptions:
+    """Options of the ``mesh`` stage.
+
+    budget: triangles of the mesh (0: no mesh, the stage is skipped); within 1 % unless the raw mesh is smaller.
+    formats: files written under export/ (any of ply, obj, glb).
+    method: ``poisson`` (screened Poisson of oriented points from the Gaussians) or ``tsdf`` (TSDF fusion of depth
+        rendered from the merged Gaussians at the project's cameras).
+    source: ``all`` Gaussians of the merged product (hybrid) or only those converted from ``mvs``.
+    snapshots: add the training snapshots in splats/snapshots/ for the splat regions (poisson, source all).
+    decimator: ``auto`` (fast-simplification, open3d where it cannot reach the budget), or one of them.
+    """
+
+    budget: int = 0
+    formats: tuple[str, ...] = MESH_FORMATS
+    method: str = "poisson"
+    source: str = "all"
+    snapshots: bool = True
+    decimator: str = "auto"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.budget, bool) or not isinstance(self.budget, int) or self.budget < 0:
+            raise ConfigError(f"budget must be a number of triangles >= 0 (0: no mesh), got {self.budget!r}")
+        bad = [f for f in self.formats if f not in MESH_FORMATS]
+        if bad or not self.formats:
+            raise ConfigError(f"formats must be a non-empty list of {', '.join(MESH_FORMATS)}, got {self.formats!r}")
+        for name, value, allowed in (
+            ("method", self.method, METHODS),
+            ("source", self.source, SOURCES),
+            ("decimator", self.decimator, DECIMATORS),
+        ):
+            if value not in allowed:
+                raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
+
+
+class MeshStage(Stage):
+    name = "mesh"
+    Options = MeshStageOptions
+    title = "mesh with a polygon budget"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        layout = ctx.layout
+        return [layout.merged_ply, layout.merged_points_ply, layout.snapshots_dir, layout.sparse, layout.record("sfm")]
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        from core.io.origin import sidecar_path
+
+        opts: MeshStageOptions = ctx.options(self)
+        paths = [ctx.layout.mesh_path(f) for f in opts.formats]
+        return [*paths, sidecar_path(ctx.layout.mesh_path("ply"))]
+
+    def needs(self, ctx: StageContext) -> str | None:
+        opts: MeshStageOptions = ctx.options(self)
+        if opts.budget == 0:
+            return "no mesh asked for (run --mesh BUDGET, or hybridsplat mesh PROJECT --budget N)"
+        return None
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from core.io.colmap import read_model
+        from core.io.gaussian_ply import read_gaussian_ply
+        from core.io.origin import write_origin
+        from fusion.mesh import MeshOptions, MeshWarning, mesh_from_gaussians, write_mesh
+        from fusion.mesh.decimate import DecimateOptions
+
+        opts: MeshStageOptions = ctx.options(self)
+        layout = ctx.layout
+        merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
+        cameras = None
+        if layout.sparse.is_dir():
+            cameras = read_model(layout.sparse)[0]
+            cameras.origin = sparse_origin(layout)
+        snapshots = []
+        if opts.snapshots and layout.snapshots_dir.is_dir():
+            snapshots = [read_gaussian_ply(p) for p in sorted(layout.snapshots_dir.glob("*.ply"))]
+        ctx.progress("mesh", 0, 1)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", MeshWarning)
+            if opts.method == "tsdf":
+                counts = _tsdf(merged, cameras, opts)
+                mesh = counts.pop("mesh")
+            else:
+                viewpoints = None
+                if cameras is not None and len(cameras):
+                    viewpoints = np.array([v.center for v in cameras]) + cameras.origin - merged.origin
+                options = MeshOptions(
+                    budget=opts.budget, source=opts.source, use_snapshots=opts.snapshots,
+                    decimate=DecimateOptions(method=opts.decimator),
+                )  # fmt: skip
+                result = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=viewpoints)
+                mesh, counts = result.mesh, result.summary()
+        for fmt in opts.formats:
+            write_mesh(layout.mesh_path(fmt), mesh)
+        # the sidecar is written even for a zero origin (an output of the stage, and it carries the CRS)
+        write_origin(layout.mesh_path("ply"), mesh.origin, ctx.config.input.crs or None)
+        ctx.progress("mesh", 1, 1)
+        counts.update(
+            method=opts.method,
+            snapshots=len(snapshots),
+            formats=list(opts.formats),
+            warnings=[" ".join(str(w.message).split()) for w in caught],
+        )
+        return counts
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        return f"{counts['triangles']} triangles ({counts['method']}), {', '.join(counts['formats'])}"
+
+
+def sparse_origin(layout: Any) -> np.ndarray:
+    """World coordinates of the sparse model's local frame: the ``origin`` the sfm stage recorded (zeros if none)."""
+    from core.io.json_io import read_json
+
+    record = layout.record("sfm")
+    if not record.is_file():
+        return np.zeros(3)
+    return np.asarray(read_json(record).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
+
+
+def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianSet
+    """The merged Gaussians with their ``source`` field: from the 3DGS PLY's extra fields, else from the points file
+    the merge stage writes next to it (same Gaussians, same order: checked by count and position)."""
+    from core.io.gaussian_ply import read_gaussian_ply
+    from core.io.ply import read_ply
+
+    merged = read_gaussian_ply(merged_ply)
+    if "source" in merged.fields:
+        merged.fields["source"] = np.asarray(merged.fields["source"]).astype(np.uint8)
+        return merged
+    if not points_ply.is_file():
+        raise DataError("the merged Gaussians carry no 'source' field and there is no points file next to them",
+                        merged_ply)  # fmt: skip
+    points = read_ply(points_ply)
+    same = len(points) == len(merged) and (
+        len(points) == 0 or float(np.abs(points.world_positions - merged.world_means).max()) < 1e-4
+    )
+    if not same or "source" not in points.fields:
+        raise DataError(f"does not match {merged_ply.name} point for point, or has no 'source' field", points_ply)
+    merged.fields["source"] = np.asarray(points.fields["source"]).astype(np.uint8)
+    return merged
+
+
+def _tsdf(merged, cameras, opts: MeshStageOptions) -> dict[str, Any]:
+    from fusion.convert import Source
+    from fusion.mesh import decimate, mesh_quality
+    from fusion.mesh.colors import vertex_colors_from_gaussians
+    from fusion.mesh.decimate import DecimateOptions
+    from fusion.mesh.tsdf import tsdf_mesh
+    from fusion.mesh.types import TriangleMesh
+
+    if cameras is None or len(cameras) == 0:
+        raise DataError("TSDF meshing renders at the project's cameras, and sparse/ holds none")
+    gs = merged if opts.source == "all" else merged.subset(merged.fields["source"] == Source.MVS)
+    raw = tsdf_mesh(gs, cameras)
+    mesh, st = decimate(raw, opts.budget, DecimateOptions(method=opts.decimator))
+    mesh = TriangleMesh(mesh.vertices, mesh.triangles, mesh.origin,
+                        vertex_colors_from_gaussians(mesh.vertices, mesh.origin, merged))  # fmt: skip
+    q = mesh_quality(mesh)
+    return {
+        "mesh": mesh,
+        "triangles_raw": raw.num_triangles,
+        "triangles": q.triangles,
+        "vertices": q.vertices,
+        "boundary_edges": q.boundary_edges,
+        "non_manifold_edges": q.non_manifold_edges,
+        "degenerate_triangles": q.degenerate_triangles,
+        "budget": opts.budget,
+        "within_budget_tolerance": st.within_tolerance,
+    }

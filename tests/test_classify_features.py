@@ -1,0 +1,224 @@
+"""Per-point features: the numba kernel and pgeof held to the numpy twin, analytic shapes, registry, multi-view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from classify.features import FeatureGroup, FeatureOptions, GeometricOptions, ViewData, compute_features
+from classify.features.eigen_numba import eigen_numba
+from classify.features.geometric import (
+    Eigen,
+    eigen_features,
+    eigen_numpy,
+    eigen_pgeof,
+    geometric_features,
+    point_spacing,
+    voxel_downsample,
+)
+from classify.features.multiview import multiview_features
+from classify.features.radiometric import color_variance, rgb_hsv
+from classify.features.registry import feature_specs, resolve_names
+from core.cameras import Camera, Cameras, View
+from core.errors import ConfigError, DataError
+from core.pointcloud import PointCloud
+
+
+def _wavy_plane(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 1, (n, 2))
+    return np.c_[xy, 0.03 * np.sin(5 * xy[:, 0]) + rng.normal(0, 1e-4, n)]
+
+
+def _random_blobs(n: int, seed: int = 1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(n, 3)) * [1.0, 0.4, 0.1]
+
+
+@pytest.mark.parametrize("make", [_wavy_plane, _random_blobs])
+def test_numba_kernel_matches_numpy_twin(make):
+    pts = make(3000)
+    _, idx = cKDTree(pts).query(pts, k=16)
+    w_ref, n_ref = eigen_numpy(pts, idx)
+    w, n = eigen_numba(pts, idx)
+    # Closed-form cubic vs LAPACK in float64: relative to the largest eigenvalue, agreement to ~1e-9
+    # (the trigonometric solution loses a few digits when two eigenvalues nearly coincide).
+    assert np.max(np.abs(w - w_ref) / w_ref[:, :1]) < 1e-8
+    # Normals agree up to sign except where λ2 ≈ λ3 (normal ill-defined): require it on well-separated ones.
+    separated = (w_ref[:, 1] - w_ref[:, 2]) > 1e-3 * w_ref[:, 0]
+    assert separated.mean() > 0.9
+    assert np.min(np.abs(np.sum(n[separated] * n_ref[separated], axis=1))) > 1 - 1e-6
+
+
+def test_pgeof_largest_eigenvalue_and_normal_match_twin():
+    pts = _random_blobs(2000)
+    _, idx = cKDTree(pts).query(pts, k=16)
+    w_ref, n_ref = eigen_numpy(pts, idx)
+    w, n = eigen_pgeof(pts, idx)
+    # pgeof computes in float32: λ1 to 1e-5 relative; the normal to 1e-4 in |cos|.
+    assert np.max(np.abs(w[:, 0] - w_ref[:, 0]) / w_ref[:, 0]) < 1e-5
+    sep = (w_ref[:, 1] - w_ref[:, 2]) > 1e-2 * w_ref[:, 0]
+    assert np.min(np.abs(np.sum(n[sep] * n_ref[sep], axis=1))) > 1 - 1e-4
+
+
+def test_eigen_features_analytic_line_plane_blob():
+    rng = np.random.default_rng(2)
+    t = np.linspace(0, 1, 400)
+    line = np.c_[t, 2 * t, 0 * t]
+    plane = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]
+    blob = rng.normal(size=(400, 3))
+    feats = {}
+    for pts, key in ((line, "line"), (plane, "plane"), (blob, "blob")):
+        _, idx = cKDTree(pts).query(pts, k=16)
+        w, n = eigen_numpy(pts, idx)
+        feats[key] = eigen_features(Eigen(w, n, np.full(len(pts), 0.1)), cell=0.01, k=16)
+    # A line: e2 = e3 = 0, so linearity = anisotropy = 1 and entropy 0.
+    assert np.allclose(feats["line"]["linearity"], 1) and np.allclose(feats["line"]["eigenentropy"], 0, atol=1e-9)
+    # A plane: e3 = 0, so scattering = 0, anisotropy = 1 and linearity + planarity = 1.
+    p = feats["plane"]
+    assert np.allclose(p["scattering"], 0, atol=1e-12) and np.allclose(p["anisotropy"], 1)
+    assert np.allclose(p["linearity"] + p["planarity"], 1)
+    # A 3D Gaussian blob scatters far more than the plane.
+    assert np.median(feats["blob"]["scattering"]) > 0.1
+    # A horizontal plane: verticality 0; a vertical one: 1; change of curvature 0 on both.
+    _, idx = cKDTree(plane).query(plane, k=16)
+    w, n = eigen_numpy(plane, idx)
+    f = eigen_features(Eigen(w, n, np.full(400, 0.1)), 0.01, 16)
+    assert np.max(f["verticality"]) < 1e-9 and np.max(f["change_of_curvature"]) < 1e-12
+    wall = plane[:, [0, 2, 1]]
+    w, n = eigen_numpy(wall, idx)
+    f = eigen_features(Eigen(w, n, np.full(400, 0.1)), 0.01, 16)
+    assert np.min(f["verticality"]) > 1 - 1e-9
+
+
+def test_degenerate_neighbourhoods_give_zeros_not_nan():
+    pts = np.zeros((20, 3))
+    w, n = eigen_numpy(pts, np.tile(np.arange(16), (20, 1)))
+    f = eigen_features(Eigen(w, n, np.zeros(20)), 0.01, 16)
+    for key, v in f.items():
+        assert np.isfinite(v).all(), key
+
+
+def test_point_spacing_on_a_grid_and_errors():
+    g = np.stack(np.meshgrid(np.arange(30), np.arange(30), indexing="ij"), -1).reshape(-1, 2) * 0.02
+    pts = np.c_[g, np.zeros(len(g))]
+    assert point_spacing(pts) == pytest.approx(0.02)
+    assert point_spacing(np.r_[pts, pts]) == pytest.approx(0.02)  # duplicates ignored
+    with pytest.raises(DataError):
+        point_spacing(np.zeros((5, 3)))
+
+
+def test_voxel_downsample_centroids_brute_force():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(0, 1, (500, 3))
+    cent, inv = voxel_downsample(pts, 0.25)
+    for v in range(len(cent)):
+        assert np.allclose(cent[v], pts[inv == v].mean(axis=0))
+    keys = np.floor((pts - pts.min(0)) / 0.25).astype(int)
+    for v in range(len(cent)):
+        assert len({tuple(k) for k in keys[inv == v]}) == 1
+
+
+def test_scale_invariance_of_geometric_features():
+    """Neighbourhoods are in units of spacing: scaling the cloud by 1000 leaves every feature unchanged."""
+    pts = _wavy_plane(4000)
+    a = geometric_features(pts, options=GeometricOptions(backend="numpy"))
+    b = geometric_features(pts * 1000.0, options=GeometricOptions(backend="numpy"))
+    assert b.spacing == pytest.approx(1000 * a.spacing, rel=1e-9)
+    for name in a.features:
+        assert np.allclose(a.features[name], b.features[name], atol=1e-4), name
+
+
+def test_backends_agree_on_every_geometric_feature():
+    pts = _wavy_plane(5000)
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    a = geometric_features(pts, normals, GeometricOptions(backend="numpy"))
+    b = geometric_features(pts, normals, GeometricOptions(backend="numba"))
+    for name in a.features:
+        assert np.allclose(a.features[name], b.features[name], atol=1e-5), name
+
+
+def test_rgb_hsv_and_color_variance():
+    c = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [128, 128, 128]], dtype=np.uint8)
+    f = rgb_hsv(c)
+    assert np.allclose(f["hue"], [0, 1 / 3, 2 / 3, 0], atol=1e-6)
+    assert np.allclose(f["saturation"], [1, 1, 1, 0]) and np.allclose(f["value"][3], 128 / 255)
+    neigh = np.array([[0, 1], [1, 1], [2, 3], [3, 3]])
+    v = color_variance(c, neighbours=neigh)
+    # Brute force: std over the two neighbours per channel, averaged.
+    ref = np.array([np.std(c[n] / 255.0, axis=0).mean() for n in neigh])
+    assert np.allclose(v, ref, atol=1e-6)
+
+
+def test_registry_resolution_and_errors():
+    specs = feature_specs(3)
+    assert "planarity_s2" in specs and specs["n_views"].group is FeatureGroup.MULTIVIEW
+    assert all(s.unit and s.meaning for s in specs.values())
+    assert resolve_names(("planarity",), 2, ()) == ("planarity_s0", "planarity_s1")
+    assert resolve_names(("radiometric",), 1, ())[0] == "red"
+    with pytest.raises(ConfigError, match="unknown feature"):
+        resolve_names(("shininess",), 1, ())
+
+
+def test_compute_features_table_and_missing_inputs():
+    pts = _wavy_plane(2000)
+    rng = np.random.default_rng(0)
+    cloud = PointCloud(pts, colors=rng.integers(0, 255, (len(pts), 3)).astype(np.uint8))
+    opts = FeatureOptions(groups=(FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC))
+    t = compute_features(cloud, opts)
+    assert t.values.shape == (2000, len(opts.selected())) and t.values.dtype == np.float32
+    assert np.isfinite(t.values).all()
+    with pytest.raises(ConfigError, match="colours"):
+        compute_features(PointCloud(pts), opts)
+    with pytest.raises(ConfigError, match="multi-view"):
+        compute_features(cloud, FeatureOptions())
+
+
+# -- multi-view ---------------------------------------------------------------------------------------------------
+def _two_view_rig(depth_scale: float = 1.0):
+    """Two pinhole cameras 1 m above a plane z = 0, looking down; the photo is a checkerboard on the plane."""
+    cam = Camera.pinhole(50.0, 50.0, 32.0, 24.0, 64, 48)
+    down = np.diag([1.0, -1.0, -1.0])  # camera z axis = world −z
+    views = {}
+    for i, cx in enumerate((-0.1, 0.1)):
+        centre = np.array([cx, 0.0, 1.0])
+        views[i + 1] = View.from_matrix(i + 1, f"v{i}.png", 1, np.c_[down, -down @ centre])
+    cams = Cameras({1: cam}, views)
+
+    def image(name: str) -> np.ndarray:
+        v = cams.by_name(name)
+        rows, cols = np.mgrid[0:48, 0:64] + 0.5
+        rays = np.stack([(cols - 32) / 50, (rows - 24) / 50, np.ones_like(cols)], -1) @ v.rotation
+        t = -v.center[2] / rays[..., 2]
+        world = v.center + rays * t[..., None]
+        board = ((np.floor(world[..., 0] / 0.05) + np.floor(world[..., 1] / 0.05)) % 2).astype(np.uint8)
+        return np.repeat((board * 200 + 30)[..., None], 3, axis=2)
+
+    def depth(name: str) -> np.ndarray:
+        return np.full((48, 64), 1.0 * depth_scale, dtype=np.float32)
+
+    return cams, ViewData(cams, image, depth)
+
+
+def test_multiview_on_a_plane_seen_by_two_views():
+    cams, views = _two_view_rig()
+    pts = np.array([[0.0, 0.0, 0.0], [0.01, 0.02, 0.0], [0.0, 0.0, 0.5], [5.0, 0.0, 0.0]])
+    vis = [np.array([1, 2]), np.array([1, 2]), np.array([1, 2]), np.array([], dtype=np.int64)]
+    f = multiview_features(pts, vis, views)
+    assert list(f["n_views"]) == [2, 2, 2, 0]
+    # Rays from (±0.1, 0, 1) to the origin: angle 2·atan(0.1) between them.
+    assert f["triangulation_spread_deg"][0] == pytest.approx(np.degrees(2 * np.arctan(0.1)), abs=1e-6)
+    # On the plane both depth maps agree; the floating point at z = 0.5 is in front of what both views see.
+    assert f["depth_agree"][0] == 1.0 and f["depth_freespace"][0] == 0.0
+    assert f["depth_freespace"][2] == 1.0 and f["depth_agree"][2] == 0.0
+    # The point outside both frusta: no frustum view, no fusing view.
+    assert f["view_ratio"][3] == 0.0 and f["depth_agree"][3] == 0.0
+    # A Lambertian plane: the same colour in both views (nearest pixel; away from checker edges).
+    assert f["color_std_views"][0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_multiview_rejects_mismatched_visibility():
+    _, views = _two_view_rig()
+    with pytest.raises(DataError):
+        multiview_features(np.zeros((2, 3)), [np.array([1])], views)

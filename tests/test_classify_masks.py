@@ -1,0 +1,79 @@
+"""Region masks: footprints, occlusion, holes, user masks, empty masks, on an analytic down-looking camera."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from classify.masks import MaskOptions, photo_mask, region_masks, splat_footprints
+from core.cameras import Camera, Cameras, View
+
+
+def _rig() -> tuple[Cameras, View]:
+    """One camera 1 m above z = 0, looking down; f = 100 px: 1 cm on the plane = 1 px; image 80 × 60."""
+    cam = Camera.pinhole(100.0, 100.0, 40.0, 30.0, 80, 60)
+    down = np.diag([1.0, -1.0, -1.0])
+    view = View.from_matrix(1, "a.png", 1, np.c_[down, -down @ np.array([0.0, 0.0, 1.0])])
+    return Cameras({1: cam}, {1: view}), view
+
+
+def _grid(spacing: float = 0.01, half: float = 0.6) -> np.ndarray:
+    g = np.arange(-half, half + 1e-9, spacing)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    return np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]
+
+
+def test_splat_footprints_brute_force():
+    col, row, rad = np.array([10.0, 30.0]), np.array([10.0, 5.0]), np.array([3.0, 0.0])
+    m = splat_footprints((20, 40), col, row, rad, max_radius=5)
+    rr, cc = np.mgrid[0:20, 0:40]
+    ref = ((rr - 10) ** 2 + (cc - 10) ** 2 <= 9) | ((rr == 5) & (cc == 30))
+    # OpenCV's discrete ellipse differs from the Euclidean disk only on its rim.
+    assert np.sum(m ^ ref) <= 8 and m[10, 10] and m[5, 30] and not m[0, 0]
+
+
+def test_non_collaborative_square_is_masked_and_nothing_else():
+    cams, view = _rig()
+    pts = _grid()
+    bad = (np.abs(pts[:, 0]) < 0.1) & (np.abs(pts[:, 1]) < 0.1)  # a 20 × 20 px square in the image centre
+    pm = photo_mask(cams, view, pts, bad, spacing=0.01, options=MaskOptions(dilate_px=0, close_px=0))
+    rows, cols = np.nonzero(pm.mask)
+    assert 8 <= rows.min() <= 20 and 40 <= rows.max() <= 52 and 18 <= cols.min() <= 30 and 50 <= cols.max() <= 62
+    # Footprint 1.5 px: the square grows by at most 2 px on each side.
+    assert 400 <= pm.mask.sum() <= 24 * 24 and pm.holes_px == 0 and not pm.empty
+    assert pm.coverage == pm.mask.mean()
+
+
+def test_hidden_non_collaborative_points_do_not_mask():
+    cams, view = _rig()
+    pts = _grid()
+    behind = pts.copy()
+    behind[:, 2] = -0.5  # a non-collaborative layer under a collaborative floor
+    allp = np.r_[pts, behind]
+    flags = np.r_[np.zeros(len(pts), bool), np.ones(len(behind), bool)]
+    pm = photo_mask(cams, view, allp, flags, 0.01, MaskOptions(holes=False))
+    assert pm.empty and pm.coverage == 0.0
+
+
+def test_holes_inside_the_cloud_but_not_at_the_border():
+    cams, view = _rig()
+    pts = _grid()
+    hole = (np.abs(pts[:, 0] - 0.05) < 0.06) & (np.abs(pts[:, 1]) < 0.06)
+    pts = pts[~hole]
+    # Remove a band at the image's left edge too: uncovered and touching the border = background.
+    pts = pts[~(pts[:, 0] < -0.3)]
+    pm = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0))
+    assert pm.points_px == 0 and pm.holes_px > 0
+    rows, cols = np.nonzero(pm.mask)
+    assert cols.min() >= 30 and cols.max() <= 60 and rows.min() >= 20 and rows.max() <= 40
+    assert not pm.mask[:, :5].any()
+
+
+def test_user_masks_are_united_and_empty_masks_reported():
+    cams, view = _rig()
+    pts = _grid()
+    user = np.zeros((60, 80), np.uint8)
+    user[:5, :5] = 255
+    masks = region_masks(cams, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(dilate_px=0), {"a.png": user})
+    assert masks[0].user_px == 25 / 4800 and masks[0].mask[:5, :5].all()
+    none = region_masks(cams, pts, np.zeros(len(pts), bool), 0.01)
+    assert none[0].empty and none[0].coverage == 0.0

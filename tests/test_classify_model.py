@@ -1,0 +1,171 @@
+"""Classes, labels, the random forest with skops persistence, and the fallback."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+
+from classify.classes import UNLABELLED, ClassSet, load_classes
+from classify.fallback import FALLBACK_FEATURES, fallback_predict
+from classify.features import FeatureGroup, FeatureOptions, FeatureTable
+from classify.labels import labels_from_field, labels_from_masks, point_truth, transfer_labels
+from classify.model import ForestOptions, load_model, predict, save_model, train
+from core.cameras import Camera, Cameras, View
+from core.errors import ConfigError, FormatError, InputFileError
+
+
+def test_default_classes_and_kind_mapping(tmp_path):
+    c = load_classes()
+    assert c.names == ("collaborative", "reflective", "transparent", "textureless", "thin")
+    kinds = {"textured": "collaborative", "mirror": "reflective", "metal": "reflective", "glass": "transparent",
+             "textureless": "textureless", "thin": "thin"}  # fmt: skip
+    for kind, name in kinds.items():
+        assert c.by_code(c.code_of_kind(kind)).name == name
+    assert list(c.needs_splats_of(np.array([0, 1, 2, 3, 4, 200]))) == [False, True, True, True, True, True]
+    bad = tmp_path / "c.toml"
+    bad.write_text('[[class]]\nname = "a"\n', encoding="utf-8")
+    with pytest.raises(FormatError):
+        load_classes(bad)
+    with pytest.raises(InputFileError):
+        load_classes(tmp_path / "missing.toml")
+    bad.write_text('[[class]]\nname = "a"\ncode = 0\nneeds_splats = true\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match="needs_splats = false"):
+        load_classes(bad)
+
+
+def test_point_truth_on_two_triangles():
+    """A textured square at z = 0 and a mirror square at z = 1; τ = 0.05 m."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    mat = np.array([3, 3, 7, 7])
+    kinds = {3: "textured", 7: "mirror"}
+    pts = np.array([[0.5, 0.5, 0.01], [0.5, 0.5, 0.98], [0.5, 0.5, 0.3], [0.5, 0.5, 0.8]])
+    t = point_truth(pts, v, f, mat, kinds, load_classes(), tau=0.05)
+    assert list(t.codes[:2]) == [0, 1] and list(t.needs_splats) == [False, True, True, True]
+    assert list(t.far) == [False, False, True, True]
+    assert t.distance[2] == pytest.approx(0.3, abs=1e-6)
+    # Far points take the class of the nearest non-collaborative surface (the mirror).
+    assert list(t.codes[2:]) == [1, 1]
+
+
+def test_labels_from_field_transfer_and_masks():
+    c = load_classes()
+    assert list(labels_from_field(np.array([2, 64, 65, 14, 99]), c)) == [0, 1, 2, 4, UNLABELLED]
+    assert list(labels_from_field(np.array([0.0, 3.0, 9.0]), c, las_codes=False)) == [0, 3, UNLABELLED]
+    src = np.array([[0.0, 0, 0], [1, 0, 0]])
+    out = transfer_labels(src, np.array([1, 3], np.uint8), np.array([[0.1, 0, 0], [0.9, 0, 0], [5, 0, 0]]), 0.5)
+    assert list(out) == [1, 3, UNLABELLED]
+    # One camera looking down at z = 0; the left half of its label image is class 3, the right half class 0.
+    cam = Camera.pinhole(40.0, 40.0, 20.0, 15.0, 40, 30)
+    down = np.diag([1.0, -1.0, -1.0])
+    cams = Cameras({1: cam}, {1: View.from_matrix(1, "a.png", 1, np.c_[down, -down @ np.array([0, 0, 1.0])])})
+    mask = np.zeros((30, 40), np.uint8)
+    mask[:, :20] = 3
+    mask[:5] = UNLABELLED
+    pts = np.array([[-0.2, 0.0, 0.0], [0.2, 0.0, 0.0], [0.0, 0.36, 0.0], [3.0, 0, 0]])
+    assert list(labels_from_masks(pts, cams, {"a.png": mask})) == [3, 0, UNLABELLED, UNLABELLED]
+    vis = [np.array([1]), np.array([], np.int64), np.array([1]), np.array([1])]
+    assert list(labels_from_masks(pts, cams, {"a.png": mask}, visibility=vis)) == [3, UNLABELLED, UNLABELLED, 255]
+
+
+def _toy_table(n: int = 1500, seed: int = 0) -> tuple[FeatureTable, np.ndarray]:
+    """Three separable classes in two features (feature a decides reflective, b textureless)."""
+    rng = np.random.default_rng(seed)
+    y = rng.choice(np.array([0, 1, 3], np.uint8), n, p=[0.7, 0.2, 0.1])
+    a = (y == 1) + rng.normal(0, 0.1, n)
+    b = (y == 3) + rng.normal(0, 0.1, n)
+    return FeatureTable(("planarity_s0", "ncc_views"), np.c_[a, b].astype(np.float32), 0.01), y
+
+
+def test_train_report_predict_and_roundtrip(tmp_path):
+    table, y = _toy_table()
+    y_lab = y.copy()
+    y_lab[:50] = UNLABELLED
+    opts = FeatureOptions(names=("planarity_s0", "ncc_views"))
+    model, report = train(table, y_lab, load_classes(), opts, ForestOptions(n_estimators=8, seed=1, n_jobs=1))
+    assert report.binary.f1 > 0.97 and report.n_train + report.n_test == len(y) - 50
+    assert report.confusion.sum() == report.n_test and report.confusion.shape == (5, 5)
+    assert abs(sum(report.importances.values()) - 1) < 1e-9
+    path = save_model(model, tmp_path / "m.skops")
+    loaded = load_model(path)
+    assert loaded.feature_names == model.feature_names and loaded.classes == model.classes
+    assert loaded.feature_options == opts
+    p1, p2 = predict(model, table), predict(loaded, table)
+    assert np.array_equal(p1.classification, p2.classification) and np.array_equal(p1.probability, p2.probability)
+    assert (p1.classification == y).mean() > 0.97
+    assert np.array_equal(p1.needs_splats, p1.classification != 0)
+    # Same seed, same forest.
+    model2, _ = train(table, y_lab, load_classes(), opts, ForestOptions(n_estimators=8, seed=1, n_jobs=1))
+    assert np.array_equal(predict(model2, table).probability, p1.probability)
+
+
+def test_model_refuses_mismatched_features_and_bad_files(tmp_path):
+    table, y = _toy_table(300)
+    model, _ = train(table, y, load_classes(), FeatureOptions(), ForestOptions(n_estimators=2, n_jobs=1))
+    swapped = FeatureTable(table.names[::-1], table.values[:, ::-1], 0.01)
+    with pytest.raises(FormatError, match="another order"):
+        predict(model, swapped)
+    with pytest.raises(FormatError, match="missing: ncc_views"):
+        predict(model, table.select(("planarity_s0",)))
+    path = save_model(model, tmp_path / "m.skops")
+    # A foreign file, a truncated one, a pickle, and an archive with a foreign type inside.
+    (tmp_path / "text.skops").write_text("hello", encoding="utf-8")
+    (tmp_path / "cut.skops").write_bytes(path.read_bytes()[:200])
+    import pickle
+
+    (tmp_path / "p.skops").write_bytes(pickle.dumps({"format": "hybridsplat-classifier"}))
+    for bad in ("text.skops", "cut.skops", "p.skops"):
+        with pytest.raises(FormatError):
+            load_model(tmp_path / bad)
+    import skops.io as sio
+
+    sio.dump({"format": "hybridsplat-classifier", "version": 1, "forest": np.zeros(3), "meta": "{}"},
+             tmp_path / "np.skops")  # fmt: skip
+    with pytest.raises(FormatError):
+        load_model(tmp_path / "np.skops")
+    import datetime
+
+    sio.dump({"format": "hybridsplat-classifier", "x": datetime.timedelta(1)}, tmp_path / "foreign.skops")
+    with pytest.raises(FormatError, match="untrusted"):
+        load_model(tmp_path / "foreign.skops")
+    # Tampering with the stored schema is refused, not executed.
+    with zipfile.ZipFile(path) as z:
+        schema = z.read("schema.json").decode()
+    tampered = tmp_path / "t.skops"
+    with zipfile.ZipFile(path) as zin, zipfile.ZipFile(tampered, "w") as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "schema.json":
+                data = schema.replace("sklearn.tree._classes", "os").encode()
+            zout.writestr(item, data)
+    with pytest.raises(FormatError):
+        load_model(tampered)
+    with pytest.raises(InputFileError):
+        load_model(tmp_path / "none.skops")
+
+
+def test_fallback_rules():
+    names = FALLBACK_FEATURES
+    rows = np.array(
+        [
+            [0.0, 0.01, 0.8, 6, 0.001, 0.1],  # good
+            [0.5, 0.01, 0.8, 6, 0.001, 0.1],  # sees-past -> reflective
+            [0.0, 0.01, 0.1, 6, 0.001, 0.1],  # flat patches -> textureless
+            [0.0, 0.01, 0.8, 2, 0.001, 0.95],  # weak and linear -> thin
+        ],
+        np.float32,
+    )
+    c = load_classes()
+    p = fallback_predict(FeatureTable(names, rows, 0.01), c)
+    assert list(p.needs_splats) == [False, True, True, True]
+    assert [c.by_code(x).name for x in p.classification] == ["collaborative", "reflective", "textureless", "thin"]
+    with pytest.raises(ConfigError, match="fallback needs"):
+        fallback_predict(FeatureTable(("red",), rows[:, :1], 0.01), c)
+    assert FeatureOptions(groups=(FeatureGroup.MULTIVIEW,)).selected()[0] == "n_views"
+
+
+def test_class_set_validation():
+    with pytest.raises(ConfigError):
+        ClassSet(())
