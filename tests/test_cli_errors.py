@@ -221,7 +221,7 @@ def test_metrics_json_never_holds_bare_nan(tmp_path) -> None:
     from eval.metrics_io import C2CSummary, ProductMetrics, write_metrics
 
     stats = DistanceStats(**{k: float("nan") for k in DistanceStats.__dataclass_fields__})
-    path = write_metrics(tmp_path, {"mvs": ProductMetrics(c2c=C2CSummary(stats=stats))})
+    path = write_metrics(tmp_path / "metrics.json", {"mvs": ProductMetrics(c2c=C2CSummary(stats=stats))})
     text = path.read_text()
     assert "NaN" not in text and "Infinity" not in text
     assert json.loads(text)["products"]["mvs"]["c2c"]["mean"] is None
