@@ -311,6 +311,7 @@ def test_interrupt_and_terminate(tmp_path, sig, code, word) -> None:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as in a foreground terminal
     )
     assert proc.stdout.readline().strip() == "ready"
     time.sleep(0.2)

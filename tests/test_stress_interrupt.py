@@ -24,6 +24,12 @@ from hybridsplat.layout import ProjectLayout
 REPO = Path(__file__).resolve().parents[1]
 
 
+def _default_sigint() -> None:
+    # A test run started in the background by a non-interactive shell inherits SIGINT ignored, and Python then
+    # installs no KeyboardInterrupt handler: give the child the disposition of a foreground terminal.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(scene: Path, project: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_WAIT_POLICY": "PASSIVE"}
     return subprocess.Popen(
@@ -32,6 +38,7 @@ def _start(scene: Path, project: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         env=env,
+        preexec_fn=_default_sigint,
     )
 
 
@@ -116,7 +123,4 @@ def test_ten_interruptions_at_random_moments(reference, tmp_path) -> None:
     delays = np.random.default_rng(2026).uniform(0.05, 0.95, 10) * seconds
     hit = [interrupt_then_resume(scene, tmp_path / f"p{i}", float(d), expected) for i, d in enumerate(delays)]
     print(f"reference run {seconds:.1f} s; interrupted at {[round(float(d), 1) for d in delays]} s: {hit}")
-    # Every signalled run either exited 130 or completed (exit 0) and every project ended identical to the
-    # reference (checked above). Known gap (issue 12 follow-up): on 2026-11-23, 6 of 10 signals did not stop
-    # the run, which completed with exit 0 - the KeyboardInterrupt seems absorbed inside pycolmap calls (sfm/mvs).
-    assert sum(hit) >= 3
+    assert sum(hit) >= 8  # a moment past the end of a (faster) run finishes instead; it must still match
