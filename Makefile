@@ -1,5 +1,5 @@
 # The two commands of the README: `make demo` (main job on the built-in synthetic scene) and `make test`.
-.PHONY: setup demo test test-slow lint
+.PHONY: setup demo test test-slow lint fuzz
 PY := .venv/bin/python
 DEMO_DIR ?= demo_project
 
@@ -14,6 +14,10 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -q -m slow
+
+# Every malformed-input case through the CLI (subprocess, 60 s, 2 GB address space each) + properties.
+fuzz: setup
+	$(PY) -m pytest -q -m fuzz tests/fuzz
 
 lint: setup
 	$(PY) -m ruff check .

@@ -61,7 +61,7 @@ def is_mesh_file(path: str | PathLike[str]) -> bool:
     for line in header.decode("ascii", errors="replace").splitlines():
         parts = line.split()
         if len(parts) == 3 and parts[0] == "element" and parts[1] == "face":
-            return int(parts[2]) > 0
+            return parts[2].isdigit() and int(parts[2]) > 0
     return False
 
 
@@ -79,6 +79,11 @@ def read_mesh(path: str | PathLike[str]) -> Mesh:
         raise FormatError("no triangles could be read from this file (not a mesh, or an unsupported variant)", p)
     if not np.isfinite(vertices).all():
         raise DataError("mesh vertices contain NaN or infinite values", p)
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        bad = int(np.flatnonzero((triangles < 0).any(axis=1) | (triangles >= len(vertices)).any(axis=1))[0])
+        raise FormatError(
+            f"face {bad} refers to vertex {triangles[bad].tolist()}, but the mesh has {len(vertices)} vertices", p
+        )
     origin = choose_origin(vertices)
     return Mesh(vertices - origin, triangles, origin)
 

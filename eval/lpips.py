@@ -11,6 +11,8 @@ is ever downloaded.
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from os import PathLike
 from pathlib import Path
 
@@ -29,6 +31,8 @@ _SCALE = (0.458, 0.448, 0.450)
 _CONVS = (("features.0", 4, 2, False), ("features.3", 1, 2, True), ("features.6", 1, 1, True),
           ("features.8", 1, 1, False), ("features.10", 1, 1, False))  # fmt: skip
 _CHANNELS = (64, 192, 384, 256, 256)
+#: Largest uncompressed archive accepted (bytes); the AlexNet LPIPS weights take ~10 MB.
+MAX_WEIGHTS_BYTES = 256 * 1024**2
 
 
 def default_weight_paths() -> list[Path]:
@@ -63,11 +67,31 @@ def find_weights(path: str | PathLike[str] | None = None) -> Path:
 def load_weights(path: str | PathLike[str]) -> dict[str, torch.Tensor]:
     """Read and check the ``.npz`` weights (torch layouts, float32)."""
     p = Path(path)
+    if p.is_dir():
+        raise InputFileError("is a folder, expected an LPIPS weights file (.npz)", p)
+    if not p.is_file():
+        raise InputFileError("LPIPS weights file not found", p)
+    if p.stat().st_size == 0:
+        raise InputFileError("LPIPS weights file is empty", p)
+    if not zipfile.is_zipfile(p):
+        raise FormatError("not an .npz archive (no zip directory: truncated or another format)", p)
     try:
-        with np.load(p) as data:
+        with zipfile.ZipFile(p) as archive:
+            declared = sum(info.file_size for info in archive.infolist())
+        if declared > MAX_WEIGHTS_BYTES:
+            raise FormatError(f"archive declares {declared} bytes of arrays; LPIPS AlexNet needs ~10 MB", p)
+        with np.load(p, allow_pickle=False) as data:
+            if not hasattr(data, "files"):
+                raise FormatError("expected an .npz archive of named arrays, found a single array", p)
             arrays = {k: torch.from_numpy(np.asarray(data[k], dtype=np.float32)) for k in data.files}
-    except (OSError, ValueError) as err:
-        raise FormatError(f"cannot read LPIPS weights ({err})", p) from err
+    except FormatError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, TypeError) as err:
+        text = " ".join(str(err).split())[:120]
+        raise FormatError(f"cannot read LPIPS weights ({type(err).__name__}: {text})", p) from err
+    for key, value in arrays.items():
+        if not torch.isfinite(value).all():
+            raise FormatError(f"LPIPS weights {key} hold NaN or infinite values", p)
     expected_in = 3
     for (key, *_), ch in zip(_CONVS, _CHANNELS, strict=True):
         for suffix in ("weight", "bias"):
@@ -76,6 +100,8 @@ def load_weights(path: str | PathLike[str]) -> dict[str, torch.Tensor]:
         w = arrays[f"{key}.weight"]
         if w.ndim != 4 or w.shape[0] != ch or w.shape[1] != expected_in:
             raise FormatError(f"{key}.weight has shape {tuple(w.shape)}, expected ({ch}, {expected_in}, k, k)", p)
+        if tuple(arrays[f"{key}.bias"].shape) != (ch,):
+            raise FormatError(f"{key}.bias has shape {tuple(arrays[f'{key}.bias'].shape)}, expected ({ch},)", p)
         expected_in = ch
     for i, ch in enumerate(_CHANNELS):
         key = f"lin{i}.model.1.weight"

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import FormatError, InputFileError
+from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import SH_C0, GaussianSet, sigmoid
 from core.io.atomic import atomic_path
 
@@ -90,5 +90,12 @@ def read_splat(path: str | PathLike[str]) -> SplatData:
     if size % SPLAT_RECORD.itemsize:
         raise FormatError(f".splat size {size} bytes is not a multiple of {SPLAT_RECORD.itemsize}", path)
     rec = np.fromfile(path, dtype=SPLAT_RECORD)
+    for key in ("position", "scale"):
+        bad = ~np.isfinite(rec[key]).all(axis=1)
+        if bad.any():
+            raise DataError(
+                f"{int(bad.sum())} splats have NaN or infinite {key} (first: splat {int(np.flatnonzero(bad)[0])})",
+                path,
+            )
     quats = (rec["rot"].astype(np.float32) - 128.0) / 128.0
     return SplatData(rec["position"].copy(), rec["scale"].copy(), rec["rgba"].copy(), quats)

@@ -6,7 +6,9 @@ and exit code 2; ``--debug`` shows the traceback instead.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import os
 import pkgutil
 import signal
 import sys
@@ -51,7 +53,11 @@ def _register_commands() -> None:
             register(app)
 
 
-_register_commands()
+try:
+    _register_commands()
+except KeyboardInterrupt:  # Ctrl-C while the (heavy) command modules are imported: same exit as later
+    print("hybridsplat: interrupted", file=sys.stderr)
+    sys.exit(130)
 
 
 class Terminated(BaseException):
@@ -125,7 +131,12 @@ def run_cli(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except typer.Exit as ex:
         return int(ex.exit_code)
-    except (typer.Abort, KeyboardInterrupt):
+    except (typer.Abort, KeyboardInterrupt) as err:
+        if isinstance(err.__cause__, EOFError):  # typer turns an uncaught EOFError into Abort
+            if debug:
+                raise
+            _error(f"internal error: unexpected end of data (EOFError: {err.__cause__})")
+            return EXIT_INTERNAL
         print("hybridsplat: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Terminated:
@@ -149,7 +160,40 @@ def run_cli(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Entry point of the console script: runs :func:`run_cli` and exits with its status (returns on 0)."""
+    """Entry point of the console script: runs :func:`run_cli` and exits with its status (returns on 0).
+
+    After Ctrl-C or SIGTERM (every ``finally`` block has run by then) the process ends at once with
+    ``os._exit``: worker threads a library left behind (a thread pool woken in the middle of starting a
+    worker) would otherwise keep the interpreter from exiting — seen once in ten interrupted ``run``s.
+    """
     code = run_cli(argv)
+    if code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        _exit_now(code)
     if code != EXIT_OK:
         sys.exit(code)
+
+
+def _exit_now(code: int) -> None:
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+def entry() -> None:
+    """The process entry point (console script and ``python -m hybridsplat``): :func:`main`, then exit.
+
+    Once the command is over, Ctrl-C and SIGTERM are ignored while the interpreter shuts down, so that a
+    signal arriving after a completed command cannot turn its exit status into a crash (-2).
+    """
+    try:
+        code = run_cli()
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    except KeyboardInterrupt:  # in the instant between the command's end and the lines above
+        print("hybridsplat: interrupted", file=sys.stderr)
+        code = EXIT_INTERRUPTED
+    if code in (EXIT_INTERRUPTED, EXIT_TERMINATED):
+        _exit_now(code)
+    sys.exit(code)

@@ -11,6 +11,7 @@ from pathlib import Path
 from core.cameras import Cameras
 from core.errors import FormatError, InputFileError
 from core.io import colmap as colmap_io
+from core.io.colmap_scan import scan_model
 
 
 def to_reconstruction(cameras: Cameras):  # -> pycolmap.Reconstruction
@@ -30,6 +31,7 @@ def read_reconstruction(path: str | Path):  # -> pycolmap.Reconstruction
     path = Path(path)
     if not any((path / f"cameras.{ext}").is_file() for ext in ("bin", "txt")):
         raise InputFileError("no COLMAP model here (cameras.bin or cameras.txt missing)", path)
+    scan_model(path)  # declared counts against file sizes before pycolmap allocates anything
     try:
         return pycolmap.Reconstruction(str(path))
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on corrupt files

@@ -28,6 +28,7 @@ import numpy as np
 from core.errors import FormatError, InputFileError, ReconstructionError
 from core.io import colmap_vis
 from core.io.atomic import atomic_path
+from core.io.colmap_scan import scan_model
 from core.pointcloud import PointCloud
 
 MAP_SUFFIXES = ("geometric", "photometric")
@@ -131,6 +132,7 @@ def setup_dense_workspace(
     sparse_dir, image_dir, dense = Path(sparse_dir), Path(image_dir), Path(dense_dir)
     if not (sparse_dir / "cameras.bin").is_file() and not (sparse_dir / "cameras.txt").is_file():
         raise InputFileError("no COLMAP sparse model (cameras.bin / cameras.txt) here", sparse_dir)
+    scan_model(sparse_dir)  # declared counts against file sizes before pycolmap allocates anything
     ws = DenseWorkspace(dense)
     for sub in (ws.images, ws.sparse, ws.stereo):
         if sub.exists():

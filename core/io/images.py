@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from os import PathLike
 from pathlib import Path
 
@@ -12,6 +13,29 @@ from core.errors import DataError, InputFileError
 from core.io.atomic import atomic_path
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+#: Largest image accepted, in pixels (a corrupt header must not make the decoder allocate gigabytes).
+MAX_PIXELS = 400_000_000
+
+# OpenCV logs decoder complaints on stderr; the errors raised below say the same in one line.
+with contextlib.suppress(AttributeError):
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_PNG_END = b"IEND\xaeB`\x82"
+
+
+def _check_structure(data: np.ndarray, path: Path) -> None:
+    """Catch truncated PNG and JPEG files, which decoders may return half-grey without an error."""
+    head = data[:8].tobytes()
+    if head == _PNG_MAGIC:
+        if data[-8:].tobytes() != _PNG_END:
+            raise InputFileError("PNG file is truncated (no IEND chunk at the end)", path)
+        if len(data) >= 24:
+            width, height = (int.from_bytes(data[i : i + 4].tobytes(), "big") for i in (16, 20))
+            if width * height > MAX_PIXELS:
+                raise InputFileError(f"PNG header declares {width}x{height} pixels (corrupt?)", path)
+    elif head[:3] == b"\xff\xd8\xff" and b"\xff\xd9" not in data[-1024:].tobytes():
+        raise InputFileError("JPEG file is truncated (no end-of-image marker)", path)
 
 
 def read_image(path: str | PathLike[str], *, grayscale: bool = False) -> np.ndarray:
@@ -25,6 +49,7 @@ def read_image(path: str | PathLike[str], *, grayscale: bool = False) -> np.ndar
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise InputFileError("image file is empty", path)
+    _check_structure(data, path)
     flags = cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_COLOR
     image = cv2.imdecode(data, flags | cv2.IMREAD_ANYDEPTH)
     if image is None:

@@ -120,16 +120,20 @@ def scan_las_header(path: str | PathLike[str]) -> int:
         raise InputFileError(f"LAS header size {header_size} does not fit a {size}-byte file", path)
     count = legacy
     evlr_start = 0
+    if (major, minor) >= (1, 3) and len(head) >= 235 and header_size >= 235:
+        (evlr_start,) = struct.unpack_from("<Q", head, 227)  # internal waveform packets follow the points
     if (major, minor) >= (1, 4):
         if len(head) < 375 or header_size < 375:
             raise InputFileError("file is truncated inside the LAS 1.4 header", path)
-        evlr_start, _n_evlr, count = struct.unpack_from("<QIQ", head, 235)
+        first_evlr, _n_evlr, count = struct.unpack_from("<QIQ", head, 235)
+        if first_evlr > point_offset and (evlr_start <= point_offset or first_evlr < evlr_start):
+            evlr_start = first_evlr
         if legacy and legacy != count:
             raise FormatError(f"header point counts disagree: legacy {legacy}, LAS 1.4 {count}", path)
     if point_offset < header_size or point_offset > size:
         raise FormatError(f"point data offset {point_offset} lies outside the file ({size} bytes)", path)
     compressed = bool(fmt_id & 0x80) or path.suffix.lower() == ".laz"
-    room = (evlr_start if evlr_start > point_offset else size) - point_offset
+    room = (min(evlr_start, size) if evlr_start > point_offset else size) - point_offset
     need = count * rec_len
     if compressed:
         if need > MAX_LAZ_RATIO * max(room, 1):

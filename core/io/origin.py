@@ -8,14 +8,18 @@ georeferenced data keeps its coordinates: ``world = origin + local``. Format::
 
 from __future__ import annotations
 
-import json
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
-from core.errors import FormatError
-from core.io.atomic import write_text_atomic
+from core.errors import DataError, FormatError, InputFileError
+from core.io.atomic import remove_output
+from core.io.json_io import read_json, write_json_atomic
+
+#: Largest origin coordinate accepted (metres): above every projected or geocentric CRS (~1e7 m), far
+#: below values whose float64 spacing exceeds a millimetre (~1e13 m).
+MAX_ORIGIN = 1e9
 
 
 def sidecar_path(path: str | PathLike[str]) -> Path:
@@ -27,11 +31,12 @@ def sidecar_path(path: str | PathLike[str]) -> Path:
 def write_origin(path: str | PathLike[str], origin: np.ndarray, crs: str | None = None) -> Path:
     """Write the sidecar for data file ``path``; returns the sidecar's path."""
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
+    if not np.isfinite(origin).all():
+        raise DataError(f"origin must be finite, got {origin.tolist()}", path)
     side = sidecar_path(path)
     # repr of a Python float round-trips float64 exactly.
     payload = {"origin": [float(v) for v in origin], "units": "m", "crs": crs}
-    write_text_atomic(side, json.dumps(payload, indent=2) + "\n")
-    return side
+    return write_json_atomic(side, payload)
 
 
 def read_origin(path: str | PathLike[str]) -> np.ndarray:
@@ -39,16 +44,24 @@ def read_origin(path: str | PathLike[str]) -> np.ndarray:
     side = sidecar_path(path)
     if not side.exists():
         return np.zeros(3)
-    try:
-        payload = json.loads(side.read_text(encoding="utf-8"))
-        origin = np.asarray(payload["origin"], dtype=np.float64).reshape(3)
-    except (ValueError, KeyError, TypeError) as err:
-        raise FormatError(f"origin sidecar is not valid ({err}); expected {{'origin': [x, y, z]}}", side) from err
-    if not np.isfinite(origin).all():
-        raise FormatError("origin sidecar holds non-finite values", side)
+    payload = read_json(side)  # names the sidecar on folders, bad JSON, bare NaN
+    values = payload.get("origin") if isinstance(payload, dict) else None
+    if (
+        not isinstance(values, list)
+        or len(values) != 3
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    ):
+        found = str(payload)[:60]
+        raise FormatError(f"origin sidecar must hold {{'origin': [x, y, z]}} (numbers), found {found}", side)
+    origin = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(origin).all() or np.abs(origin).max() > MAX_ORIGIN:
+        raise FormatError(f"origin {origin.tolist()} is not finite or beyond {MAX_ORIGIN:g} m", side)
     return origin
 
 
 def remove_origin(path: str | PathLike[str]) -> None:
     """Remove a stale sidecar (when a file is rewritten without an origin)."""
-    sidecar_path(path).unlink(missing_ok=True)
+    side = sidecar_path(path)
+    if side.is_dir():
+        raise InputFileError("is a folder, expected an origin sidecar file (or nothing)", side)
+    remove_output(side)

@@ -85,7 +85,7 @@ def scan_ply_header(path: str | PathLike[str]) -> PlyHeader:
     Checks the magic, the format, every element count (a non-negative integer) and property type, and
     that the file is large enough for the declared counts (so that a header declaring 2^31 vertices over
     a few bytes is refused at once instead of allocating gigabytes). Raises :class:`InputFileError`
-    (missing, folder, empty) or :class:`FormatError` naming the header line.
+    (missing, folder, empty, truncated) or :class:`FormatError` naming the header line.
     """
     path = Path(path)
     if not path.is_file():
@@ -147,7 +147,7 @@ def scan_ply_header(path: str | PathLike[str]) -> PlyHeader:
     have = size - data_offset
     if need > have:
         counts = ", ".join(f"{e.count} {e.name}" for e in elements)
-        raise FormatError(
+        raise InputFileError(
             f"PLY header declares {counts} needing at least {need} bytes, but only {have} bytes follow "
             "(file truncated or header count wrong)",
             path,

@@ -9,6 +9,7 @@ from pathlib import Path
 import typer
 
 from core.io import read_point_cloud
+from core.io.atomic import check_output_file, output_transaction
 from core.io.colmap_vis import read_vis
 from core.pointcloud import PointCloud
 from fusion.convert import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, convert_points
@@ -71,6 +72,7 @@ def convert(
         opacity_logit_max=opacity_logit_max,
     )
     exp = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
+    check_output_file(out)
     points = load_cloud(cloud, visibility)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConversionWarning)
@@ -82,7 +84,9 @@ def convert(
         f"converted {s.num_points} points ({mode.value}): mean NN spacing {s.mean_nn_spacing:.6g} m, "
         f"median spacing used {s.median_spacing:.6g} m, {s.seconds_total:.2f} s"
     )
-    print_export(export_gaussians(out, result.gaussians, exp))
+    with output_transaction():  # the file and its origin sidecar appear together or not at all
+        report = export_gaussians(out, result.gaussians, exp)
+    print_export(report)
 
 
 def register(app: typer.Typer) -> None:

@@ -11,7 +11,7 @@ from rich.table import Table
 
 from core.errors import ConfigError
 from core.io import read_point_cloud, write_point_cloud
-from core.io.atomic import write_text_atomic
+from core.io.atomic import check_output_dir, check_output_file, output_transaction, write_text_atomic
 from core.io.json_io import write_json_atomic
 
 if TYPE_CHECKING:
@@ -33,6 +33,13 @@ def _fmt(v: Any) -> str:
 
 def _write_json(path: Path, payload: dict[str, Any]) -> None:
     write_json_atomic(path, payload)
+
+
+def _check_outputs(json_path: Path | None, folder: Path | None) -> None:
+    if json_path is not None:
+        check_output_file(json_path)
+    if folder is not None:
+        check_output_dir(folder)
 
 
 def _print_image_table(result: ImageEval, title: str) -> None:
@@ -83,14 +90,17 @@ def c2c(
     For each compared point, the distance to the nearest reference point; prints count, mean, std, median,
     RMSE, P90/P95/P99 and max, per-class statistics for classified clouds, and with --tau completeness,
     precision, recall and F-score."""
-    from core.io.images import write_image
-    from eval.geometry import GeometryOptions, load_reference, measure, with_distance_field
+    from eval.geometry import GeometryOptions, load_reference, measure
     from eval.metrics_io import C2CSummary
-    from eval.plots import preview_image, svg_histogram
 
     if tau is not None and tau <= 0:
         raise ConfigError(f"--tau must be a positive distance in metres, got {tau}")
     options = GeometryOptions(max_dist=max_dist, tau=tau, icp_max_correspondence=icp)
+    for path in (json_path, out):
+        if path is not None:
+            check_output_file(path)
+    if plots is not None:
+        check_output_dir(plots)
     cloud = read_point_cloud(compared)
     ref = load_reference(reference)
     m = measure(cloud, ref, options)
@@ -129,6 +139,26 @@ def c2c(
             pc.add_row(str(k), *(_fmt(getattr(st, c)) for c in ("count", "mean", "std", "rmse", "p95", "max")))
         Console().print(pc)
 
+    with output_transaction():  # the cloud, plots and JSON appear together or not at all
+        _write_c2c_outputs(compared, method, measured, result, summary, out, plots, json_path, max_dist)
+
+
+def _write_c2c_outputs(  # noqa: PLR0913 - the outputs of one c2c run
+    compared: Path,
+    method: str,
+    measured: Any,
+    result: Any,
+    summary: Any,
+    out: Path | None,
+    plots: Path | None,
+    json_path: Path | None,
+    max_dist: float | None,
+) -> None:
+    from core.io.images import write_image
+    from eval.geometry import with_distance_field
+    from eval.plots import preview_image, svg_histogram
+
+    s = result.stats
     files: dict[str, str] = {}
     if out is not None:
         write_point_cloud(out, with_distance_field(measured, result.distances))
@@ -177,11 +207,13 @@ def images(
     from eval.lpips import LPIPS
     from eval.render_eval import evaluate_folders
 
+    _check_outputs(json_path, panels)
     model = None if no_lpips else LPIPS.from_path(lpips_weights)
-    result = evaluate_folders(renders, photos, masks, model, panels, name=renders.name or "images")
+    with output_transaction():  # panels and JSON appear together or not at all
+        result = evaluate_folders(renders, photos, masks, model, panels, name=renders.name or "images")
+        if json_path is not None:
+            _write_json(json_path, result.as_dict())
     _print_image_table(result, f"{renders} vs {photos}")
-    if json_path is not None:
-        _write_json(json_path, result.as_dict())
 
 
 @eval_app.command("render")
@@ -214,6 +246,7 @@ def render(
     from eval.lpips import LPIPS
     from eval.render_eval import evaluate_gaussians
 
+    _check_outputs(json_path, panels)
     gs = read_gaussian_ply(gaussians)
     cameras, _ = read_model(model)
     if views:
@@ -224,10 +257,11 @@ def render(
     if not chosen:
         raise ConfigError(f"no image of the model {model} has a photo in {photos}", photos)
     lpips_model = None if no_lpips else LPIPS.from_path(lpips_weights)
-    result = evaluate_gaussians(gs, cameras, chosen, photos, masks, lpips_model, panels, name=gaussians.stem)
+    with output_transaction():  # panels and JSON appear together or not at all
+        result = evaluate_gaussians(gs, cameras, chosen, photos, masks, lpips_model, panels, name=gaussians.stem)
+        if json_path is not None:
+            _write_json(json_path, result.as_dict())
     _print_image_table(result, f"{gaussians.name} at {len(chosen)} held-out views")
-    if json_path is not None:
-        _write_json(json_path, result.as_dict())
 
 
 def register(app: typer.Typer) -> None:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
 from fusion.export import export_gaussians, export_points
 from hybridsplat.commands.convert import export_options, print_export
@@ -25,12 +26,18 @@ def export(
 ) -> None:
     """Export Gaussians to viewer formats (.ply, .splat) or point clouds with class/source fields (.ply, .las)."""
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
-    gs = read_gaussian_ply(gaussians)
     for path in out:
-        if points and path.suffix.lower() == ".ply":
-            print_export(export_points(path, gs, options))
-        else:
-            print_export(export_gaussians(path, gs, options))
+        check_output_file(path)
+    gs = read_gaussian_ply(gaussians)
+    reports = []
+    with output_transaction():  # every output (and sidecar) appears, or none does
+        for path in out:
+            if points and path.suffix.lower() == ".ply":
+                reports.append(export_points(path, gs, options))
+            else:
+                reports.append(export_gaussians(path, gs, options))
+    for report in reports:
+        print_export(report)
 
 
 def register(app: typer.Typer) -> None:

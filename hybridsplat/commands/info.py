@@ -10,12 +10,12 @@ import typer
 from core.io import read_point_cloud
 from core.io.colmap import read_model
 from core.io.gaussian_ply import read_gaussian_ply
-from core.io.ply import load_ply_data
+from core.io.ply import scan_ply_header
 
 
 def _is_gaussian_ply(path: Path) -> bool:
-    header = load_ply_data(path)
-    return "vertex" in header and "f_dc_0" in (header["vertex"].data.dtype.names or ())
+    vertex = scan_ply_header(path).element("vertex")
+    return vertex is not None and any(name == "f_dc_0" for name, _, _ in vertex.properties)
 
 
 def info(

@@ -9,8 +9,9 @@ from pathlib import Path
 import typer
 
 from core.gaussians import GaussianSet
+from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
-from core.io.ply import load_ply_data
+from core.io.ply import scan_ply_header
 from fusion.convert import ConversionWarning, ConvertMode, convert_points
 from fusion.export import export_gaussians, export_points
 from fusion.merge import MergeOptions, Prefer, merge_gaussians
@@ -21,7 +22,8 @@ def is_gaussian_ply(path: Path) -> bool:
     """True when ``path`` is a PLY whose vertices carry 3DGS properties (``f_dc_0``, ``opacity``)."""
     if path.suffix.lower() != ".ply":
         return False
-    names = load_ply_data(path)["vertex"].data.dtype.names or ()
+    vertex = scan_ply_header(path).element("vertex")
+    names = {name for name, _, _ in vertex.properties} if vertex is not None else set()
     return "f_dc_0" in names and "opacity" in names
 
 
@@ -57,6 +59,8 @@ def merge(
     """Merge trained splats with MVS Gaussians: drop non-collaborative MVS classes, resolve duplicates, export."""
     exp = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
     options = MergeOptions(non_collaborative_classes=tuple(drop_class), duplicate_tolerance=tolerance, prefer=prefer)
+    for path in (out, *points_out):
+        check_output_file(path)
     splat_set = read_gaussian_ply(splats) if splats is not None else None
     mvs_set = load_gaussians(mvs, mode) if mvs is not None else None
     if splat_set is None and mvs_set is None:
@@ -67,9 +71,11 @@ def merge(
         f"merged {s.mvs_kept} MVS + {s.splats_kept} splat Gaussians (dropped {s.dropped_non_collaborative} "
         f"non-collaborative, {s.dropped_mvs_duplicates} MVS duplicates, {s.dropped_cross_duplicates} cross duplicates)"
     )
-    print_export(export_gaussians(out, result.gaussians, exp))
-    for path in points_out:
-        print_export(export_points(path, result.gaussians, exp))
+    with output_transaction():  # every output (and sidecar) appears, or none does
+        reports = [export_gaussians(out, result.gaussians, exp)]
+        reports += [export_points(path, result.gaussians, exp) for path in points_out]
+    for report in reports:
+        print_export(report)
 
 
 def register(app: typer.Typer) -> None:

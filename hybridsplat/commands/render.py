@@ -76,7 +76,7 @@ def render_command(
     """Render a Gaussian PLY at the cameras of a COLMAP model and write PNGs (colour, optional depth/alpha)."""
     from rich.progress import Progress
 
-    from fusion.render import render_gaussian_set, resolve_backend
+    from core.io.atomic import check_output_dir, output_transaction
 
     try:
         bg = np.array([float(v) for v in background.split(",")], dtype=np.float32)
@@ -86,13 +86,16 @@ def render_command(
         raise ConfigError(f"--background must be three numbers in [0, 1] like 1,1,1, got {background!r}")
     if depth_scale <= 0:
         raise ConfigError(f"--depth-scale must be positive, got {depth_scale}")
-    chosen = resolve_backend(backend)
-    splats = _load_gaussians(gaussians)
+    check_output_dir(out)
+    splats = _load_gaussians(gaussians)  # inputs are checked before torch is imported
     model = _load_cameras(cameras)
     views = _select_views(model, images, cameras)
-    out.mkdir(parents=True, exist_ok=True)
+    from fusion.render import render_gaussian_set, resolve_backend
+
+    chosen = resolve_backend(backend)
     clipped = 0
-    with Progress(transient=True) as progress, warnings.catch_warnings():
+    # all renders appear together, or none (an error or Ctrl-C half-way leaves the folder as it was)
+    with output_transaction(), Progress(transient=True) as progress, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         task = progress.add_task(f"rendering {len(views)} views ({chosen.value})", total=len(views))
         for view in views:

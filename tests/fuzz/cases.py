@@ -685,8 +685,8 @@ def _eval_cases() -> list[FuzzCase]:
             project = d / "project"
             (project / "eval").mkdir(parents=True)
             (project / "eval" / "metrics.json").write_text(text)
-            out = d / "report"
-            return Invocation(["report", str(project), "--out", str(out)], "metrics.json", (out / "report.json",))
+            out = project / "report"
+            return Invocation(["report", str(project)], "metrics.json", (out / "report.json",))
 
         return build
 
@@ -696,6 +696,20 @@ def _eval_cases() -> list[FuzzCase]:
         FuzzCase("metrics-bare-nan", metrics('{"products": {"mvs": {"c2c": {"mean": NaN}}}}')),
         FuzzCase("metrics-not-json", metrics("{products")),
         FuzzCase("metrics-images-string", metrics('{"products": {"mvs": {"images": "none"}}}')),
+    ]
+
+    def manifest(text: str) -> Callable[[Path], Invocation]:
+        def build(d: Path) -> Invocation:
+            project = d / "project"
+            project.mkdir()
+            (project / "manifest.json").write_text(text)
+            return Invocation(["report", str(project)], "manifest.json", (project / "report" / "report.json",))
+
+        return build
+
+    cases += [
+        FuzzCase("manifest-stage-seconds-string", manifest('{"stages": {"mvs": {"seconds": "fast"}}}')),
+        FuzzCase("manifest-stages-list", manifest('{"stages": [1, 2]}')),
     ]
     return cases
 
@@ -749,14 +763,33 @@ def _output_cases() -> list[FuzzCase]:
         FuzzCase("usage-unknown-option", usage(["convert", "--bogus"], "--bogus"), fast=True),
         FuzzCase("usage-missing-argument", usage(["convert"], "cloud")),
         FuzzCase("usage-invalid-choice", usage(["convert", "x.ply", "--out", "y.ply", "--mode", "zz"], "zz")),
-        FuzzCase("usage-bad-number", usage(["convert", "x.ply", "--out", "y.ply", "--k", "many"], "many")),
+        FuzzCase("usage-bad-number", usage(["convert", "x.ply", "--out", "y.ply", "--k", "many"], "--k")),
         FuzzCase("usage-unknown-command", usage(["frobnicate"], "frobnicate")),
     ]
 
 
+#: The subset that runs with the normal tests: one subprocess per file family of the issue, none that
+#: imports torch (those take 15–25 s each on the shared 2-core machine); the others run under `make fuzz`
+#: and, in-process, in tests/test_cli_errors.py.
+FAST = frozenset(
+    {
+        "ply-xyz-as-lists",
+        "las-count-larger-than-data",
+        "laz-truncated-half",
+        "colmap-info-cameras-truncated",
+        "sidecar-folder",
+        "gs-inf-scale",
+        "export-second-output-fails",
+        "metrics-wrong-types",
+        "usage-unknown-option",
+    }
+)
+
+
 def all_cases() -> list[FuzzCase]:
-    """Every case, in a stable order (names are unique)."""
+    """Every case, in a stable order (names are unique); ``fast`` set from :data:`FAST`."""
     cases = _ply_cases() + _gs_cases() + _las_cases() + _colmap_cases() + _eval_cases() + _output_cases()
     names = [c.name for c in cases]
-    assert len(names) == len(set(names)), "duplicate fuzz case names"
-    return cases
+    if len(names) != len(set(names)):
+        raise ValueError("duplicate fuzz case names")
+    return [FuzzCase(c.name, c.build, c.name in FAST, c.tags) for c in cases]

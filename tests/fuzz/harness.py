@@ -26,7 +26,9 @@ from fuzz.cases import FuzzCase, Invocation
 TIME_LIMIT_S = 60
 ADDRESS_SPACE_BYTES = 2 * 1024**3
 MAX_LINE = 300
-REPO = Path(__file__).resolve().parents[2]
+#: The checkout whose CLI runs; HYBRIDSPLAT_FUZZ_REPO points the suite at another one (e.g. to show that a
+#: case fails on an older main).
+REPO = Path(os.environ.get("HYBRIDSPLAT_FUZZ_REPO") or Path(__file__).resolve().parents[2])
 
 
 @dataclass(frozen=True)
