@@ -120,7 +120,8 @@ def test_interrupted_run_resumes_to_the_same_result(reference, tmp_path) -> None
 @pytest.mark.slow
 def test_ten_interruptions_at_random_moments(reference, tmp_path) -> None:
     scene, expected, seconds = reference
-    delays = np.random.default_rng(2026).uniform(0.05, 0.95, 10) * seconds
+    # within the first 60 % of the reference's duration: runs after it are faster (warm caches, less load)
+    delays = np.random.default_rng(2026).uniform(0.05, 0.6, 10) * seconds
     hit = [interrupt_then_resume(scene, tmp_path / f"p{i}", float(d), expected) for i, d in enumerate(delays)]
     print(f"reference run {seconds:.1f} s; interrupted at {[round(float(d), 1) for d in delays]} s: {hit}")
     assert sum(hit) >= 8  # a moment past the end of a (faster) run finishes instead; it must still match
