@@ -38,7 +38,8 @@ from typing import Any
 import numpy as np
 
 from core.errors import DataError, FormatError, InputFileError
-from core.io.atomic import write_text_atomic
+from core.io.atomic import output_transaction, write_text_atomic
+from core.io.json_io import to_jsonable, write_json_atomic
 from core.units import Units
 from eval.metrics_io import read_metrics
 from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
@@ -94,6 +95,9 @@ def _read_json(path: Path, what: str) -> dict[str, Any] | None:
         raise FormatError(f"{what} is not valid JSON ({err})", path) from err
     if not isinstance(data, dict):
         raise FormatError(f"{what} must hold a JSON object", path)
+    stages = data.get("stages")
+    if stages is not None and not (isinstance(stages, dict) and all(isinstance(v, dict) for v in stages.values())):
+        raise FormatError(f"{what}: 'stages' must map stage names to objects", path)
     return data
 
 
@@ -523,7 +527,9 @@ def write_report(
     report = build_report(manifest_file, metrics_file, units)
     eval_dir = metrics_file.parent
     metrics = read_metrics(metrics_file) if metrics_file.is_file() else None
-    write_text_atomic(paths.json, json.dumps(report, indent=2, default=str) + "\n")
-    write_text_atomic(paths.markdown, to_markdown(report))
-    write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels))
+    strict = to_jsonable(json.loads(json.dumps(report, default=str)))  # NaN/inf -> null: report.json stays JSON
+    with output_transaction():  # the three files appear together or not at all
+        write_json_atomic(paths.json, strict)
+        write_text_atomic(paths.markdown, to_markdown(report))
+        write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels))
     return paths

@@ -27,6 +27,7 @@ from pathlib import Path
 
 _LOCK = threading.RLock()
 # glog prefix: severity letter, date (MMDD or YYYYMMDD), time, thread id, file:line] message
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _GLOG = re.compile(r"^([IWEF])\d{4,8} [\d:.]+\s+\d+ ([^:\]\s]+)(?::[^\]]*)?\] ?(.*)$")
 
 
@@ -50,7 +51,7 @@ def summarise_warnings(text: str, limit: int = 20) -> list[str]:
     """glog W/E/F lines of ``text`` → one readable line per distinct message, in order of first appearance."""
     counts: dict[str, int] = {}
     for line in text.splitlines():
-        m = _GLOG.match(line.strip())
+        m = _GLOG.match(_ANSI.sub("", line).strip())  # glog colours its lines when it believes it has a terminal
         if not m or m.group(1) == "I":
             continue
         kind = {"W": "warning", "E": "error", "F": "fatal error"}[m.group(1)]
