@@ -98,6 +98,13 @@ def _read_json(path: Path, what: str) -> dict[str, Any] | None:
     stages = data.get("stages")
     if stages is not None and not (isinstance(stages, dict) and all(isinstance(v, dict) for v in stages.values())):
         raise FormatError(f"{what}: 'stages' must map stage names to objects", path)
+    for name, record in (stages or {}).items():
+        for key in ("seconds", "peak_mb"):
+            value = record.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise FormatError(f"{what}: stages.{name}.{key} must be a number, found {value!r}", path)
+        if record.get("counts") is not None and not isinstance(record["counts"], dict):
+            raise FormatError(f"{what}: stages.{name}.counts must be an object", path)
     return data
 
 
