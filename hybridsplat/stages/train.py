@@ -23,15 +23,18 @@ from hybridsplat.stages.base import Stage, StageContext, read_project_model
 class TrainStageOptions:
     """Options of the ``train`` stage (see fusion.train.TrainOptions for the training defaults).
 
-    iterations: maximum steps (early stop on the hold-out mask pixels). downscale: integer factor for photos and
-    masks. cap: hard Gaussian budget, further limited to ``splats_per_mask_pixel`` × the mask pixels of all
-    training photos (at least 1000) so that small regions get small budgets. sh_degree: highest SH degree.
-    flat: surface-aligned splats. rays_per_view:
-    ray seeds per photo. snapshot_iterations: steps after which the splats are kept in splats/snapshots/.
+    iterations: maximum steps (early stop on the hold-out mask pixels).
+    downscale: integer factor for photos and masks; raised so that the longer side is at most ``max_image_size``
+        pixels (CPU-sized by default; 0 = no limit); the factor used is recorded in the manifest.
+    cap: hard Gaussian budget, further limited to ``splats_per_mask_pixel`` × the mask pixels of all training
+        photos (at least 1000) so that small regions get small budgets.
+    sh_degree: highest SH degree. flat: surface-aligned splats. rays_per_view: ray seeds per photo.
+    snapshot_iterations: steps after which the splats are kept in splats/snapshots/.
     """
 
     iterations: int = 2000
     downscale: int = 1
+    max_image_size: int = 640
     cap: int = 60_000
     splats_per_mask_pixel: float = 0.25
     sh_degree: int = 3
@@ -40,8 +43,8 @@ class TrainStageOptions:
     snapshot_iterations: tuple[int, ...] = (500, 1000, 1500)
 
     def __post_init__(self) -> None:
-        if self.iterations < 1 or self.downscale < 1 or self.cap < 1:
-            raise ConfigError("iterations, downscale and cap must be >= 1")
+        if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
+            raise ConfigError("iterations, downscale and cap must be >= 1, max_image_size >= 0")
         if not self.splats_per_mask_pixel > 0:
             raise ConfigError(f"splats_per_mask_pixel must be > 0, got {self.splats_per_mask_pixel}")
 
@@ -129,9 +132,11 @@ class TrainStage(Stage):
         seeds = seed_splats(cameras, masks, images, mvs.means, np.clip(mvs.base_colors * 255, 0, 255), needs,
                             sfm_local, sfm.colors if len(sfm) else None,
                             InitOptions(rays_per_view=opts.rays_per_view, seed=ctx.config.seed))  # fmt: skip
-        mask_pixels = sum(int(m.sum()) for m in masks.values()) / opts.downscale**2
+        longest = max(max(cameras.camera_of(v).width, cameras.camera_of(v).height) for v in cameras)
+        downscale = max(opts.downscale, -(-longest // opts.max_image_size) if opts.max_image_size else 1)
+        mask_pixels = sum(int(m.sum()) for m in masks.values()) / downscale**2
         cap = min(opts.cap, max(1000, round(opts.splats_per_mask_pixel * mask_pixels)))
-        train_opts = TrainOptions(iterations=opts.iterations, downscale=opts.downscale, seed=ctx.config.seed,
+        train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
                                   sh_degree=opts.sh_degree, flat=opts.flat,
                                   snapshot_iterations=opts.snapshot_iterations,
                                   strategy=DefaultStrategy(cap=cap))  # fmt: skip
@@ -150,6 +155,7 @@ class TrainStage(Stage):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
         return {
             "trained": len(result.splats),
+            "downscale": downscale,
             "cap": cap,
             "iterations": result.iterations,
             "stopped_early": result.stopped_early,
