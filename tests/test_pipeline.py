@@ -163,6 +163,10 @@ def test_photo_folder_with_a_georeferenced_reference_in_millimetres(tmp_path, ca
     assert np.all(np.abs(origin - offset) < 5.0)  # a rounded local origin near the block
     sidecar = json.loads(layout.merged_ply.with_suffix(".origin.json").read_text())
     assert sidecar["crs"] == "EPSG:32632"
+    import laspy
+
+    las_crs = laspy.read(layout.merged_points_las).header.parse_crs()
+    assert las_crs is not None and las_crs.to_epsg() == 32632  # the LAS carries the CRS as WKT
     fused = read_ply(layout.fused_ply)
     distances, _ = cKDTree(lidar.positions).query(fused.world_positions - offset)
     # Self-calibrated SfM of tiny's single 96x72 ring leaves ~8 cm of structure error (measured: median 0.084 m

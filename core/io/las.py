@@ -17,7 +17,7 @@ from pathlib import Path
 import laspy
 import numpy as np
 
-from core.errors import DataError, FormatError, InputFileError
+from core.errors import ConfigError, DataError, FormatError, InputFileError
 from core.io.atomic import atomic_path
 from core.pointcloud import PointCloud, choose_origin
 
@@ -160,12 +160,14 @@ def write_las(
     *,
     scale: float = 0.001,
     offset: np.ndarray | None = None,
+    crs: str | None = None,
 ) -> Path:
     """Write a point cloud as LAS 1.4 (``.las``) or LAZ (``.laz``), atomically.
 
     ``scale`` (metres per integer step, default 1 mm) applies to x, y, z; ``offset`` defaults to the cloud's
-    origin (rounded to the scale). Raises :class:`DataError` when coordinates do not fit the int32 range at
-    that scale.
+    origin (rounded to the scale). ``crs`` (e.g. ``"EPSG:32632"``) is written as the WKT VLR that LAS 1.4 readers
+    (laspy, PDAL, CloudCompare) take the georeference from. Raises :class:`DataError` when coordinates do not fit
+    the int32 range at that scale, :class:`ConfigError` for a CRS that pyproj does not know.
     """
     path = Path(path)
     if path.suffix.lower() not in (".las", ".laz"):
@@ -182,6 +184,13 @@ def write_las(
     header = laspy.LasHeader(point_format=point_format, version="1.4")
     header.scales = np.array([scale] * 3)
     header.offsets = offset_arr
+    if crs:
+        import pyproj
+
+        try:
+            header.add_crs(pyproj.CRS.from_user_input(crs))
+        except pyproj.exceptions.CRSError as err:
+            raise ConfigError(f"unknown CRS {crs!r} ({err})", path) from err
     extras = {k: v for k, v in cloud.fields.items() if k not in ("classification",) + _STANDARD_KEPT}
     if cloud.normals is not None:
         extras = {"nx": cloud.normals[:, 0], "ny": cloud.normals[:, 1], "nz": cloud.normals[:, 2], **extras}

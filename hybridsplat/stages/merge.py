@@ -60,12 +60,17 @@ class MergeStage(Stage):
             result = merge_gaussians(None, mvs)
             written = export_gaussian_ply(layout.merged_ply, result.gaussians)
         export_points(layout.merged_points_ply, result.gaussians)
-        export_points(layout.merged_points_las, result.gaussians)
-        if ctx.config.input.crs:  # the georeference sidecars carry the CRS the user gave
+        crs = ctx.config.input.crs
+        if crs:  # the georeference sidecars and the LAS's WKT carry the CRS the user gave
+            from core.io.las import write_las
             from core.io.origin import write_origin
+            from fusion.export import gaussians_to_points
 
+            write_las(layout.merged_points_las, gaussians_to_points(result.gaussians), crs=crs)
             for path in (layout.merged_ply, layout.merged_points_ply):
-                write_origin(path, result.gaussians.origin, ctx.config.input.crs)
+                write_origin(path, result.gaussians.origin, crs)
+        else:
+            export_points(layout.merged_points_las, result.gaussians)
         s = result.stats
         return {"merged": len(result.gaussians), "written": written.num_written, "mvs": s.mvs_kept,
                 "splats": s.splats_kept}  # fmt: skip
