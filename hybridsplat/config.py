@@ -17,8 +17,9 @@ from typing import Any
 import tomllib
 
 from core.errors import ConfigError, FormatError
+from core.units import Units
 
-UNITS = ("m", "mm", "cm", "ft")
+UNITS = tuple(u.value for u in Units)
 
 
 @dataclass(frozen=True)

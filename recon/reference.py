@@ -38,7 +38,6 @@ __all__ = [
     "read_reference",
     "read_reference_centers",
     "read_reference_text",
-    "metres_per_unit",
     "read_strecha_camera",
     "read_strecha_cameras",
     "write_reference_text",
@@ -184,14 +183,6 @@ def read_strecha_cameras(folder: str | Path) -> Cameras:
         cam, view = read_strecha_camera(f, i, i)
         cams[i], views[i] = cam, view
     return Cameras(cams, views)
-
-
-METRES_PER_UNIT = {u.value: u.metres for u in Units}
-
-
-def metres_per_unit(units: str) -> float:
-    """Metres per one ``units`` (m, mm, cm, ft); ConfigError for anything else."""
-    return Units.parse(units).metres
 
 
 def read_reference_centers(path: str | Path, units: str = "m") -> dict[str, np.ndarray]:

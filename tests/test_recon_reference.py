@@ -176,7 +176,8 @@ def test_align_to_a_georeferenced_reference_in_millimetres(tmp_path: Path):
 
 
 def test_read_reference_centers_needs_three(tmp_path: Path):
-    from recon.reference import metres_per_unit, read_reference_centers
+    from core.units import Units
+    from recon.reference import read_reference_centers
 
     (tmp_path / "r.txt").write_text("a 1 2 3\nb 4 5 6\n")
     with pytest.raises(FormatError, match="at least 3 camera centres"):
@@ -184,4 +185,4 @@ def test_read_reference_centers_needs_three(tmp_path: Path):
     (tmp_path / "r.txt").write_text("a 1000 2000 3000\nb 4 5 6\nc 7 8 9\n")
     centers = read_reference_centers(tmp_path / "r.txt", "mm")
     np.testing.assert_allclose(centers["a"], [1.0, 2.0, 3.0], rtol=1e-15)
-    assert metres_per_unit("ft") == 0.3048
+    assert Units.parse("ft").metres == 0.3048

@@ -83,12 +83,22 @@ def model_origin(ctx: StageContext) -> np.ndarray:
     COLMAP models hold no origin: the sfm stage records it (a georeferenced block is aligned into a local frame
     around a rounded centroid). Zeros before the sfm stage ran or without a georeference.
     """
-    from core.io.json_io import read_json
+    return recorded_model_origin(ctx.layout, np.zeros(3))
 
-    record = ctx.layout.record("sfm")
-    if not record.is_file():
-        return np.zeros(3)
-    return np.asarray(read_json(record).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64).reshape(3)
+
+def recorded_model_origin(layout: ProjectLayout, fallback: np.ndarray) -> np.ndarray:
+    """The ``origin`` the sfm stage recorded in ``layout.record("sfm")``, else ``fallback`` (see model_origin)."""
+    from core.errors import FormatError
+    from core.io.json_io import read_json_object
+
+    record = layout.record("sfm")
+    if record.is_file():
+        origin = read_json_object(record).get("origin")
+        if origin is not None:
+            if not (isinstance(origin, list) and len(origin) == 3):
+                raise FormatError(f'"origin" must be three numbers, got {origin!r}', record)
+            return np.asarray(origin, np.float64).reshape(3)
+    return np.asarray(fallback, np.float64).reshape(3)
 
 
 def read_model_at(path: Path, origin: np.ndarray) -> tuple[Cameras, PointCloud]:

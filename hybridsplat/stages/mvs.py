@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from core.errors import ConfigError
-from core.io.json_io import read_json, write_json_atomic
-from hybridsplat.stages.base import Stage, StageContext
+from core.io.json_io import write_json_atomic
+from hybridsplat.stages.base import Stage, StageContext, model_origin
 from recon.mvs import FusionOptions, MvsBackend, MvsOptions
 
 
@@ -70,7 +70,7 @@ class MvsStage(Stage):
             held_out=frozenset(ctx.source.holdout_names),
         )
         report = run_mvs(layout.sparse, ctx.source.image_dir, layout.dense, options, ctx.progress)
-        origin = np.asarray(read_json(layout.record("sfm")).get("origin", (0.0, 0.0, 0.0)), dtype=np.float64)
+        origin = model_origin(ctx)
         if np.any(origin != 0):  # the model is in a local frame: fused.ply (float32) gets the offset sidecar
             write_origin(layout.fused_ply, origin, ctx.config.input.crs)
         write_json_atomic(layout.record(self.name), {"report": report, "options": options})

@@ -133,6 +133,6 @@ def _reference_centers(ctx: StageContext) -> tuple[dict[str, np.ndarray], np.nda
             return {}, np.zeros(3)
         centers = {v.name: v.center for v in from_reconstruction(read_reconstruction(known))}
         return centers, np.asarray(ctx.source.spec.origin, dtype=np.float64)
-    from recon.reference import read_reference
+    from recon.reference import read_reference_centers
 
-    return dict(read_reference(reference, ctx.config.input.units).centers), np.zeros(3)
+    return read_reference_centers(reference, ctx.config.input.units), np.zeros(3)

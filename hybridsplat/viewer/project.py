@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import FormatError, InputFileError
+from core.errors import InputFileError
 from hybridsplat.layout import ProjectLayout
 
 
@@ -25,13 +25,6 @@ def cameras_origin(layout: ProjectLayout, fallback: np.ndarray) -> np.ndarray:
     ``fallback`` is the merged product's origin (its ``.origin.json`` sidecar), which equals the model's frame
     whenever the products were made from this model.
     """
-    from core.io.json_io import read_json_object
+    from hybridsplat.stages.base import recorded_model_origin
 
-    record = layout.record("sfm")
-    if record.is_file():
-        origin = read_json_object(record).get("origin")
-        if origin is not None:
-            if not (isinstance(origin, list) and len(origin) == 3):
-                raise FormatError(f'"origin" must be three numbers, got {origin!r}', record)
-            return np.asarray(origin, np.float64).reshape(3)
-    return np.asarray(fallback, np.float64).reshape(3)
+    return recorded_model_origin(layout, fallback)
