@@ -2,10 +2,12 @@
 
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
+from report_helpers import build_project_report as _build
+from report_helpers import metrics_file as _metrics
+from report_helpers import write_project_report as _write
 
 from core.errors import FormatError, InputFileError
 from core.pointcloud import PointCloud
@@ -13,24 +15,7 @@ from eval.geometry import GeometryOptions, evaluate_geometry
 from eval.image_metrics import psnr
 from eval.metrics_io import ProductMetrics, read_metrics, update_metrics, write_metrics
 from eval.render_eval import ImagePair, evaluate_folders, evaluate_pairs
-from eval.report import C2C_KEYS, IMAGE_KEYS, ReportPaths, build_report, write_report
-from hybridsplat.layout import ProjectLayout
-
-
-def _metrics(project):
-    return ProjectLayout(project).metrics_json
-
-
-def _build(project, units=None):
-    layout = ProjectLayout(project)
-    return build_report(layout.manifest, layout.metrics_json, units)
-
-
-def _write(project, out=None, **options):
-    layout = ProjectLayout(project)
-    out = Path(out) if out is not None else layout.report_dir
-    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
-    return write_report(layout.manifest, layout.metrics_json, paths, **options)
+from eval.report import C2C_KEYS, IMAGE_KEYS
 
 
 def _images(seed: int, n: int = 3, size=(48, 64)):

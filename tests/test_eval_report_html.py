@@ -10,33 +10,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from report_helpers import build_project_report as _build
+from report_helpers import metrics_file as _metrics
+from report_helpers import write_project_report as _write
 
 from core.io.images import write_image
 from core.pointcloud import PointCloud
 from eval.geometry import GeometryOptions, evaluate_geometry
 from eval.metrics_io import ProductMetrics, write_metrics
 from eval.render_eval import ImagePair, evaluate_pairs, side_by_side
-from eval.report import ReportPaths, build_report, write_report
-from hybridsplat.layout import ProjectLayout
 
 NUM_VIEWS = 50
 PANEL_VIEWS = 5  # views per product that get a full-size panel file (the eval stage's own max_panels)
-
-
-def _metrics(project):
-    return ProjectLayout(project).metrics_json
-
-
-def _build(project, units=None):
-    layout = ProjectLayout(project)
-    return build_report(layout.manifest, layout.metrics_json, units)
-
-
-def _write(project, out=None, **options):
-    layout = ProjectLayout(project)
-    out = Path(out) if out is not None else layout.report_dir
-    paths = ReportPaths(out / "report.json", out / "report.md", out / "report.html")
-    return write_report(layout.manifest, layout.metrics_json, paths, **options)
 
 
 def _photo(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
