@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.baseline import BaselineStage
 from hybridsplat.stages.classify import ClassifyStage
 from hybridsplat.stages.clean import CleanStage
 from hybridsplat.stages.convert import ConvertStage
@@ -25,6 +26,7 @@ STAGES: tuple[Stage, ...] = (
     CleanStage(),
     MergeStage(),
     MeshStage(),
+    BaselineStage(),
     EvalStage(),
     ReportStage(),
 )
