@@ -8,8 +8,14 @@ import typer
 
 from hybridsplat.commands.common import input_options_from_cli, print_result, stage_options_from_cli
 
-DEMO_MESH_BUDGET = 2_000
-"""Triangles of the demo's mesh (export/mesh.*): small, so the demo stays quick."""
+DEMO_STAGES = {
+    "mesh": {"budget": 2_000},
+    "train": {"iterations": 600},
+    "baseline": {"enabled": True, "iterations": 1_000},
+}
+"""The demo's stage options: a small mesh and CPU-sized training budgets for the hybrid and the whole-scene
+baseline, so that every stage of the demo scene runs in minutes on 2 cores (``bench/bench_pipeline.py`` sweeps
+the budgets)."""
 
 
 def register(app: typer.Typer) -> None:
@@ -111,7 +117,7 @@ def register(app: typer.Typer) -> None:
         config = ProjectConfig(
             input=InputOptions(path=str(scene.resolve())),
             seed=seed,
-            stages=stage_options_from_cli(mesh={"budget": DEMO_MESH_BUDGET}, baseline={"enabled": True}),
+            stages=stage_options_from_cli(**DEMO_STAGES),
         )
         manifest = run_pipeline(project, config, terminal=terminal)
         print_result(terminal, project, manifest)
