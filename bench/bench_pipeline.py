@@ -11,10 +11,10 @@ stage upstream of the changed one is reused from the copy (the runner finds it u
 - the MVS image size (``mvs.max_image_size``) and the conversion mode (``convert.mode``).
 
 Every pipeline runs in its own process (so each stage's peak memory is its own). A product's time is the sum of
-its stages' wall times from the shared SfM model (eval, report and mesh excluded):
+its stages' wall times after the shared SfM model (sfm, eval, report and mesh excluded):
 
-- MVS only = sfm + mvs + convert;  baseline = sfm + baseline;
-- hybrid = sfm + mvs + classify + masks + convert + train + clean + merge.
+- MVS only = mvs + convert;  baseline = baseline (its training);
+- hybrid = mvs + classify + masks + convert + train + clean + merge.
 
 Scores come from the eval stage (C2C mean/std, completeness/F-score at τ = 3 GSD against the LiDAR cloud; PSNR /
 SSIM / LPIPS on the held-out views, whole image and inside the true non-collaborative masks) and from its
@@ -42,11 +42,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-# time of a product = the sum of these stages' wall times (from the shared SfM model)
+# time of a product = the sum of these stages' wall times after the shared SfM model
 PRODUCT_STAGES = {
-    "mvs": ("sfm", "mvs", "convert"),
-    "baseline": ("sfm", "baseline"),
-    "merged": ("sfm", "mvs", "classify", "masks", "convert", "train", "clean", "merge"),
+    "mvs": ("mvs", "convert"),
+    "baseline": ("baseline",),
+    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "merge"),
 }
 PRODUCT_LABELS = {"mvs": "MVS only", "baseline": "whole-scene 3DGS", "merged": "hybrid"}
 
@@ -183,6 +183,7 @@ def points_of(scene: str, variant: str, project: Path, manifest: dict[str, Any])
             completeness=c2c.get("completeness"), fscore=c2c.get("fscore"),
             psnr=full.get("psnr"), ssim=full.get("ssim"), lpips=full.get("lpips"),
             masked_psnr=masked.get("psnr"), masked_ssim=masked.get("ssim"), masked_lpips=masked.get("lpips"),
+            extra={"load_after_run": load()},
         ))  # fmt: skip
     return out
 
