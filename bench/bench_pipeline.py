@@ -370,8 +370,8 @@ def markdown(results: dict[str, Any]) -> str:
             lines += ["Skipped stages: " + "; ".join(f"{n} ({r})" for n, r in s["skipped"].items()), ""]
         tr = s["train"]
         if tr.get("views_used") is not None:
-            lines += [f"Training used {tr['views_used']} views; {tr['views_without_mask']} views without mask pixels "
-                      f"were not rendered.", ""]  # fmt: skip
+            lines += [f"Training rendered {tr['views_used']} views; {tr['views_without_mask']} views without mask "
+                      f"pixels were left out of training.", ""]  # fmt: skip
         lines += ["| variant | product | time s | peak MB | C2C mean mm | C2C std mm | completeness | F-score | "
                   "PSNR | SSIM | LPIPS | masked PSNR | masked SSIM | masked LPIPS |",
                   "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip

@@ -173,7 +173,7 @@ class EvalStage(Stage):
                 cloud = read_point_cloud(cloud)
             geometry = geometry_per_material(cloud.world_positions, ref.world_positions, ref.fields["material"], tau)
             pixels = {}
-            if gaussians is not None and images is not None and labels_dir is not None and images.masks is not None:
+            if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
         return result
