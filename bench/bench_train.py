@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -139,6 +140,123 @@ def splat_geometry(splats, lidar_world: np.ndarray, material: np.ndarray, non_co
                        "c2c_median_m": float(np.median(d[sel]))}  # fmt: skip
     outside = (~np.isin(mat, non_collab)) | (d > tau)
     return {"outside_true_region": int(outside.sum()), "per_material": per}
+
+
+@dataclass(frozen=True)
+class MaterialGeometry:
+    """Geometry of one product on one truth material: accuracy = mean distance (m) product -> truth of the product
+    points whose nearest truth point has this material (weighted when the product has weights), and
+    completeness = share of this material's truth points with a product point within tau."""
+
+    points: int
+    accuracy_mean_m: float
+    accuracy_median_m: float
+    completeness: float
+
+
+def product_geometry(
+    points_world: np.ndarray,
+    weights: np.ndarray | None,
+    truth_world: np.ndarray,
+    truth_material: np.ndarray,
+    tau: float,
+    truth_tree=None,
+) -> dict[int, MaterialGeometry]:
+    """Per truth material (and -1 = all): :class:`MaterialGeometry` of a product (points (N, 3) world, float64)."""
+    from scipy.spatial import cKDTree
+
+    tree = truth_tree if truth_tree is not None else cKDTree(truth_world)
+    out: dict[int, MaterialGeometry] = {}
+    if len(points_world):
+        d, idx = tree.query(points_world, k=1, workers=-1)
+        back, _ = cKDTree(points_world).query(truth_world, k=1, workers=-1, distance_upper_bound=tau)
+    else:
+        d, idx, back = np.zeros(0), np.zeros(0, np.int64), np.full(len(truth_world), np.inf)
+    w = np.ones(len(d)) if weights is None else np.asarray(weights, np.float64)
+    mat = truth_material[idx]
+    for m in [-1, *np.unique(truth_material).tolist()]:
+        sel = np.ones(len(d), bool) if m == -1 else mat == m
+        tsel = np.ones(len(truth_world), bool) if m == -1 else truth_material == m
+        acc = float((d[sel] * w[sel]).sum() / max(w[sel].sum(), 1e-30)) if sel.any() else float("nan")
+        med = float(np.median(d[sel])) if sel.any() else float("nan")
+        out[int(m)] = MaterialGeometry(int(sel.sum()), acc, med, float(np.mean(back[tsel] < tau)))
+    return out
+
+
+def print_geometry(products: dict[str, dict[int, MaterialGeometry]], names: dict[int, str], tau: float) -> None:
+    """One table per measure: rows = products, columns = truth materials."""
+    mats = sorted({m for p in products.values() for m in p})
+    head = "".join(f"{names.get(m, 'all'):>12s}" for m in mats)
+    tables = (
+        ("accuracy mean (mm, product -> truth)", "accuracy_mean_m", 1000, "{:12.2f}"),
+        ("accuracy median (mm)", "accuracy_median_m", 1000, "{:12.2f}"),
+        ("points", "points", 1, "{:12d}"),
+        (f"completeness at tau {tau * 1000:.1f} mm", "completeness", 1, "{:12.3f}"),
+    )
+    for title, key, scale, fmt in tables:
+        print(f"  {title}:\n  {'product':24s}{head}")
+        for name, per in products.items():
+            cells = ""
+            for m in mats:
+                v = getattr(per[m], key) if m in per else float("nan")
+                cells += fmt.format(v * scale if key != "points" else v) if v == v else f"{'-':>12s}"
+            print(f"  {name:24s}{cells}")
+
+
+def bench_geometry(args: argparse.Namespace) -> None:
+    """Step 1 of issue 14's geometry: where the error comes from. MVS points kept / dropped, the trained splats'
+    centres (opacity-weighted), the survey-point selection and the merged point products, per truth material."""
+    from scipy.spatial import cKDTree
+
+    from core.io import read_point_cloud
+    from core.io.colmap import read_model
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.clean import SurveyPointOptions, select_survey_points
+
+    scene, project = Path(args.scene), Path(args.project)
+    meta = json.loads((scene / "scene.json").read_text())
+    names = {int(m["id"]): m["name"] for m in meta["materials"]}
+    tau = args.tau_gsd * meta["gsd_m"]
+    cameras, _ = read_model(project / "sparse")
+    fused = read_point_cloud(project / "dense" / "fused.ply")
+    masks, needs, _ = truth_inputs(scene, cameras, fused.world_positions)
+    if args.needs == "classified":
+        cls = read_point_cloud(project / "classify" / "points.ply")
+        needs = np.asarray(cls.fields["needs_splats"]).astype(bool)
+    lidar = read_point_cloud(scene / "gt" / "lidar.ply")
+    truth = lidar.world_positions
+    material = np.asarray(lidar.fields["material"]).astype(np.int64)
+    tree = cKDTree(truth)
+    spacing = float(np.median(cKDTree(fused.positions[~needs]).query(fused.positions[~needs], k=2)[0][:, 1]))
+    print(f"scene {scene}, project {project}: {len(fused)} fused points, {int(needs.sum())} need splats "
+          f"({args.needs}); tau {tau * 1000:.2f} mm; trusted MVS spacing {spacing * 1000:.2f} mm; "
+          f"{load()}")  # fmt: skip
+    world = fused.world_positions
+    products = {
+        "MVS-only": product_geometry(world, None, truth, material, tau, tree),
+        "MVS kept (trusted)": product_geometry(world[~needs], None, truth, material, tau, tree),
+        "MVS dropped (needs)": product_geometry(world[needs], None, truth, material, tau, tree),
+    }
+    for spec in args.splats:
+        label, _, path = spec.partition("=")
+        splats = read_gaussian_ply(path)
+        w = splats.opacities.astype(np.float64)
+        products[f"{label} centres (α-w)"] = product_geometry(splats.world_means, w, truth, material, tau, tree)
+        sel = select_survey_points(splats, cameras, masks, fused.with_origin(cameras.origin).positions[~needs],
+                                   spacing, SurveyPointOptions())  # fmt: skip
+        print(f"survey-point selection of {label}: {sel.counts}")
+        kept = splats.world_means[sel.keep]
+        products[f"{label} survey pts"] = product_geometry(kept, None, truth, material, tau, tree)
+        products[f"merged all {label}"] = product_geometry(
+            np.concatenate([world[~needs], splats.world_means]), None, truth, material, tau, tree
+        )
+        products[f"merged pts {label}"] = product_geometry(
+            np.concatenate([world[~needs], kept]), None, truth, material, tau, tree
+        )
+    print_geometry(products, names, tau)
+    if args.json:
+        Path(args.json).write_text(json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in products.items()},
+                                              indent=1))  # fmt: skip
 
 
 def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_model, out_dir):
@@ -357,9 +475,17 @@ def main() -> None:
     c.add_argument("--out", default="bench/out/train_score")
     c.add_argument("--ply", nargs="*", default=[], help="NAME=PATH; names merged_from_* are merged with MVS first")
     c.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
+    g = sub.add_parser("geometry")
+    g.add_argument("--scene", required=True)
+    g.add_argument("--project", required=True)
+    g.add_argument("--splats", nargs="*", default=[], help="LABEL=PATH of trained (cleaned) splats")
+    g.add_argument("--needs", choices=("truth", "classified"), default="truth")
+    g.add_argument("--tau-gsd", type=float, default=3.0)
+    g.add_argument("--json", default="")
     args = p.parse_args()
     torch.manual_seed(0)
-    {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score}[args.cmd](args)
+    commands = {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score, "geometry": bench_geometry}
+    commands[args.cmd](args)
 
 
 if __name__ == "__main__":

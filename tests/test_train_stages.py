@@ -9,7 +9,7 @@ import numpy as np
 from test_train_trainer import alpha_masks, blob_set, render_all, ring_cameras
 
 from core.gaussians import GaussianSet
-from core.io import write_point_cloud
+from core.io import read_point_cloud, write_point_cloud
 from core.io.colmap import write_model
 from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
 from core.io.images import write_image
@@ -66,6 +66,14 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     assert m["mvs"] == int((~needs).sum()) and m["splats"] == c["kept"]
     assert int((merged.fields["source"] == Source.MVS).sum()) == m["mvs"]
     assert layout.splats_export.is_file()
+    # the point product: the MVS points and only the trustworthy splats, every left-out splat counted with a reason
+    p = m["point_splats"]
+    assert p["input"] == c["kept"]
+    assert p["kept"] + p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] == p["input"]
+    points = read_point_cloud(layout.merged_points_ply)
+    assert len(points) == m["points"] == m["mvs"] + p["kept"]
+    assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
+    assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors are on by default
 
 
 def test_train_is_skipped_without_classification(tmp_path) -> None:

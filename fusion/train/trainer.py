@@ -38,6 +38,7 @@ from fusion.train.params import (
     set_from_tensors,
     tensors_from_set,
 )
+from fusion.train.priors import PriorOptions, prior_loss, view_priors
 from fusion.train.render import project_context, render_step
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
 from fusion.train.views import prepare_views
@@ -53,6 +54,8 @@ class TrainOptions:
     of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
+    priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
+    (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
 
     iterations: int = 2000
@@ -79,6 +82,7 @@ class TrainOptions:
     min_iterations: int = 600
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
+    priors: PriorOptions | None = None
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -104,6 +108,8 @@ class Checkpoint:
     holdout_psnr: float
     gaussians: int
     seconds: float
+    prior_depth: float = float("nan")  # window mean of the weighted |log z − log z_prior| (NaN: no prior)
+    prior_normal: float = float("nan")  # window mean of the weighted 1 − |n · n_prior|
 
 
 @dataclass
@@ -127,6 +133,8 @@ class TrainResult:
     seconds: float
     scene_scale: float
     resolution: tuple[int, int]
+    prior_views: int = 0  # views with a depth / normal prior
+    prior_pixels: int = 0  # their pixels with a prior weight > 0
 
     @property
     def final_holdout_psnr(self) -> float:
@@ -213,6 +221,9 @@ def train_splats(
             if cache is not None:
                 used[cache.index] = True
         context_culled = int((~used).sum())
+    priors = None
+    if opts.priors is not None and opts.priors.active and frozen is not None:
+        priors = view_priors(views, frozen.means.numpy(), opts.priors)
 
     lrs = {
         "means": opts.lr_means * scale,
@@ -233,6 +244,7 @@ def train_splats(
     snapshots: dict[int, GaussianSet] = {}
     best, stale, stopped = -math.inf, 0, False
     sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+    prior_sums = [0.0, 0.0, 0]  # depth, normal, steps with a prior term
     order = rng.permutation(len(views))
     step = 0
     psnr = float("nan")
@@ -255,6 +267,13 @@ def train_splats(
         if opts.flat:
             loss = loss + opts.flat_reg * params["log_scales"].exp().amin(dim=1).mean() / scale
         loss = loss + strategy.regularisation(params)
+        if priors is not None:
+            p_terms = prior_loss(params, view, priors[vi], opts.priors)
+            if p_terms.splats:
+                loss = loss + p_terms.loss
+                prior_sums[0] += float(p_terms.depth)
+                prior_sums[1] += float(p_terms.normal)
+                prior_sums[2] += 1
         loss.backward()
         strategy.after_backward(state, out.means2d, view.width, view.height, step)
         optimizer.step()
@@ -276,8 +295,12 @@ def train_splats(
         if step % window == 0 or step == opts.iterations:
             psnr = -10.0 * math.log10(max(sq_err / max(n_err, 1), 1e-10)) if n_err else float("nan")
             n_now = int(params["means"].shape[0])
-            history.append(Checkpoint(step, loss_sum / max(n_loss, 1), psnr, n_now, time.perf_counter() - t0))
+            pd, pn = (
+                (prior_sums[0] / prior_sums[2], prior_sums[1] / prior_sums[2]) if prior_sums[2] else (math.nan,) * 2
+            )
+            history.append(Checkpoint(step, loss_sum / max(n_loss, 1), psnr, n_now, time.perf_counter() - t0, pd, pn))
             sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+            prior_sums = [0.0, 0.0, 0]
             if psnr > best + opts.min_improvement_db:
                 best, stale = psnr, 0
             else:
@@ -305,4 +328,6 @@ def train_splats(
         seconds=time.perf_counter() - t0,
         scene_scale=scale,
         resolution=(views[0].width, views[0].height),
+        prior_views=sum(p is not None for p in priors) if priors is not None else 0,
+        prior_pixels=sum(p.pixels for p in priors if p is not None) if priors is not None else 0,
     )
