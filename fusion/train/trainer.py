@@ -45,6 +45,34 @@ from fusion.train.views import prepare_views
 
 
 @dataclass(frozen=True)
+class HardViewOptions:
+    """Hard-view mining (as in the industrial digital-twin 3DGS study): between ``start`` and ``stop`` (shares of
+    ``iterations``) each step's view is drawn with probability ``(1 − uniform_mix) · L_v^power / Σ L^power +
+    uniform_mix / V``, L_v the view's running loss (exponential average with weight ``ema`` on the newest value;
+    views not yet seen count with the mean), so the views the model fits worst are seen more often while every view
+    keeps a floor. Outside the window, seeded per-epoch permutations as without mining."""
+
+    start: float = 0.3
+    stop: float = 0.8
+    power: float = 1.0
+    uniform_mix: float = 0.3
+    ema: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.start <= self.stop <= 1.0:
+            raise ConfigError(f"need 0 <= start <= stop <= 1, got {self.start}, {self.stop}")
+        if not (self.power >= 0 and 0.0 <= self.uniform_mix <= 1.0 and 0.0 < self.ema <= 1.0):
+            raise ConfigError("need power >= 0, uniform_mix in [0, 1] and ema in (0, 1]")
+
+    def probabilities(self, running: np.ndarray) -> np.ndarray:
+        """(V,) sampling probabilities from the views' running losses (V,) (NaN = not seen yet)."""
+        seen = np.isfinite(running)
+        fill = float(running[seen].mean()) if seen.any() else 1.0
+        loss = np.maximum(np.where(seen, running, fill), 1e-12) ** self.power
+        return (1.0 - self.uniform_mix) * loss / loss.sum() + self.uniform_mix / len(loss)
+
+
+@dataclass(frozen=True)
 class TrainOptions:
     """Options of :func:`train_splats` (learning rates per step as in 3DGS / gsplat; lengths in metres).
 
@@ -54,6 +82,7 @@ class TrainOptions:
     of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
+    hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
     priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
     (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
@@ -83,6 +112,7 @@ class TrainOptions:
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
     priors: PriorOptions | None = None
+    hard_views: HardViewOptions | None = None
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -133,6 +163,7 @@ class TrainResult:
     seconds: float
     scene_scale: float
     resolution: tuple[int, int]
+    view_steps: tuple[int, ...] = ()  # steps spent on each view (views sorted by name)
     prior_views: int = 0  # views with a depth / normal prior
     prior_pixels: int = 0  # their pixels with a prior weight > 0
 
@@ -246,13 +277,23 @@ def train_splats(
     sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
     prior_sums = [0.0, 0.0, 0]  # depth, normal, steps with a prior term
     order = rng.permutation(len(views))
+    running = np.full(len(views), np.nan)  # per-view running loss (hard-view mining)
+    hard = opts.hard_views
+    mining = (
+        (int(hard.start * opts.iterations), int(hard.stop * opts.iterations)) if hard is not None else (0, 0)
+    )  # fmt: skip
+    view_counts = np.zeros(len(views), np.int64)
     step = 0
     psnr = float("nan")
     while step < opts.iterations:
-        pos = step % len(views)
-        if pos == 0 and step > 0:
-            order = rng.permutation(len(views))
-        vi = int(order[pos])
+        if hard is not None and mining[0] <= step < mining[1]:
+            vi = int(rng.choice(len(views), p=hard.probabilities(running)))
+        else:
+            pos = step % len(views)
+            if pos == 0 and step > 0:
+                order = rng.permutation(len(views))
+            vi = int(order[pos])
+        view_counts[vi] += 1
         view = views[vi]
         degree = min(opts.sh_degree, step // opts.sh_degree_interval)
         for group in optimizer.param_groups:
@@ -288,8 +329,12 @@ def train_splats(
                 diff = (out.colour.detach().clamp(0, 1) - view.image)[hold]
                 sq_err += float((diff * diff).sum())
                 n_err += int(diff.numel())
-        loss_sum += float(terms.loss.detach())
+        loss_now = float(terms.loss.detach())
+        loss_sum += loss_now
         n_loss += 1
+        if hard is not None:
+            ema = hard.ema
+            running[vi] = loss_now if not np.isfinite(running[vi]) else (1 - ema) * running[vi] + ema * loss_now
         if step in opts.snapshot_iterations:
             snapshots[step] = _with_normals(set_from_tensors(params, centre, origin))
         if step % window == 0 or step == opts.iterations:
@@ -328,6 +373,7 @@ def train_splats(
         seconds=time.perf_counter() - t0,
         scene_scale=scale,
         resolution=(views[0].width, views[0].height),
+        view_steps=tuple(int(c) for c in view_counts),
         prior_views=sum(p is not None for p in priors) if priors is not None else 0,
         prior_pixels=sum(p.pixels for p in priors if p is not None) if priors is not None else 0,
     )

@@ -34,6 +34,7 @@ class TrainStageOptions:
         trusted MVS surface around each mask (fusion.train.priors; 0 turns one off); prior_border_px: their decay
         length from the mask edge inwards at the training resolution (negative: the whole mask);
         prior_edge_scale: image-gradient scale of the edge-aware weight (negative: off).
+    hard_views: hard-view mining mid-training (fusion.train.HardViewOptions defaults); off by default.
     """
 
     iterations: int = 2000
@@ -49,6 +50,7 @@ class TrainStageOptions:
     normal_prior: float = 0.1
     prior_border_px: float = 8.0
     prior_edge_scale: float = 0.1
+    hard_views: bool = False
 
     def prior_options(self):
         from fusion.train.priors import PriorOptions
@@ -130,7 +132,7 @@ class TrainStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
         from core.io.images import read_image
-        from fusion.train import DefaultStrategy, TrainOptions, train_splats
+        from fusion.train import DefaultStrategy, HardViewOptions, TrainOptions, train_splats
         from fusion.train.init import InitOptions, seed_splats
 
         opts: TrainStageOptions = ctx.options(self)
@@ -156,6 +158,7 @@ class TrainStage(Stage):
         train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
                                   sh_degree=opts.sh_degree, flat=opts.flat,
                                   snapshot_iterations=opts.snapshot_iterations, priors=opts.prior_options(),
+                                  hard_views=HardViewOptions() if opts.hard_views else None,
                                   strategy=DefaultStrategy(cap=cap))  # fmt: skip
 
         def progress(info) -> None:
