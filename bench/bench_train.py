@@ -322,9 +322,17 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     context = mvs.subset(~needs)
     strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
                                reset_every=args.reset_every)  # fmt: skip
+    from fusion.train import HardViewOptions, PriorOptions
+
+    priors = None
+    if args.depth_prior > 0 or args.normal_prior > 0:
+        priors = PriorOptions(args.depth_prior, args.normal_prior, args.prior_border if args.prior_border > 0 else None)
     opts = TrainOptions(iterations=args.iterations, downscale=args.downscale, seed=args.seed, strategy=strategy,
                         sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc, flat=args.flat,
-                        patience=args.patience)  # fmt: skip
+                        patience=args.patience, priors=priors,
+                        hard_views=HardViewOptions() if args.hard_views else None,
+                        photometric=args.photometric)  # fmt: skip
+    print(f"training options: {opts}")
     tr = train_splats(cameras, images, masks, init.gaussians, context, opts)
     print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
           f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
@@ -352,11 +360,29 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     merged = merge_hybrid(mvs, cleaned.splats, needs).gaussians
     from scipy.spatial import cKDTree
 
-    for label, pts in (("MVS-only", mvs.world_means), ("merged", merged.world_means)):
-        d, _ = cKDTree(pts).query(lidar.world_positions, k=1, workers=-1)
-        nc = np.isin(lmat, non_collab)
-        print(f"completeness at tau {tau * 1000:.1f} mm, {label}: all {np.mean(d <= tau):.3f}, "
-              f"non-collaborative materials {np.mean(d[nc] <= tau):.3f}")  # fmt: skip
+    from fusion.clean import SurveyPointOptions, select_survey_points
+    from fusion.merge import subset
+
+    trusted = mvs.subset(~needs).with_origin(cameras.origin).means
+    spacing = float(np.median(cKDTree(trusted).query(trusted, k=2)[0][:, 1]))
+    sel = select_survey_points(cleaned.splats, cameras, masks, trusted, spacing, SurveyPointOptions())
+    print(f"survey points: {sel.counts} (trusted MVS spacing {spacing * 1000:.2f} mm)")
+    points = merge_hybrid(mvs, subset(cleaned.splats, sel.keep), needs).gaussians
+    meta = json.loads((scene / "scene.json").read_text())
+    names = {int(m["id"]): m["name"] for m in meta["materials"]}
+    tree = cKDTree(lidar.world_positions)
+    geo = {
+        "MVS-only": product_geometry(fused.world_positions, None, lidar.world_positions, lmat, tau, tree),
+        "splat centres (α-w)": product_geometry(
+            cleaned.splats.world_means, cleaned.splats.opacities, lidar.world_positions, lmat, tau, tree
+        ),  # fmt: skip
+        "merged, every splat": product_geometry(merged.world_means, None, lidar.world_positions, lmat, tau, tree),
+        "merged points": product_geometry(points.world_means, None, lidar.world_positions, lmat, tau, tree),
+    }
+    print_geometry(geo, names, tau)
+    (out / "geometry.json").write_text(
+        json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in geo.items()}, indent=1)
+    )
     write_gaussian_ply(out / "merged.ply", merged, extra_fields=True)
     write_gaussian_ply(out / "splats.ply", tr.splats, extra_fields=True)
     hybrid_time = t_init + tr.seconds + t_clean
@@ -466,6 +492,11 @@ def main() -> None:
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
     t.add_argument("--flat", action="store_true")
+    t.add_argument("--depth-prior", type=float, default=0.2, help="0 with --normal-prior 0: no priors")
+    t.add_argument("--normal-prior", type=float, default=0.1)
+    t.add_argument("--prior-border", type=float, default=8.0, help="px; <= 0: the whole mask")
+    t.add_argument("--hard-views", action="store_true")
+    t.add_argument("--photometric", choices=("l1_ssim", "smoothl1_msssim"), default="l1_ssim")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")

@@ -216,3 +216,18 @@ def test_hard_view_mining_visits_the_worst_fitted_view_more() -> None:
                          options=TrainOptions(**common, hard_views=HardViewOptions(start=0.0, stop=1.0)))  # fmt: skip
     steps = mined.view_steps
     assert sum(steps) == 80 and steps[2] == max(steps) and steps[2] > 30, steps
+
+
+def test_smoothl1_msssim_option_trains_and_bad_names_are_config_errors() -> None:
+    cams = ring_cameras(3, width=200, height=168)  # MS-SSIM needs > 160 px on the shorter side
+    truth = blob_set(60, 4)
+    photos = render_all(truth, cams)
+    start = perturbed(truth, 5)
+    opts = TrainOptions(iterations=12, sh_degree=0, seed=0, photometric="smoothl1_msssim", holdout_fraction=0.0,
+                        strategy=DefaultStrategy(refine_start=10_000))  # fmt: skip
+    res = train_splats(cams, photos, None, start, options=opts)
+    before = np.mean([psnr(render_all(start, cams)[k], photos[k]) for k in photos])
+    after = np.mean([psnr(render_all(res.splats, cams)[k], photos[k]) for k in photos])
+    assert after > before + 0.5, (before, after)
+    with pytest.raises(ConfigError):
+        TrainOptions(photometric="l2")

@@ -31,6 +31,7 @@ from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.render.projection import quat_to_rotmat
 from fusion.train.loss import masked_photometric_loss
+from fusion.train.msssim import smoothl1_msssim_loss
 from fusion.train.params import (
     context_from_set,
     make_optimizer,
@@ -83,6 +84,8 @@ class TrainOptions:
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
     hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
+    photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
+    ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
     priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
     (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
@@ -113,6 +116,8 @@ class TrainOptions:
     backend: str = "cpu"
     priors: PriorOptions | None = None
     hard_views: HardViewOptions | None = None
+    photometric: str = "l1_ssim"
+    smoothl1_beta: float = 0.05
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -124,6 +129,10 @@ class TrainOptions:
             raise ConfigError("sh_degree_interval, eval_every and patience must be >= 1")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
+        if self.photometric not in ("l1_ssim", "smoothl1_msssim") or not self.smoothl1_beta > 0:
+            raise ConfigError(
+                f"photometric must be 'l1_ssim' or 'smoothl1_msssim' (beta > 0), got {self.photometric!r}"
+            )
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
 
@@ -301,7 +310,10 @@ def train_splats(
                 group["lr"] = lrs["means"] * decay**step
 
         out = render_step(params, view, caches[vi], degree, background, opts.backend)
-        terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
+        if opts.photometric == "l1_ssim":
+            terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
+        else:
+            terms = smoothl1_msssim_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda, opts.smoothl1_beta)
         loss = terms.loss
         if opts.scale_reg > 0:
             loss = loss + opts.scale_reg * params["log_scales"].exp().mean() / scale

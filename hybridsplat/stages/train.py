@@ -35,6 +35,7 @@ class TrainStageOptions:
         length from the mask edge inwards at the training resolution (negative: the whole mask);
         prior_edge_scale: image-gradient scale of the edge-aware weight (negative: off).
     hard_views: hard-view mining mid-training (fusion.train.HardViewOptions defaults); off by default.
+    photometric: ``l1_ssim`` (3DGS) or ``smoothl1_msssim`` (fusion.train.msssim).
     """
 
     iterations: int = 2000
@@ -51,6 +52,7 @@ class TrainStageOptions:
     prior_border_px: float = 8.0
     prior_edge_scale: float = 0.1
     hard_views: bool = False
+    photometric: str = "l1_ssim"
 
     def prior_options(self):
         from fusion.train.priors import PriorOptions
@@ -159,6 +161,7 @@ class TrainStage(Stage):
                                   sh_degree=opts.sh_degree, flat=opts.flat,
                                   snapshot_iterations=opts.snapshot_iterations, priors=opts.prior_options(),
                                   hard_views=HardViewOptions() if opts.hard_views else None,
+                                  photometric=opts.photometric,
                                   strategy=DefaultStrategy(cap=cap))  # fmt: skip
 
         def progress(info) -> None:
