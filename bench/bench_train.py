@@ -220,9 +220,16 @@ def bench_geometry(args: argparse.Namespace) -> None:
     cameras, _ = read_model(project / "sparse")
     fused = read_point_cloud(project / "dense" / "fused.ply")
     masks, needs, _ = truth_inputs(scene, cameras, fused.world_positions)
-    if args.needs == "classified":
+    if args.needs == "classified":  # the pipeline's classification and masks instead of the scene's truth
+        from core.io.images import read_image
+
         cls = read_point_cloud(project / "classify" / "points.ply")
         needs = np.asarray(cls.fields["needs_splats"]).astype(bool)
+        masks = {}
+        for view in cameras:
+            path = project / "classify" / "masks" / f"{view.name}.png"
+            if path.is_file():
+                masks[view.name] = read_image(path, grayscale=True) > 127
     lidar = read_point_cloud(scene / "gt" / "lidar.ply")
     truth = lidar.world_positions
     material = np.asarray(lidar.fields["material"]).astype(np.int64)
