@@ -159,6 +159,7 @@ class PointReason(IntEnum):
     LARGE = 3
     FEW_VIEWS = 4
     OFF_MASKS = 5
+    INTERIOR = 6
 
 
 @dataclass(frozen=True)
@@ -178,6 +179,12 @@ class SurveyPointOptions:
         views floats in front of or beside the real surface).
     occlusion_tolerance: relative depth margin of the occlusion test (behind the trusted z-buffer by more than this
         share of its depth = occluded; the view is not counted).
+    max_rim_spacing: the centre must come within this × spacing (metres at its depth) of a mask edge in some view
+        where it lands inside the mask. A point of a surface lies on the silhouette rim of the views that graze it;
+        what MVS or a splat places *inside* a mirror or glass object (virtual images of reflections, refractions)
+        stays inside every visual hull but far from every rim. None (default) turns the test off.
+    shape_checks: apply the opacity / thickness / extent tests (off for MVS points, whose Gaussians are converted,
+        not trained).
     """
 
     min_opacity: float | None = 0.5
@@ -186,13 +193,15 @@ class SurveyPointOptions:
     min_views: int = 2
     min_mask_share: float | None = 0.8
     occlusion_tolerance: float = 0.02
+    max_rim_spacing: float | None = None
+    shape_checks: bool = True
 
     def __post_init__(self) -> None:
         if self.min_views < 0 or not self.occlusion_tolerance >= 0:
             raise ConfigError("min_views and occlusion_tolerance must be >= 0")
         if self.min_mask_share is not None and not 0.0 <= self.min_mask_share <= 1.0:
             raise ConfigError(f"min_mask_share must lie in [0, 1], got {self.min_mask_share}")
-        for name in ("min_opacity", "max_thickness_spacing", "max_extent_spacing"):
+        for name in ("min_opacity", "max_thickness_spacing", "max_extent_spacing", "max_rim_spacing"):
             v = getattr(self, name)
             if v is not None and not v > 0:
                 raise ConfigError(f"{name} must be > 0 or None, got {v}")
@@ -208,6 +217,7 @@ class SurveyPointCounts:
     large: int
     few_views: int
     off_masks: int
+    interior: int
     kept: int
 
 
@@ -233,15 +243,27 @@ def closed_zbuffer(cameras: Cameras, view, points: np.ndarray, radius: int = 1) 
     return depth
 
 
+@dataclass
+class MaskViews:
+    """Per point (N,): views where it lands inside / outside the mask unoccluded (int32), and its smallest distance
+    to a mask edge over the views where it lands inside (metres at its depth: px × z / f; inf when none)."""
+
+    inside: np.ndarray
+    outside: np.ndarray
+    rim_m: np.ndarray
+
+
 def mask_views(
     cameras: Cameras, masks: Mapping[str, np.ndarray], points: np.ndarray, trusted: np.ndarray | None,
     occlusion_tolerance: float = 0.02,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Per point (N, 3, local frame): the number of views where it lands inside / outside the view's mask, counting
-    only views where it is in front of the camera, inside the image and not behind the ``trusted`` points' closed
-    z-buffer by more than ``occlusion_tolerance`` of its depth. Views without a mask entry are not counted."""
+) -> MaskViews:  # fmt: skip
+    """Per point (N, 3, local frame): the views where it lands inside / outside the view's mask, counting only views
+    where it is in front of the camera, inside the image and not behind the ``trusted`` points' closed z-buffer by
+    more than ``occlusion_tolerance`` of its depth, and its distance to the nearest mask edge (a point of a convex
+    surface lies on the silhouette rim of the views that graze it). Views without a mask entry are not counted."""
     inside = np.zeros(len(points), np.int32)
     outside = np.zeros(len(points), np.int32)
+    rim = np.full(len(points), np.inf)
     for view in cameras:
         mask = masks.get(view.name)
         if mask is None:
@@ -260,7 +282,13 @@ def mask_views(
         hit[ok] = mask[row[ok], col[ok]]
         inside += hit
         outside += ok & ~hit
-    return inside, outside
+        if hit.any():
+            # distance (px) of each mask pixel's centre to the nearest outside pixel's centre, minus half a pixel
+            padded = np.pad(mask.astype(np.uint8), 1)  # the image border is an edge too
+            edge_px = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1] - 0.5
+            f = float(np.mean(cameras.camera_of(view).focal))
+            rim[hit] = np.minimum(rim[hit], edge_px[row[hit], col[hit]] * z[hit] / f)
+    return MaskViews(inside, outside, rim)
 
 
 def select_survey_points(
@@ -284,24 +312,27 @@ def select_survey_points(
     reasons = np.zeros(n, np.uint8)
     if n == 0:
         z = np.zeros(0, np.int32)
-        return SurveyPointSelection(np.zeros(0, bool), reasons, z, z, SurveyPointCounts(0, 0, 0, 0, 0, 0, 0))
+        return SurveyPointSelection(np.zeros(0, bool), reasons, z, z, SurveyPointCounts(0, 0, 0, 0, 0, 0, 0, 0))
 
     def mark(cond: np.ndarray, reason: PointReason) -> None:
         reasons[(reasons == 0) & cond] = reason
 
     sigma = splats.scales.astype(np.float64)
-    if opts.min_opacity is not None:
+    if opts.shape_checks and opts.min_opacity is not None:
         mark(splats.opacities < opts.min_opacity, PointReason.LOW_OPACITY)
-    if opts.max_thickness_spacing is not None:
+    if opts.shape_checks and opts.max_thickness_spacing is not None:
         mark(sigma.min(axis=1) > opts.max_thickness_spacing * spacing, PointReason.THICK)
-    if opts.max_extent_spacing is not None:
+    if opts.shape_checks and opts.max_extent_spacing is not None:
         mark(sigma.max(axis=1) > opts.max_extent_spacing * spacing, PointReason.LARGE)
     local = splats.with_origin(cameras.origin).means
-    inside, outside = mask_views(cameras, masks, local, trusted, opts.occlusion_tolerance)
+    mv = mask_views(cameras, masks, local, trusted, opts.occlusion_tolerance)
+    inside, outside = mv.inside, mv.outside
     mark(inside < opts.min_views, PointReason.FEW_VIEWS)
     if opts.min_mask_share is not None:
         share = inside / np.maximum(inside + outside, 1)
         mark(share < opts.min_mask_share, PointReason.OFF_MASKS)
+    if opts.max_rim_spacing is not None:
+        mark(mv.rim_m > opts.max_rim_spacing * spacing, PointReason.INTERIOR)
     counts = SurveyPointCounts(
         n, *(int((reasons == r).sum()) for r in list(PointReason)[1:]), int((reasons == 0).sum())
     )

@@ -103,9 +103,27 @@ def test_survey_points_keep_only_trustworthy_centres() -> None:
     np.testing.assert_array_equal(sel.views_outside[:4], [0, 1, 0, 1])
     c = sel.counts
     assert (c.input, c.kept, c.off_masks, c.low_opacity, c.thick, c.large, c.few_views) == (7, 2, 2, 1, 1, 1, 0)
+    assert c.interior == 0  # the rim test is off by default
     # two views inside the mask required: point 2 (hidden from b) is then seen in too few
     strict = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, wall, 0.002)
     assert strict.reasons[2] == R.FEW_VIEWS and strict.reasons[0] == R.KEPT
     # without the occlusion test the hidden point counts as seen outside b's mask
     blind = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, None, 0.002, opts)
     assert blind.reasons[2] == R.OFF_MASKS
+
+
+def test_rim_distance_is_the_metric_distance_to_the_mask_edge() -> None:
+    from fusion.clean import PointReason, SurveyPointOptions, mask_views, select_survey_points
+
+    cams = one_camera()  # focal 100 px, principal point (50, 40)
+    mask = np.zeros((80, 100), bool)
+    mask[20:60, 30:70] = True  # a 40 × 40 px square: its edges at x = 30 and 70, y = 20 and 60
+    # measured from the centre of the pixel a point lands in: (50, 40) lands in pixel (50, 40), centre (50.5, 40.5),
+    # 19.5 px from the edge x = 70: 0.39 m at z = 2 (2 cm / px), 0.195 m at z = 1; (31.5, 40): 1.5 px, 3 cm
+    pts = np.array([[0.0, 0.0, 2.0], [(31.5 - 50) / 100 * 2.0, 0.0, 2.0], [0.0, 0.0, 1.0]])
+    mv = mask_views(cams, {"a.png": mask}, pts, None)
+    np.testing.assert_allclose(mv.rim_m, [0.39, 0.03, 0.195], rtol=0.01)  # OpenCV's 5×5 distance mask: < 1 % off
+    gs = splats(pts)
+    opts = SurveyPointOptions(min_views=1, max_rim_spacing=10.0, shape_checks=False)
+    sel = select_survey_points(gs, cams, {"a.png": mask}, None, 0.01, opts)  # rim limit 0.1 m
+    assert sel.reasons.tolist() == [PointReason.INTERIOR, PointReason.KEPT, PointReason.INTERIOR]

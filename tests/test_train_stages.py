@@ -69,7 +69,8 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     # the point product: the MVS points and only the trustworthy splats, every left-out splat counted with a reason
     p = m["point_splats"]
     assert p["input"] == c["kept"]
-    assert p["kept"] + p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] == p["input"]
+    left_out = p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] + p["interior"]
+    assert p["kept"] + left_out == p["input"]
     points = read_point_cloud(layout.merged_points_ply)
     assert len(points) == m["points"] == m["mvs"] + p["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
