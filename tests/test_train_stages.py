@@ -72,7 +72,9 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     left_out = p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] + p["interior"]
     assert p["kept"] + left_out == p["input"]
     points = read_point_cloud(layout.merged_points_ply)
-    assert len(points) == m["points"] == m["mvs"] + p["kept"]
+    q = m["point_needs_mvs"]  # the needs_splats MVS points that pass the same view and rim tests
+    assert q["input"] == int(needs.sum()) and q["low_opacity"] == q["thick"] == q["large"] == 0  # no shape tests
+    assert len(points) == m["points"] == m["mvs"] + p["kept"] + q["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
     assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors are on by default
 

@@ -5,9 +5,11 @@ With cleaned splats (splats/cleaned.ply) and a classified cloud, the hybrid: tru
 alone also go to export/splats.ply. Without them, the converted MVS cloud.
 
 The 3DGS PLY (merged.ply) keeps every cleaned splat for rendering; the point product (merged_points.ply/.las, the
-survey deliverable) keeps only the splats whose geometry is trustworthy (:func:`fusion.clean.select_survey_points`:
-opaque, thin along the normal, not large, seen inside the region mask from several training views and never seen
-outside it unoccluded); the counts of what was left out and why are recorded.
+survey deliverable) keeps the trusted MVS points and only those splats and ``needs_splats`` MVS points whose geometry
+is trustworthy (:func:`fusion.clean.select_survey_points`: splats opaque, thin along the normal and not large; both
+seen inside the region mask from several training views, not seen outside it unoccluded, and near the silhouette rim
+of some view, which rejects the virtual images of reflections and refractions that MVS and splats place inside
+mirrors and glass); the counts of what was left out and why are recorded.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from hybridsplat.stages.base import Stage, StageContext
 
@@ -26,7 +30,8 @@ class MergeStageOptions:
     points_*: the rule for splats in the point product (see fusion.clean.SurveyPointOptions; a negative value turns
     a check off): min_opacity (α), max_thickness_spacing / max_extent_spacing (smallest / largest σ in trusted MVS
     point spacings), min_views (views seeing the centre inside the mask), min_mask_share (share of the unoccluded
-    views that see it inside the mask).
+    views that see it inside the mask), max_rim_spacing (distance to a mask edge in some view, in spacings).
+    points_needs_mvs: ``needs_splats`` MVS points that pass the same view and rim tests go into the point product.
     """
 
     keep_needs_splats: bool = False
@@ -35,8 +40,10 @@ class MergeStageOptions:
     points_max_extent_spacing: float = 10.0
     points_min_views: int = 2
     points_min_mask_share: float = 0.8
+    points_max_rim_spacing: float = 1.0
+    points_needs_mvs: bool = True
 
-    def survey_options(self):
+    def survey_options(self, shape_checks: bool = True):
         from fusion.clean import SurveyPointOptions
 
         def opt(v: float) -> float | None:
@@ -44,7 +51,8 @@ class MergeStageOptions:
 
         return SurveyPointOptions(opt(self.points_min_opacity), opt(self.points_max_thickness_spacing),
                                   opt(self.points_max_extent_spacing), max(self.points_min_views, 0),
-                                  opt(self.points_min_mask_share))  # fmt: skip
+                                  opt(self.points_min_mask_share), max_rim_spacing=opt(self.points_max_rim_spacing),
+                                  shape_checks=shape_checks)  # fmt: skip
 
 
 class MergeStage(Stage):
@@ -84,10 +92,15 @@ class MergeStage(Stage):
             result = merge_hybrid(mvs, splats, needs, keep_needs_splats=opts.keep_needs_splats)
             export_gaussian_ply(layout.splats_export, splats)
             written = export_gaussian_ply(layout.merged_ply, result.gaussians, ExportOptions(extra_fields=True))
-            selection = self._survey_points(ctx, mvs, needs, splats, opts)
-            points = merge_hybrid(mvs, subset(splats, selection.keep), needs,
+            sel_splats, sel_mvs = self._survey_points(ctx, mvs, needs, splats, opts)
+            needs_left_out = needs.copy()
+            if sel_mvs is not None:
+                needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False
+            points = merge_hybrid(mvs, subset(splats, sel_splats.keep), needs_left_out,
                                   keep_needs_splats=opts.keep_needs_splats).gaussians  # fmt: skip
-            extra = {"point_splats": vars(selection.counts)}
+            extra = {"point_splats": vars(sel_splats.counts)}
+            if sel_mvs is not None:
+                extra["point_needs_mvs"] = vars(sel_mvs.counts)
         else:
             result = merge_gaussians(None, mvs)
             written = export_gaussian_ply(layout.merged_ply, result.gaussians)
@@ -109,8 +122,8 @@ class MergeStage(Stage):
                 "splats": s.splats_kept, "points": len(points), **extra}  # fmt: skip
 
     def _survey_points(self, ctx: StageContext, mvs, needs, splats, opts: MergeStageOptions):
-        """Which cleaned splats' centres go into the point product (fusion.clean.select_survey_points)."""
-        import numpy as np
+        """Which cleaned splats and which ``needs_splats`` MVS points go into the point product (selections of
+        fusion.clean.select_survey_points; the second is None when ``points_needs_mvs`` is off)."""
         from scipy.spatial import cKDTree
 
         from fusion.clean import select_survey_points
@@ -126,8 +139,13 @@ class MergeStage(Stage):
             own = splats.means
             spacing = float(np.median(cKDTree(own).query(own, k=2)[0][:, 1])) if len(own) > 1 else 1.0
         spacing = spacing if spacing > 0 else 1.0
-        return select_survey_points(splats, cameras, read_masks(ctx, cameras), trusted, spacing,
-                                    opts.survey_options())  # fmt: skip
+        masks = read_masks(ctx, cameras)
+        sel_splats = select_survey_points(splats, cameras, masks, trusted, spacing, opts.survey_options())
+        sel_mvs = None
+        if opts.points_needs_mvs and not opts.keep_needs_splats and needs.any():
+            sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing,
+                                           opts.survey_options(shape_checks=False))  # fmt: skip
+        return sel_splats, sel_mvs
 
     def summary(self, counts: dict[str, Any]) -> str:
         text = f"{counts['written']} Gaussians in the merged product"
