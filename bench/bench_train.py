@@ -251,9 +251,11 @@ def bench_geometry(args: argparse.Namespace) -> None:
     trusted_local = fused.with_origin(cameras.origin).positions[~needs]
     mvs_gs = _read_gs(project / "export" / "mvs_gaussians.ply")
     needs_gs = mvs_gs.subset(needs)
+    needs_kept = {}
     for rim in args.rim:
         o = replace(SurveyPointOptions(), shape_checks=False, max_rim_spacing=rim if rim > 0 else None)
         sel = select_survey_points(needs_gs, cameras, masks, trusted_local, spacing, o)
+        needs_kept[rim] = needs_gs.world_means[sel.keep]
         print(f"MVS needs points, view rules, rim {rim}: {sel.counts}")
         products[f"MVS needs, views, rim {rim:g}"] = product_geometry(
             needs_gs.world_means[sel.keep], None, truth, material, tau, tree)  # fmt: skip
@@ -265,13 +267,15 @@ def bench_geometry(args: argparse.Namespace) -> None:
         products[f"merged all {label}"] = product_geometry(
             np.concatenate([world[~needs], splats.world_means]), None, truth, material, tau, tree)  # fmt: skip
         for rim in args.rim:
-            o = replace(SurveyPointOptions(), max_rim_spacing=rim if rim > 0 else None)
+            o = replace(SurveyPointOptions(), max_rim_spacing=rim if rim > 0 else None, min_opacity=args.min_opacity)
             sel = select_survey_points(splats, cameras, masks, trusted_local, spacing, o)
             print(f"survey-point selection of {label}, rim {rim}: {sel.counts}")
             kept = splats.world_means[sel.keep]
             products[f"{label} pts rim {rim:g}"] = product_geometry(kept, None, truth, material, tau, tree)
             products[f"merged {label} rim {rim:g}"] = product_geometry(
                 np.concatenate([world[~needs], kept]), None, truth, material, tau, tree)  # fmt: skip
+            products[f"merged+MVSn {label} rim {rim:g}"] = product_geometry(
+                np.concatenate([world[~needs], needs_kept[rim], kept]), None, truth, material, tau, tree)  # fmt: skip
     print_geometry(products, names, tau)
     if args.json:
         Path(args.json).write_text(json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in products.items()},
@@ -532,6 +536,7 @@ def main() -> None:
     g.add_argument("--needs", choices=("truth", "classified"), default="truth")
     g.add_argument("--tau-gsd", type=float, default=3.0)
     g.add_argument("--json", default="")
+    g.add_argument("--min-opacity", type=float, default=0.5, help="survey-point rule for splats")
     g.add_argument("--rim", type=float, nargs="*", default=[0.0], help="rim limits in spacings (0: no rim test)")
     args = p.parse_args()
     torch.manual_seed(0)

@@ -89,12 +89,12 @@ def test_survey_points_keep_only_trustworthy_centres() -> None:
     )
     gs = splats(means)
     gs.log_scales[:] = np.log([0.002, 0.002, 0.0005])
-    gs.logit_opacities[4] = math.log(0.2 / 0.8)
+    gs.logit_opacities[4] = math.log(0.1 / 0.9)
     gs.log_scales[5] = math.log(0.005)
     gs.log_scales[6] = np.log([0.03, 0.03, 0.0005])
     ys, zs = np.meshgrid(np.arange(0.05, 0.25, 0.005), np.arange(1.9, 2.1, 0.005))
     wall = np.column_stack([np.ones(ys.size), ys.ravel(), zs.ravel()])  # at x = 1, between b and point 2
-    opts = SurveyPointOptions(min_views=1)
+    opts = SurveyPointOptions(min_views=1, max_rim_spacing=None)
     sel = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, wall, 0.002, opts)
     R = PointReason
     expected = [R.KEPT, R.OFF_MASKS, R.KEPT, R.OFF_MASKS, R.LOW_OPACITY, R.THICK, R.LARGE]
@@ -103,9 +103,10 @@ def test_survey_points_keep_only_trustworthy_centres() -> None:
     np.testing.assert_array_equal(sel.views_outside[:4], [0, 1, 0, 1])
     c = sel.counts
     assert (c.input, c.kept, c.off_masks, c.low_opacity, c.thick, c.large, c.few_views) == (7, 2, 2, 1, 1, 1, 0)
-    assert c.interior == 0  # the rim test is off by default
+    assert c.interior == 0  # the rim test is off here
     # two views inside the mask required: point 2 (hidden from b) is then seen in too few
-    strict = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, wall, 0.002)
+    strict = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, wall, 0.002,
+                                  SurveyPointOptions(max_rim_spacing=None))  # fmt: skip
     assert strict.reasons[2] == R.FEW_VIEWS and strict.reasons[0] == R.KEPT
     # without the occlusion test the hidden point counts as seen outside b's mask
     blind = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, None, 0.002, opts)

@@ -35,7 +35,7 @@ class MergeStageOptions:
     """
 
     keep_needs_splats: bool = False
-    points_min_opacity: float = 0.5
+    points_min_opacity: float = 0.2
     points_max_thickness_spacing: float = 2.0
     points_max_extent_spacing: float = 10.0
     points_min_views: int = 2
