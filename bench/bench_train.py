@@ -389,8 +389,15 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     trusted = mvs.subset(~needs).with_origin(cameras.origin).means
     spacing = float(np.median(cKDTree(trusted).query(trusted, k=2)[0][:, 1]))
     sel = select_survey_points(cleaned.splats, cameras, masks, trusted, spacing, SurveyPointOptions())
-    print(f"survey points: {sel.counts} (trusted MVS spacing {spacing * 1000:.2f} mm)")
-    points = merge_hybrid(mvs, subset(cleaned.splats, sel.keep), needs).gaussians
+    print(f"survey points from splats: {sel.counts} (trusted MVS spacing {spacing * 1000:.2f} mm)")
+    from dataclasses import replace
+
+    sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing,
+                                   replace(SurveyPointOptions(), shape_checks=False))  # fmt: skip
+    print(f"survey points from needs_splats MVS points: {sel_mvs.counts}")
+    needs_left_out = needs.copy()
+    needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False  # as the merge stage does
+    points = merge_hybrid(mvs, subset(cleaned.splats, sel.keep), needs_left_out).gaussians
     meta = json.loads((scene / "scene.json").read_text())
     names = {int(m["id"]): m["name"] for m in meta["materials"]}
     tree = cKDTree(lidar.world_positions)
