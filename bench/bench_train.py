@@ -259,6 +259,10 @@ def bench_geometry(args: argparse.Namespace) -> None:
         print(f"MVS needs points, view rules, rim {rim}: {sel.counts}")
         products[f"MVS needs, views, rim {rim:g}"] = product_geometry(
             needs_gs.world_means[sel.keep], None, truth, material, tau, tree)  # fmt: skip
+    for spec in args.points:  # point products as written (e.g. a project's export/merged_points.ply)
+        label, _, path = spec.partition("=")
+        cloud = read_point_cloud(path)
+        products[label] = product_geometry(cloud.world_positions, None, truth, material, tau, tree)
     for spec in args.splats:
         label, _, path = spec.partition("=")
         splats = read_gaussian_ply(path)
@@ -540,6 +544,7 @@ def main() -> None:
     g.add_argument("--scene", required=True)
     g.add_argument("--project", required=True)
     g.add_argument("--splats", nargs="*", default=[], help="LABEL=PATH of trained (cleaned) splats")
+    g.add_argument("--points", nargs="*", default=[], help="LABEL=PATH of point clouds to measure as they are")
     g.add_argument("--needs", choices=("truth", "classified"), default="truth")
     g.add_argument("--tau-gsd", type=float, default=3.0)
     g.add_argument("--json", default="")
