@@ -364,9 +364,10 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
           f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
           f"early stop {tr.stopped_early}, refine {tr.refine}; {load()}")  # fmt: skip
+    print(f"priors: {tr.prior_views} views, {tr.prior_pixels} prior pixels; steps per view {tr.view_steps}")
     for c in tr.history:
         print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
-              f"{c.seconds:6.1f} s")  # fmt: skip
+              f"{c.seconds:6.1f} s  prior depth {c.prior_depth:.4f}  normal {c.prior_normal:.4f}")  # fmt: skip
     t1 = time.perf_counter()
     cleaned = clean_splats(tr.splats, cameras, masks, CleanOptions())
     t_clean = time.perf_counter() - t1
