@@ -168,10 +168,11 @@ class SurveyPointOptions:
 
     A point product must not contain floaters, so a splat's centre is a point only when its geometry is
     trustworthy; the 3DGS PLY keeps every cleaned splat for rendering. Defaults chosen on data_synth ``tabletop``
-    (24 views 320×240, truth masks, 500 steps; ``bench/bench_train.py geometry``): without the rim test the kept
-    ``needs_splats`` MVS points of the mirror / glass are 22 / 18 mm off (virtual images inside the objects); with it
-    (1 spacing) 12 / 5 mm, and trusted MVS + kept MVS + kept splats beat MVS-only in accuracy and completeness on
-    every material; α ≥ 0.2 rather than 0.5 keeps 2.7× the splats for +0.12 mm mean error and +0.006 completeness.
+    (24 views 320×240) and ``tiny``, pipeline masks, 500 steps (``bench/bench_train.py geometry``; a scan of rim 0.5 /
+    0.75 / 1, α 0.2 / 0.5, views 2 / 3, share 0.8 / 0.9 / 1): the rim test is what rejects the virtual images MVS and
+    splats place inside mirrors and glass (kept mirror / glass MVS points 22 / 18 mm off without it, 12 / 5 mm with
+    1 spacing); every setting beat MVS-only on tabletop, and rim 0.5 with 3 views and share 0.9 was among the few that
+    also lowered the mean C2C on ``tiny`` (coarse 96×72 photos, splat centres ~12 mm off) while raising completeness.
     Lengths relative to ``spacing``, the trusted MVS point spacing (metres) passed to :func:`select_survey_points`.
     A check is off when its value is None.
 
@@ -195,10 +196,10 @@ class SurveyPointOptions:
     min_opacity: float | None = 0.2
     max_thickness_spacing: float | None = 2.0
     max_extent_spacing: float | None = 10.0
-    min_views: int = 2
-    min_mask_share: float | None = 0.8
+    min_views: int = 3
+    min_mask_share: float | None = 0.9
     occlusion_tolerance: float = 0.02
-    max_rim_spacing: float | None = 1.0
+    max_rim_spacing: float | None = 0.5
     shape_checks: bool = True
 
     def __post_init__(self) -> None:

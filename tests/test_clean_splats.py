@@ -106,7 +106,7 @@ def test_survey_points_keep_only_trustworthy_centres() -> None:
     assert c.interior == 0  # the rim test is off here
     # two views inside the mask required: point 2 (hidden from b) is then seen in too few
     strict = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, wall, 0.002,
-                                  SurveyPointOptions(max_rim_spacing=None))  # fmt: skip
+                                  SurveyPointOptions(min_views=2, max_rim_spacing=None))  # fmt: skip
     assert strict.reasons[2] == R.FEW_VIEWS and strict.reasons[0] == R.KEPT
     # without the occlusion test the hidden point counts as seen outside b's mask
     blind = select_survey_points(gs, cams, {"a.png": mask_a, "b.png": mask_b}, None, 0.002, opts)

@@ -38,9 +38,9 @@ class MergeStageOptions:
     points_min_opacity: float = 0.2
     points_max_thickness_spacing: float = 2.0
     points_max_extent_spacing: float = 10.0
-    points_min_views: int = 2
-    points_min_mask_share: float = 0.8
-    points_max_rim_spacing: float = 1.0
+    points_min_views: int = 3
+    points_min_mask_share: float = 0.9
+    points_max_rim_spacing: float = 0.5
     points_needs_mvs: bool = True
 
     def survey_options(self, shape_checks: bool = True):
