@@ -31,7 +31,10 @@ class MergeStageOptions:
     a check off): min_opacity (α), max_thickness_spacing / max_extent_spacing (smallest / largest σ in trusted MVS
     point spacings), min_views (views seeing the centre inside the mask), min_mask_share (share of the unoccluded
     views that see it inside the mask), max_rim_spacing (distance to a mask edge in some view, in spacings).
-    points_needs_mvs: ``needs_splats`` MVS points that pass the same view and rim tests go into the point product.
+    points_needs_mvs: ``needs_splats`` MVS points that pass the same view tests go into the point product, with
+    their own rim limit ``points_needs_mvs_max_rim_spacing`` (with the classifier's masks, wider than the objects,
+    tabletop kept 1 of 1114 such points at 0.5 and 1002 at 4 spacings: 2.08 instead of 1.62 mm mean C2C, 0.647
+    instead of 0.642 completeness, and every non-collaborative material more complete than MVS-only).
     """
 
     keep_needs_splats: bool = False
@@ -42,8 +45,9 @@ class MergeStageOptions:
     points_min_mask_share: float = 0.9
     points_max_rim_spacing: float = 0.5
     points_needs_mvs: bool = True
+    points_needs_mvs_max_rim_spacing: float = 0.5
 
-    def survey_options(self, shape_checks: bool = True):
+    def survey_options(self, shape_checks: bool = True, rim: float | None = None):
         from fusion.clean import SurveyPointOptions
 
         def opt(v: float) -> float | None:
@@ -51,7 +55,8 @@ class MergeStageOptions:
 
         return SurveyPointOptions(opt(self.points_min_opacity), opt(self.points_max_thickness_spacing),
                                   opt(self.points_max_extent_spacing), max(self.points_min_views, 0),
-                                  opt(self.points_min_mask_share), max_rim_spacing=opt(self.points_max_rim_spacing),
+                                  opt(self.points_min_mask_share),
+                                  max_rim_spacing=opt(self.points_max_rim_spacing if rim is None else rim),
                                   shape_checks=shape_checks)  # fmt: skip
 
 
@@ -143,8 +148,8 @@ class MergeStage(Stage):
         sel_splats = select_survey_points(splats, cameras, masks, trusted, spacing, opts.survey_options())
         sel_mvs = None
         if opts.points_needs_mvs and not opts.keep_needs_splats and needs.any():
-            sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing,
-                                           opts.survey_options(shape_checks=False))  # fmt: skip
+            mvs_rule = opts.survey_options(shape_checks=False, rim=opts.points_needs_mvs_max_rim_spacing)
+            sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing, mvs_rule)
         return sel_splats, sel_mvs
 
     def summary(self, counts: dict[str, Any]) -> str:
