@@ -11,7 +11,18 @@
     material) until the classify stage exists; MVS Gaussians of trusted points frozen as context; seeds; masked
     training; cleaning; merge. Then the whole-scene baseline (same trainer, mask = whole image, no context, SfM
     init, same cap) and the held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole
-    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load.
+    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load. Options:
+    ``--depth-prior/--normal-prior/--prior-border`` (fusion.train.priors; 0 0 = off), ``--hard-views``,
+    ``--photometric smoothl1_msssim``; per-material geometry of MVS-only, the splat centres, merged with every splat
+    and the merged survey points (fusion.clean.select_survey_points) is printed and written to geometry.json.
+
+``python bench/bench_train.py geometry --scene SCENE --project PROJECT [--splats L=PLY ...] [--points L=PLY ...]``
+    Where the geometric error comes from, per truth material (the LiDAR's ``material`` field): accuracy (mean
+    distance product → truth, by the nearest truth point's material; splat centres opacity-weighted) and
+    completeness at τ = 3 GSD (truth → product) of MVS-only, the MVS points kept / dropped (``needs_splats`` from the
+    truth, or ``--needs classified`` with the pipeline's masks), the ``needs_splats`` MVS points and splats that
+    pass the survey-point rule at each ``--rim`` limit, and merged products; ``--points`` measures written point
+    clouds (e.g. a project's export/merged_points.ply) as they are.
 """
 
 from __future__ import annotations
