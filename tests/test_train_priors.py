@@ -165,3 +165,45 @@ def test_bad_prior_options_are_config_errors() -> None:
     with pytest.raises(ConfigError):
         PriorOptions(band_px=0)
     assert not PriorOptions(depth_weight=0.0, normal_weight=0.0).active
+
+
+def test_hull_test_keeps_a_flush_region_and_drops_the_background_behind_a_standing_object() -> None:
+    """Two cameras looking down +z, the second 0.4 m to the side. A region flush with the plane z = 2 is masked in
+    both views where it projects: its interpolated prior (the plane) is right and kept. An object standing at z = 1
+    is masked where *it* projects: the plane behind it, its interpolated prior, lands outside its mask in the other
+    view and is dropped."""
+    cam = Camera.pinhole(F, F, W / 2, H / 2, W, H)
+    views = {
+        1: View(1, "a.png", 1, np.array([1.0, 0, 0, 0]), np.zeros(3)),
+        2: View(2, "b.png", 1, np.array([1.0, 0, 0, 0]), np.array([-0.4, 0.0, 0.0])),  # centre (0.4, 0, 0)
+    }
+    cams = Cameras({1: cam}, views)
+    xs, ys = np.meshgrid(np.linspace(-2.0, 2.0, 801), np.linspace(-1.2, 1.2, 481))
+    plane = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 2.0)])
+
+    def masks_of(corners_x: tuple[float, float], z: float) -> dict[str, np.ndarray]:
+        """Masks of the square x in corners_x, |y| <= 0.1 at depth z, as each view sees it."""
+        out = {}
+        for v in cams:
+            m = np.zeros((H, W), bool)
+            c = -v.translation  # identity rotations: the centre is −t
+            u0, u1 = (int(np.floor(W / 2 + F * (x - c[0]) / z)) for x in corners_x)
+            v0, v1 = (int(np.floor(H / 2 + F * yy / z)) for yy in (-0.1, 0.1))
+            m[max(v0, 0) : v1, max(u0, 0) : u1] = True
+            out[v.name] = m
+        return out
+
+    grey = {v.name: np.full((H, W, 3), 0.5, np.float32) for v in cams}
+    for case, masks, expect_kept in (("flush", masks_of((-0.2, 0.2), 2.0), True),
+                                     ("standing", masks_of((-0.1, 0.1), 1.0), False)):  # fmt: skip
+        views_t = prepare_views(cams, grey, masks, np.zeros(3), holdout_fraction=0.0)
+        uv, _ = cams.project(cams.views[1], plane)
+        col, row = np.floor(uv[:, 0]).astype(int), np.floor(uv[:, 1]).astype(int)
+        ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        hidden = np.zeros(len(plane), bool)
+        hidden[ok] = masks["a.png"][row[ok], col[ok]]  # no trusted depth behind view a's mask (an MVS hole)
+        trusted = plane[~hidden] if case == "flush" else plane
+        plain = view_priors(views_t, trusted, PriorOptions(edge_scale=None, hull_share=None))[0]
+        hull = view_priors(views_t, trusted, PriorOptions(edge_scale=None, hull_share=0.8))[0]
+        assert plain.pixels > 50, case
+        assert (hull.pixels == plain.pixels) if expect_kept else (hull.pixels == 0), (case, hull.pixels, plain.pixels)

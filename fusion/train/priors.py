@@ -13,6 +13,9 @@ Per training view (:func:`view_priors`, computed once, at the training resolutio
   (:func:`fill_inverse_depth_linear`: exact on planes);
 - prior normal: the normal of that interpolated depth surface (cross product of its back-projected neighbours),
   facing the camera;
+- validity: only where the prior's surface point lands inside the masks of the other views that see it
+  (:func:`hull_consistent`): an object standing in front of its background interpolates to the background behind
+  it, which other views see outside the object's mask;
 - weight: ``exp(-d / border_px)`` with d the distance (px) of a mask pixel to the mask's edge (``border_px`` None:
   1 everywhere in the mask, for regions continuous with their surroundings such as a window in a facade), times the
   edge-aware factor ``exp(-|∇I| / edge_scale)`` of the photo (DN-Splatter: depth changes where the image has edges,
@@ -53,6 +56,8 @@ class PriorOptions:
     band_px: width (px) of the band around the mask whose trusted MVS depths are interpolated.
     edge_scale: image-gradient magnitude (colour units per px, [0, 1] images) at which the edge-aware weight has
         fallen to 1/e; None disables edge awareness.
+    hull_share: keep the prior only where its surface point lands inside the masks of at least this share of the
+        other views that see it (:func:`hull_consistent`); None disables the test.
     """
 
     depth_weight: float = 0.2
@@ -60,6 +65,7 @@ class PriorOptions:
     border_px: float | None = 8.0
     band_px: int = 6
     edge_scale: float | None = 0.1
+    hull_share: float | None = 0.8
 
     def __post_init__(self) -> None:
         if self.depth_weight < 0 or self.normal_weight < 0:
@@ -70,6 +76,8 @@ class PriorOptions:
             raise ConfigError(f"band_px must be >= 1, got {self.band_px}")
         if self.edge_scale is not None and not self.edge_scale > 0:
             raise ConfigError(f"edge_scale must be > 0 or None, got {self.edge_scale}")
+        if self.hull_share is not None and not 0.0 <= self.hull_share <= 1.0:
+            raise ConfigError(f"hull_share must lie in [0, 1] or be None, got {self.hull_share}")
 
     @property
     def active(self) -> bool:
@@ -239,6 +247,8 @@ def view_priors(views: Sequence[TrainView], trusted: np.ndarray, options: PriorO
         normals_cam = depth_normals(filled, K)
         w *= np.linalg.norm(normals_cam, axis=-1) > 0  # a normal is needed for both terms to be consistent
         w = np.where(np.isfinite(w), w, 0.0)
+        if options.hull_share is not None:
+            w *= hull_consistent(view, views, np.where(w > 0, filled, np.nan), options.hull_share)
         normals = normals_cam @ vm[:3, :3]  # camera → training frame: Rᵀ n, row-wise n @ R
         d = np.where(w > 0, np.nan_to_num(filled, nan=0.0), 0.0)
         out.append(
@@ -250,6 +260,44 @@ def view_priors(views: Sequence[TrainView], trusted: np.ndarray, options: PriorO
             )
         )
     return out
+
+
+def hull_consistent(view: TrainView, views: Sequence[TrainView], depth: np.ndarray, min_share: float) -> np.ndarray:
+    """(H, W) bool: the pixels of ``view`` whose prior surface point (z-depth ``depth``, NaN = none) lands inside the
+    masks of at least ``min_share`` of the other views that see it in their image; True where no other view sees it.
+
+    The surroundings of a region interpolate to the right surface when the region is flush with them (a window in
+    a facade, a mirror on a wall); for an object standing in front of its background they interpolate to the
+    background behind it, and that background point is then seen *outside* the object's mask from other views."""
+    rows, cols = np.nonzero(np.isfinite(depth))
+    keep = np.ones(depth.shape, bool)
+    if len(rows) == 0:
+        return keep
+    K = view.K.numpy().astype(np.float64)
+    vm = view.viewmat.numpy().astype(np.float64)
+    z = depth[rows, cols]
+    cam = np.stack([(cols + 0.5 - K[0, 2]) / K[0, 0] * z, (rows + 0.5 - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    world = (cam - vm[:3, 3]) @ vm[:3, :3]  # x = Rᵀ (x_cam − t), row-wise
+    inside = np.zeros(len(z), np.int32)
+    seen = np.zeros(len(z), np.int32)
+    for other in views:
+        if other is view or other.loss_mask is None:
+            continue
+        omask = (other.loss_mask | other.holdout_mask).numpy()
+        ovm, oK = other.viewmat.numpy().astype(np.float64), other.K.numpy().astype(np.float64)
+        oc = world @ ovm[:3, :3].T + ovm[:3, 3]
+        front = oc[:, 2] > 1e-6
+        zc = np.where(front, oc[:, 2], 1.0)
+        u = np.floor(oK[0, 0] * oc[:, 0] / zc + oK[0, 2]).astype(np.int64)
+        v = np.floor(oK[1, 1] * oc[:, 1] / zc + oK[1, 2]).astype(np.int64)
+        ok = front & (u >= 0) & (u < other.width) & (v >= 0) & (v < other.height)
+        seen += ok
+        hit = np.zeros(len(z), bool)
+        hit[ok] = omask[v[ok], u[ok]]
+        inside += hit
+    good = (seen == 0) | (inside >= min_share * seen)
+    keep[rows, cols] = good
+    return keep
 
 
 @dataclass(frozen=True)
