@@ -33,7 +33,8 @@ class TrainStageOptions:
     depth_prior / normal_prior: weights of the depth (edge-aware log-L1) and normal-consistency priors from the
         trusted MVS surface around each mask (fusion.train.priors; 0 turns one off); prior_border_px: their decay
         length from the mask edge inwards at the training resolution (negative: the whole mask);
-        prior_edge_scale: image-gradient scale of the edge-aware weight (negative: off).
+        prior_edge_scale: image-gradient scale of the edge-aware weight (negative: off); prior_hull_share: the prior
+        is kept where its surface point lands inside this share of the other views' masks (negative: off).
     hard_views: hard-view mining mid-training (fusion.train.HardViewOptions defaults); off by default.
     photometric: ``l1_ssim`` (3DGS) or ``smoothl1_msssim`` (fusion.train.msssim).
     """
@@ -51,6 +52,7 @@ class TrainStageOptions:
     normal_prior: float = 0.1
     prior_border_px: float = 8.0
     prior_edge_scale: float = 0.1
+    prior_hull_share: float = 0.8
     hard_views: bool = False
     photometric: str = "l1_ssim"
 
@@ -61,7 +63,9 @@ class TrainStageOptions:
             return None
         border = self.prior_border_px if self.prior_border_px > 0 else None
         edge = self.prior_edge_scale if self.prior_edge_scale > 0 else None
-        return PriorOptions(max(self.depth_prior, 0.0), max(self.normal_prior, 0.0), border, edge_scale=edge)
+        hull = self.prior_hull_share if self.prior_hull_share >= 0 else None
+        return PriorOptions(max(self.depth_prior, 0.0), max(self.normal_prior, 0.0), border, edge_scale=edge,
+                            hull_share=hull)  # fmt: skip
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
