@@ -48,7 +48,10 @@ def make_project(root) -> tuple[ProjectLayout, GaussianSet, np.ndarray]:
 def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     layout, truth, needs = make_project(tmp_path / "p")
     config = ProjectConfig().with_stage_options(
-        "train", TrainStageOptions(iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,))
+        "train",
+        TrainStageOptions(
+            iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,), depth_prior=0.2, normal_prior=0.1
+        ),  # fmt: skip
     )
     ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
     train, clean, merge = TrainStage(), CleanStage(), MergeStage()
@@ -76,7 +79,7 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     assert q["input"] == int(needs.sum()) and q["low_opacity"] == q["thick"] == q["large"] == 0  # no shape tests
     assert len(points) == m["points"] == m["mvs"] + p["kept"] + q["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
-    assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors are on by default
+    assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors asked for are used
 
 
 def test_train_is_skipped_without_classification(tmp_path) -> None:
