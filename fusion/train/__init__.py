@@ -6,11 +6,22 @@
 """
 
 from fusion.train.loss import masked_photometric_loss, ssim_map
+from fusion.train.priors import PriorOptions
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
-from fusion.train.trainer import StepInfo, TrainOptions, TrainResult, scene_scale, splat_normals, train_splats
+from fusion.train.trainer import (
+    HardViewOptions,
+    StepInfo,
+    TrainOptions,
+    TrainResult,
+    scene_scale,
+    splat_normals,
+    train_splats,
+)
 
 __all__ = [
     "DefaultStrategy",
+    "HardViewOptions",
+    "PriorOptions",
     "MCMCStrategy",
     "RefineCounts",
     "StepInfo",
