@@ -1,7 +1,7 @@
 """The ``cpu`` backend: numba rasteriser with a hand-written backward.
 
 Written by hand because no maintained package rasterises differentiable Gaussians on a CPU (see
-``shared/notes/cpu-splat-renderer.md``). Projection and SH stay in PyTorch (autograd, per Gaussian, cheap);
+``shared/notes/cpu-splat-renderer.md``). Projection, SH and opacity are :mod:`fusion.render.project_cpu`;
 this module does the per-pixel work:
 
 1. binning: Gaussians sorted by depth once, then a counting sort by 16×16 tile keeps each tile's list in depth
@@ -14,7 +14,9 @@ this module does the per-pixel work:
    with early termination per pixel and per tile;
 3. backward: the same traversal front to back, with what is still to be composited behind each Gaussian taken
    from the saved forward result (no division by transmittance), gradients accumulated per intersection (each
-   tile writes only its own list entries, so no atomics), then summed per Gaussian.
+   tile writes only its own list entries, so no atomics), then summed per Gaussian through the transposed index
+   of the binning (Gaussians split over the threads, each sum in list-entry order: results do not depend on the
+   thread count).
 
 Kernels are generic in the float type (float32 in production, float64 for gradient checks) and cached on disk
 (the first call in a fresh checkout compiles for ~20-60 s).
@@ -23,15 +25,14 @@ Kernels are generic in the float type (float32 in production, float64 for gradie
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import torch
 from numba import njit
 
 from core.errors import ConfigError
+from fusion.render.threads import run_threads
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN, TILE_SIZE
 
 
@@ -42,6 +43,10 @@ class TileBins:
     offsets: (n_tiles + 1,) int64; tile t's list is ``ids[offsets[t]:offsets[t+1]]`` (row-major tiles).
     ids: (n_intersections,) int32 Gaussian indices, nearest first within each tile.
     order: (n_tiles,) int64 tile processing order, longest lists first (thread i takes entries i, i + n, ...).
+    sorted_ids: (n_binned,) int64 the binned Gaussians, nearest first.
+    g_offsets: (n_binned + 1,) int64 and g_slots: (n_intersections,) int64, the transposed index: the list
+        entries of Gaussian ``sorted_ids[p]`` are ``g_slots[g_offsets[p]:g_offsets[p + 1]]`` (increasing), so that
+        per-Gaussian sums over list entries run in parallel and in a fixed order.
     """
 
     offsets: np.ndarray
@@ -50,6 +55,9 @@ class TileBins:
     tiles_x: int
     tiles_y: int
     tile_size: int
+    sorted_ids: np.ndarray
+    g_offsets: np.ndarray
+    g_slots: np.ndarray
 
 
 @njit(cache=True)
@@ -64,28 +72,37 @@ def _tile_rect(mx, my, ex, ey, tile_size, tiles_x, tiles_y):  # pragma: no cover
 @njit(cache=True)
 def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # pragma: no cover - numba
     n_tiles = tiles_x * tiles_y
+    n_sorted = sorted_ids.shape[0]
     offsets = np.zeros(n_tiles + 1, np.int64)
-    for g in sorted_ids:
+    g_offsets = np.zeros(n_sorted + 1, np.int64)
+    for p in range(n_sorted):
+        g = sorted_ids[p]
         tx0, tx1, ty0, ty1 = _tile_rect(
             means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
         )
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 offsets[ty * tiles_x + tx + 1] += 1
+        g_offsets[p + 1] = g_offsets[p] + max(0, tx1 - tx0 + 1) * max(0, ty1 - ty0 + 1)
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     ids = np.empty(offsets[n_tiles], np.int32)
+    g_slots = np.empty(offsets[n_tiles], np.int64)
     cursor = offsets[:n_tiles].copy()
-    for g in sorted_ids:
+    for p in range(n_sorted):
+        g = sorted_ids[p]
         tx0, tx1, ty0, ty1 = _tile_rect(
             means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
         )
+        m = g_offsets[p]
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
+                g_slots[m] = cursor[t]
+                m += 1
                 cursor[t] += 1
-    return offsets, ids
+    return offsets, ids, g_offsets, g_slots
 
 
 def bin_gaussians(
@@ -102,7 +119,7 @@ def bin_gaussians(
     tiles_y = (height + tile_size - 1) // tile_size
     vis = np.flatnonzero(visible)
     sorted_ids = vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
-    offsets, ids = _bin_kernel(
+    offsets, ids, g_offsets, g_slots = _bin_kernel(
         np.ascontiguousarray(means2d, np.float64),
         np.ascontiguousarray(extents, np.float64),
         sorted_ids,
@@ -111,7 +128,7 @@ def bin_gaussians(
         tiles_y,
     )
     by_length = np.argsort(-np.diff(offsets), kind="stable")
-    return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size)
+    return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size, sorted_ids, g_offsets, g_slots)
 
 
 _TS = TILE_SIZE
@@ -393,35 +410,36 @@ def _backward_kernel(
             g_isect[k, 7] = g_f1
             g_isect[k, 8] = g_f2
             g_isect[k, 9] = g_f3
+        for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
+            for f in range(10):
+                g_isect[k, f] = zero
 
 
-@njit(cache=True)
-def _sum_per_gaussian(g_isect, ids, n):  # pragma: no cover - numba
-    grads = np.zeros((n, g_isect.shape[1]), np.float64)
-    for k in range(ids.shape[0]):
-        g = ids[k]
-        for j in range(g_isect.shape[1]):
-            grads[g, j] += g_isect[k, j]
-    return grads
-
-
-_POOL: list[ThreadPoolExecutor] = []
+@njit(nogil=True, cache=True)
+def _sum_kernel(g_isect, sorted_ids, g_offsets, g_slots, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
+    """Per-Gaussian sums (float64, in list-entry order) of g_isect rows, Gaussians split over threads."""
+    n = sorted_ids.shape[0]
+    acc = np.empty(10, np.float64)
+    for p in range(n * th // n_threads, n * (th + 1) // n_threads):
+        acc[:] = 0.0
+        for m in range(g_offsets[p], g_offsets[p + 1]):
+            k = g_slots[m]
+            for j in range(10):
+                acc[j] += g_isect[k, j]
+        g = sorted_ids[p]
+        g_m2[g, 0] = acc[0]
+        g_m2[g, 1] = acc[1]
+        g_con[g, 0] = acc[2]
+        g_con[g, 1] = acc[3]
+        g_con[g, 2] = acc[4]
+        g_op[g] = acc[5]
+        for j in range(4):
+            g_feat[g, j] = acc[6 + j]
 
 
 def _run_tiles(kernel, args: tuple, tail: tuple) -> None:
-    """Run ``kernel(*args, th, n, *tail)`` for th in 0..n-1 on n threads (n = numba.get_num_threads()).
-
-    Python threads on GIL-free kernels instead of numba's prange: waiting threads block instead of spinning, which
-    keeps the renderer fast when the cores are shared with other work (OpenMP spin-waits made it 3-5x slower).
-    """
-    n = numba.get_num_threads()
-    if n == 1:
-        kernel(*args, 0, 1, *tail)
-        return
-    if not _POOL or _POOL[0]._max_workers < n:
-        _POOL[:] = [ThreadPoolExecutor(max_workers=n, thread_name_prefix="splat")]
-    for future in [_POOL[0].submit(kernel, *args, th, n, *tail) for th in range(n)]:
-        future.result()
+    """Run ``kernel(*args, th, n, *tail)`` on the shared pool of blocking threads (:mod:`fusion.render.threads`)."""
+    run_threads(kernel, args, tail)
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
@@ -439,7 +457,7 @@ class _RasterizeCPU(torch.autograd.Function):
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
         _run_tiles(_forward_kernel, args, (out, n_used))
-        ctx.args, ctx.out, ctx.n_used = args, out, n_used
+        ctx.args, ctx.out, ctx.n_used, ctx.bins = args, out, n_used, bins
         return torch.from_numpy(out)
 
     @staticmethod
@@ -447,10 +465,13 @@ class _RasterizeCPU(torch.autograd.Function):
         args = ctx.args
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         ids = args[6]
-        g_isect = np.zeros((len(ids), 10), args[0].dtype)
+        g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
         _run_tiles(_backward_kernel, args, (ctx.out, ctx.n_used, go, g_isect))
-        grads = torch.from_numpy(_sum_per_gaussian(g_isect, ids, args[0].shape[0])).to(grad_out.dtype)
-        return grads[:, 0:2], grads[:, 2:5], grads[:, 5], grads[:, 6:10], None, None, None, None
+        n, dt = args[0].shape[0], args[0].dtype
+        outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
+        bins = ctx.bins
+        run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets, bins.g_slots), outs)
+        return (*(torch.from_numpy(a) for a in outs), None, None, None, None)
 
 
 def rasterize_cpu(
