@@ -32,7 +32,7 @@ import torch
 from numba import njit
 
 from core.errors import ConfigError
-from fusion.render.threads import run_threads
+from fusion.render.threads import run_threads, timed
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN, TILE_SIZE
 
 
@@ -105,6 +105,45 @@ def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # p
     return offsets, ids, g_offsets, g_slots
 
 
+@njit(cache=True)
+def _radix_argsort(keys):  # pragma: no cover - numba
+    """Stable argsort of unsigned integer keys (LSD radix, 11-bit digits; digits all keys share are skipped)."""
+    n = keys.shape[0]
+    order = np.arange(n)
+    tmp = np.empty(n, np.int64)
+    count = np.empty(2049, np.int64)
+    for shift in range(0, keys.itemsize * 8, 11):
+        count[:] = 0
+        for i in range(n):
+            count[((keys[i] >> shift) & 2047) + 1] += 1
+        if n == 0 or count.max() == n:
+            continue
+        for b in range(2048):
+            count[b + 1] += count[b]
+        for i in range(n):
+            j = order[i]
+            d = (keys[j] >> shift) & 2047
+            tmp[count[d]] = j
+            count[d] += 1
+        order, tmp = tmp, order
+    return order
+
+
+def depth_order(depths: np.ndarray) -> np.ndarray:
+    """Stable argsort (int64) of positive float depths (N,): ``np.argsort(depths, kind="stable")``, ~20x faster.
+
+    The bit patterns of positive IEEE floats sort like the numbers, so they are radix-sorted as unsigned integers.
+    """
+    d = np.ascontiguousarray(depths)
+    if d.dtype == np.float32:
+        keys = d.view(np.uint32)
+    else:
+        keys = d.astype(np.float64).view(np.uint64)
+    if len(d) and not bool((d > 0).all()):
+        return np.argsort(d, kind="stable")
+    return _radix_argsort(keys)
+
+
 def bin_gaussians(
     means2d: np.ndarray,
     extents: np.ndarray,
@@ -115,10 +154,15 @@ def bin_gaussians(
     tile_size: int = TILE_SIZE,
 ) -> TileBins:
     """Tile lists for visible Gaussians: means2d and extents (N, 2) px, depths (N,), visible (N,) bool."""
+    with timed("bin"):
+        return _bin(means2d, extents, depths, visible, width, height, tile_size)
+
+
+def _bin(means2d, extents, depths, visible, width, height, tile_size) -> TileBins:
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
     vis = np.flatnonzero(visible)
-    sorted_ids = vis[np.argsort(depths[vis], kind="stable")].astype(np.int64)
+    sorted_ids = vis[depth_order(depths[vis])].astype(np.int64)
     offsets, ids, g_offsets, g_slots = _bin_kernel(
         np.ascontiguousarray(means2d, np.float64),
         np.ascontiguousarray(extents, np.float64),
@@ -437,11 +481,6 @@ def _sum_kernel(g_isect, sorted_ids, g_offsets, g_slots, th, n_threads, g_m2, g_
             g_feat[g, j] = acc[6 + j]
 
 
-def _run_tiles(kernel, args: tuple, tail: tuple) -> None:
-    """Run ``kernel(*args, th, n, *tail)`` on the shared pool of blocking threads (:mod:`fusion.render.threads`)."""
-    run_threads(kernel, args, tail)
-
-
 def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().cpu().numpy())
 
@@ -456,7 +495,7 @@ class _RasterizeCPU(torch.autograd.Function):
         args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
-        _run_tiles(_forward_kernel, args, (out, n_used))
+        run_threads(_forward_kernel, args, (out, n_used), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins = args, out, n_used, bins
         return torch.from_numpy(out)
 
@@ -466,11 +505,11 @@ class _RasterizeCPU(torch.autograd.Function):
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         ids = args[6]
         g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
-        _run_tiles(_backward_kernel, args, (ctx.out, ctx.n_used, go, g_isect))
+        run_threads(_backward_kernel, args, (ctx.out, ctx.n_used, go, g_isect), "raster bwd")
         n, dt = args[0].shape[0], args[0].dtype
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins
-        run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets, bins.g_slots), outs)
+        run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets, bins.g_slots), outs, "gaussian sums")
         return (*(torch.from_numpy(a) for a in outs), None, None, None, None)
 
 

@@ -425,7 +425,7 @@ class _ProjectCPU(torch.autograd.Function):
         )
         if n:
             args = (*ins, degree, cam, float(width), float(height), float(near), float(eps2d), EXTENT_SIGMA)
-            run_threads(_forward_kernel, args, outs)
+            run_threads(_forward_kernel, args, outs, "project fwd")
         ctx.ins = ins
         ctx.config = (degree, cam, float(width), float(height), float(near), float(eps2d))
         means2d, conics, depths, extents, visible, colours, opacities = (torch.from_numpy(a) for a in outs)
@@ -451,7 +451,7 @@ class _ProjectCPU(torch.autograd.Function):
             np.zeros(ins[5].shape, np_dtype),
         )
         if n:
-            run_threads(_backward_kernel, (*ins, *ctx.config, *grads_in), outs)
+            run_threads(_backward_kernel, (*ins, *ctx.config, *grads_in), outs, "project bwd")
         return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None)
 
 

@@ -7,12 +7,44 @@ The thread count is ``numba.get_num_threads()`` (so ``numba.set_num_threads`` go
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import numba
 
 _POOL: list[ThreadPoolExecutor] = []
+_TIMES: dict[str, list[float]] = {}
+_RECORDING: list[bool] = [False]
+
+
+def record_times(enabled: bool) -> None:
+    """Start (and clear) or stop accumulating wall and process-CPU seconds per named kernel (for bench scripts)."""
+    _RECORDING[0] = enabled
+    _TIMES.clear()
+
+
+def kernel_times() -> dict[str, tuple[float, float]]:
+    """Accumulated (wall s, process CPU s) per kernel name since :func:`record_times`; clears them."""
+    out = {k: (v[0], v[1]) for k, v in _TIMES.items()}
+    _TIMES.clear()
+    return out
+
+
+@contextmanager
+def timed(name: str) -> Iterator[None]:
+    """Adds the block's wall and process-CPU time to ``name`` while recording (a no-op otherwise)."""
+    if not _RECORDING[0]:
+        yield
+        return
+    w0, c0 = time.perf_counter(), time.process_time()
+    try:
+        yield
+    finally:
+        acc = _TIMES.setdefault(name, [0.0, 0.0])
+        acc[0] += time.perf_counter() - w0
+        acc[1] += time.process_time() - c0
 
 
 def n_threads() -> int:
@@ -26,11 +58,17 @@ def _pool(n: int) -> ThreadPoolExecutor:
     return _POOL[0]
 
 
-def run_threads(kernel: Callable[..., object], args: tuple, tail: tuple = ()) -> None:
+def run_threads(kernel: Callable[..., object], args: tuple, tail: tuple = (), name: str = "") -> None:
     """Run ``kernel(*args, th, n, *tail)`` for th in 0..n-1 on n threads and wait for all of them.
 
-    The kernel must split its work by ``th`` / ``n`` so that threads never write the same memory.
+    The kernel must split its work by ``th`` / ``n`` so that threads never write the same memory. ``name``: the
+    label its time is recorded under (see :func:`record_times`).
     """
+    with timed(name or "other"):
+        _run_threads(kernel, args, tail)
+
+
+def _run_threads(kernel: Callable[..., object], args: tuple, tail: tuple) -> None:
     n = n_threads()
     if n == 1:
         kernel(*args, 0, 1, *tail)
@@ -40,8 +78,13 @@ def run_threads(kernel: Callable[..., object], args: tuple, tail: tuple = ()) ->
         future.result()
 
 
-def run_calls(work: Callable[[int, int], object]) -> None:
+def run_calls(work: Callable[[int, int], object], name: str = "") -> None:
     """Run ``work(th, n)`` for th in 0..n-1 on n threads (a Python function that calls GIL-free kernels)."""
+    with timed(name or "other"):
+        _run_calls(work)
+
+
+def _run_calls(work: Callable[[int, int], object]) -> None:
     n = n_threads()
     if n == 1:
         work(0, 1)

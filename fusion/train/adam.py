@@ -110,5 +110,5 @@ class FusedAdam(torch.optim.Adam):
                 if stop > start:
                     _adam_kernel(*arrays, *scalars, start, stop)
 
-        run_calls(run)
+        run_calls(run, "adam")
         return None

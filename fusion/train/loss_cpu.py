@@ -169,9 +169,8 @@ class _MaskedPhotometric(torch.autograd.Function):
         pw = np.empty((nc, 3, h, wd), x.dtype)
         nth = n_threads()
         sums = np.zeros((nth, 2), np.float64)
-        run_threads(
-            _forward_kernel, (x, y, w, _taps(x.dtype), x.dtype.type(SSIM_C1), x.dtype.type(SSIM_C2)), (pw, sums)
-        )
+        consts = (_taps(x.dtype), x.dtype.type(SSIM_C1), x.dtype.type(SSIM_C2))
+        run_threads(_forward_kernel, (x, y, w, *consts), (pw, sums), "loss fwd")
         l1 = float(sums[:, 0].sum()) / count
         ssim = float(sums[:, 1].sum()) / count + (1.0 if empty else 0.0)
         ctx.saved = (x, y, w, pw)
@@ -193,9 +192,8 @@ class _MaskedPhotometric(torch.autograd.Function):
         grad = np.empty_like(x)
         coef_ssim = -lam * g / (count * nc)
         coef_l1 = (1.0 - lam) * g / (count * nc)
-        run_threads(
-            _backward_kernel, (x, y, w, pw, _taps(x.dtype), x.dtype.type(coef_ssim), x.dtype.type(coef_l1)), (grad,)
-        )
+        consts = (_taps(x.dtype), x.dtype.type(coef_ssim), x.dtype.type(coef_l1))
+        run_threads(_backward_kernel, (x, y, w, pw, *consts), (grad,), "loss bwd")
         return torch.from_numpy(grad), None, None, None, None, None
 
 
