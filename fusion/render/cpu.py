@@ -262,6 +262,7 @@ def _forward_kernel(
             xs[c] = x0 + c + 0.5
             ys[c] = y0 + c + 0.5
         zero = xs[0] - xs[0]
+        one = xs[1] - xs[0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
         start = offsets[t]
         for k in range(start, offsets[t + 1]):
             g = ids[k]
@@ -281,7 +282,7 @@ def _forward_kernel(
                 if alive[r] == 0:
                     continue
                 dy = ys[r] - my
-                stops = 0
+                stops = zero
                 for c in range(ts):
                     dx = xs[c] - mx
                     power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
@@ -300,9 +301,10 @@ def _forward_kernel(
                     T[r, c] = -tp if stop else (test_t if draw else tp)
                     u = used[r, c]  # load first: a select on the store target blocks vectorisation
                     used[r, c] = kk if draw else u
-                    stops += 1 if stop else 0
-                n_done += stops
-                alive[r] -= stops
+                    stops += one if stop else zero
+                n_stops = np.int32(stops)
+                n_done += n_stops
+                alive[r] -= n_stops
             if n_done == ts * ts:
                 break
         for r in range(y1 - y0):
