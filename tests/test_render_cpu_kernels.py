@@ -44,9 +44,12 @@ def test_tile_lists_and_transposed_index_match_brute_force() -> None:
             and np.floor((means2d[g, 1] - extents[g, 1]) / 16) <= y0 // 16
         ]
         np.testing.assert_array_equal(bins.ids[bins.offsets[t] : bins.offsets[t + 1]], expected)
-    # The transposed index lists every entry of each Gaussian once, in increasing order.
-    assert sorted(bins.g_slots.tolist()) == list(range(len(bins.ids)))
+    # The transposed index: a permutation of the entries; each Gaussian's slots hold exactly its entries, in
+    # increasing entry order.
+    entry_at = np.argsort(bins.slot_of)
+    assert sorted(bins.slot_of.tolist()) == list(range(len(bins.ids)))
     for p, g in enumerate(bins.sorted_ids):
-        slots = bins.g_slots[bins.g_offsets[p] : bins.g_offsets[p + 1]]
-        assert (bins.ids[slots] == g).all() and (np.diff(slots) > 0).all()
+        entries = entry_at[bins.g_offsets[p] : bins.g_offsets[p + 1]]
+        assert (bins.ids[entries] == g).all() and (np.diff(entries) > 0).all()
+        assert len(entries) == int((bins.ids == g).sum())
     assert set(bins.sorted_ids.tolist()) <= set(np.flatnonzero(visible).tolist())

@@ -44,9 +44,10 @@ class TileBins:
     ids: (n_intersections,) int32 Gaussian indices, nearest first within each tile.
     order: (n_tiles,) int64 tile processing order, longest lists first (thread i takes entries i, i + n, ...).
     sorted_ids: (n_binned,) int64 the binned Gaussians, nearest first.
-    g_offsets: (n_binned + 1,) int64 and g_slots: (n_intersections,) int64, the transposed index: the list
-        entries of Gaussian ``sorted_ids[p]`` are ``g_slots[g_offsets[p]:g_offsets[p + 1]]`` (increasing), so that
-        per-Gaussian sums over list entries run in parallel and in a fixed order.
+    g_offsets: (n_binned + 1,) int64 and slot_of: (n_intersections,) int64, the transposed index: list entry k
+        (of Gaussian ``ids[k]`` = ``sorted_ids[p]``) has slot ``slot_of[k]`` in ``[g_offsets[p], g_offsets[p + 1])``,
+        slots of one Gaussian in increasing k. The backward writes each entry's gradients at its slot, so that the
+        per-Gaussian sums read contiguous rows, run in parallel and add in a fixed order.
     """
 
     offsets: np.ndarray
@@ -57,7 +58,7 @@ class TileBins:
     tile_size: int
     sorted_ids: np.ndarray
     g_offsets: np.ndarray
-    g_slots: np.ndarray
+    slot_of: np.ndarray
 
 
 @njit(cache=True)
@@ -75,11 +76,16 @@ def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # p
     n_sorted = sorted_ids.shape[0]
     offsets = np.zeros(n_tiles + 1, np.int64)
     g_offsets = np.zeros(n_sorted + 1, np.int64)
+    rects = np.empty((n_sorted, 4), np.int32)  # tile box of each sorted Gaussian, computed once
     for p in range(n_sorted):
         g = sorted_ids[p]
         tx0, tx1, ty0, ty1 = _tile_rect(
             means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
         )
+        rects[p, 0] = tx0
+        rects[p, 1] = tx1
+        rects[p, 2] = ty0
+        rects[p, 3] = ty1
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 offsets[ty * tiles_x + tx + 1] += 1
@@ -87,22 +93,19 @@ def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # p
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     ids = np.empty(offsets[n_tiles], np.int32)
-    g_slots = np.empty(offsets[n_tiles], np.int64)
+    slot_of = np.empty(offsets[n_tiles], np.int64)
     cursor = offsets[:n_tiles].copy()
     for p in range(n_sorted):
         g = sorted_ids[p]
-        tx0, tx1, ty0, ty1 = _tile_rect(
-            means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
-        )
         m = g_offsets[p]
-        for ty in range(ty0, ty1 + 1):
-            for tx in range(tx0, tx1 + 1):
+        for ty in range(rects[p, 2], rects[p, 3] + 1):
+            for tx in range(rects[p, 0], rects[p, 1] + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
-                g_slots[m] = cursor[t]
+                slot_of[cursor[t]] = m
                 m += 1
                 cursor[t] += 1
-    return offsets, ids, g_offsets, g_slots
+    return offsets, ids, g_offsets, slot_of
 
 
 @njit(cache=True)
@@ -163,7 +166,7 @@ def _bin(means2d, extents, depths, visible, width, height, tile_size) -> TileBin
     tiles_y = (height + tile_size - 1) // tile_size
     vis = np.flatnonzero(visible)
     sorted_ids = vis[depth_order(depths[vis])].astype(np.int64)
-    offsets, ids, g_offsets, g_slots = _bin_kernel(
+    offsets, ids, g_offsets, slot_of = _bin_kernel(
         np.ascontiguousarray(means2d, np.float64),
         np.ascontiguousarray(extents, np.float64),
         sorted_ids,
@@ -172,7 +175,7 @@ def _bin(means2d, extents, depths, visible, width, height, tile_size) -> TileBin
         tiles_y,
     )
     by_length = np.argsort(-np.diff(offsets), kind="stable")
-    return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size, sorted_ids, g_offsets, g_slots)
+    return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size, sorted_ids, g_offsets, slot_of)
 
 
 _TS = TILE_SIZE
@@ -333,10 +336,11 @@ def _backward_kernel(
     out,
     n_used,
     grad_out,
+    slot_of,
     g_isect,
 ):  # pragma: no cover - numba
-    """One thread's tiles; writes g_isect (n_isect, 10) rows of its tiles' list entries: d/d(mx, my),
-    d/d(a, b, c), d/d(opacity), d/d(features 0..3)."""
+    """One thread's tiles; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of its tiles' list entries k:
+    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3)."""
     ts = _TS  # compile-time 16: lets LLVM vectorise rows without remainder loops
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
@@ -446,32 +450,33 @@ def _backward_kernel(
                     g_a -= np.float32(0.5) * g_pow * dx * dx
                     g_b -= g_pow * dx * dy
                     g_c -= np.float32(0.5) * g_pow * dy * dy
-            g_isect[k, 0] = g_mx
-            g_isect[k, 1] = g_my
-            g_isect[k, 2] = g_a
-            g_isect[k, 3] = g_b
-            g_isect[k, 4] = g_c
-            g_isect[k, 5] = g_op
-            g_isect[k, 6] = g_f0
-            g_isect[k, 7] = g_f1
-            g_isect[k, 8] = g_f2
-            g_isect[k, 9] = g_f3
+            m = slot_of[k]
+            g_isect[m, 0] = g_mx
+            g_isect[m, 1] = g_my
+            g_isect[m, 2] = g_a
+            g_isect[m, 3] = g_b
+            g_isect[m, 4] = g_c
+            g_isect[m, 5] = g_op
+            g_isect[m, 6] = g_f0
+            g_isect[m, 7] = g_f1
+            g_isect[m, 8] = g_f2
+            g_isect[m, 9] = g_f3
         for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
             for f in range(10):
-                g_isect[k, f] = zero
+                g_isect[slot_of[k], f] = zero
 
 
 @njit(nogil=True, cache=True)
-def _sum_kernel(g_isect, sorted_ids, g_offsets, g_slots, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
-    """Per-Gaussian sums (float64, in list-entry order) of g_isect rows, Gaussians split over threads."""
+def _sum_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
+    """Per-Gaussian sums (float64, in list-entry order) of g_isect rows (Gaussian-major), Gaussians split over
+    threads."""
     n = sorted_ids.shape[0]
     acc = np.empty(10, np.float64)
     for p in range(n * th // n_threads, n * (th + 1) // n_threads):
         acc[:] = 0.0
         for m in range(g_offsets[p], g_offsets[p + 1]):
-            k = g_slots[m]
             for j in range(10):
-                acc[j] += g_isect[k, j]
+                acc[j] += g_isect[m, j]
         g = sorted_ids[p]
         g_m2[g, 0] = acc[0]
         g_m2[g, 1] = acc[1]
@@ -507,11 +512,11 @@ class _RasterizeCPU(torch.autograd.Function):
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         ids = args[6]
         g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
-        run_threads(_backward_kernel, args, (ctx.out, ctx.n_used, go, g_isect), "raster bwd")
+        run_threads(_backward_kernel, args, (ctx.out, ctx.n_used, go, ctx.bins.slot_of, g_isect), "raster bwd")
         n, dt = args[0].shape[0], args[0].dtype
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins
-        run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets, bins.g_slots), outs, "gaussian sums")
+        run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
         return (*(torch.from_numpy(a) for a in outs), None, None, None, None)
 
 
