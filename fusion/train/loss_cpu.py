@@ -40,7 +40,7 @@ def _hblur(pad, out, taps, wd):  # pragma: no cover - numba
 
 
 @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-def _forward_kernel(x, y, w, taps, c1, c2, th, nth, pw, sums):  # pragma: no cover - numba
+def _forward_kernel(x, y, w, taps, c1, c2, two, th, nth, pw, sums):  # pragma: no cover - numba
     """Rows of band ``th``: pw (C, 3, H, W) = w · (∂S/∂μx, ∂S/∂E[x²], ∂S/∂E[xy]); sums[th] = (Σ w·L1, Σ w·SSIM)."""
     h, wd, nc = x.shape
     dt = x.dtype
@@ -68,6 +68,7 @@ def _forward_kernel(x, y, w, taps, c1, c2, th, nth, pw, sums):  # pragma: no cov
     l1_sum = 0.0
     s_sum = 0.0
     inv_c = 1.0 / nc
+    one = two - two + two / two  # 1 in the float type (float64 literals would halve the vector width)
     for i in range(r0, r1):
         s_row[:] = 0.0
         for c in range(nc):
@@ -85,17 +86,17 @@ def _forward_kernel(x, y, w, taps, c1, c2, th, nth, pw, sums):  # pragma: no cov
                 mx = v[0, j]
                 my = v[1, j]
                 mxy = mx * my
-                a1 = 2.0 * mxy + c1
-                a2 = 2.0 * (v[4, j] - mxy) + c2
+                a1 = two * mxy + c1
+                a2 = two * (v[4, j] - mxy) + c2
                 b1 = mx * mx + my * my + c1
                 b2 = (v[2, j] - mx * mx) + (v[3, j] - my * my) + c2
-                inv = 1.0 / (b1 * b2)
+                inv = (two - one) / (b1 * b2)
                 s = a1 * a2 * inv
                 s_row[j] += s
                 wj = w[i, j]
-                pw[c, 0, i, j] = wj * (2.0 * my * (a2 - a1) - 2.0 * mx * s * (b2 - b1)) * inv
+                pw[c, 0, i, j] = wj * (two * my * (a2 - a1) - two * mx * s * (b2 - b1)) * inv
                 pw[c, 1, i, j] = -wj * s / b2
-                pw[c, 2, i, j] = wj * 2.0 * a1 * inv
+                pw[c, 2, i, j] = wj * two * a1 * inv
         for j in range(wd):
             wj = w[i, j]
             d = 0.0
@@ -108,7 +109,7 @@ def _forward_kernel(x, y, w, taps, c1, c2, th, nth, pw, sums):  # pragma: no cov
 
 
 @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-def _backward_kernel(x, y, w, pw, taps, coef_ssim, coef_l1, th, nth, grad):  # pragma: no cover - numba
+def _backward_kernel(x, y, w, pw, taps, coef_ssim, coef_l1, two, th, nth, grad):  # pragma: no cover - numba
     """Rows of band ``th`` of grad (H, W, C) = coef_ssim · ∂SSIM-sum/∂x + coef_l1 · w · sign(x − y)."""
     h, wd, nc = x.shape
     dt = x.dtype
@@ -126,6 +127,7 @@ def _backward_kernel(x, y, w, pw, taps, coef_ssim, coef_l1, th, nth, grad):  # p
                     pad[j + rad] = pw[c, m, i, j]
                 _hblur(pad, hb[c, m, i - hr0], taps, wd)
     v = np.empty((3, wd), dt)
+    zero = two - two
     for i in range(r0, r1):
         for c in range(nc):
             v[:] = 0.0
@@ -142,8 +144,8 @@ def _backward_kernel(x, y, w, pw, taps, coef_ssim, coef_l1, th, nth, grad):  # p
                 a = x[i, j, c]
                 b = y[i, j, c]
                 d = a - b
-                sgn = (d > 0.0) * 1.0 - (d < 0.0) * 1.0
-                grad[i, j, c] = coef_ssim * (v[0, j] + 2.0 * a * v[1, j] + b * v[2, j]) + coef_l1 * w[i, j] * sgn
+                sgn = coef_l1 if d > 0.0 else (-coef_l1 if d < 0.0 else zero)
+                grad[i, j, c] = coef_ssim * (v[0, j] + two * a * v[1, j] + b * v[2, j]) + w[i, j] * sgn
 
 
 _TAPS: dict[np.dtype, np.ndarray] = {}
@@ -169,7 +171,7 @@ class _MaskedPhotometric(torch.autograd.Function):
         pw = np.empty((nc, 3, h, wd), x.dtype)
         nth = n_threads()
         sums = np.zeros((nth, 2), np.float64)
-        consts = (_taps(x.dtype), x.dtype.type(SSIM_C1), x.dtype.type(SSIM_C2))
+        consts = (_taps(x.dtype), x.dtype.type(SSIM_C1), x.dtype.type(SSIM_C2), x.dtype.type(2))
         run_threads(_forward_kernel, (x, y, w, *consts), (pw, sums), "loss fwd")
         l1 = float(sums[:, 0].sum()) / count
         ssim = float(sums[:, 1].sum()) / count + (1.0 if empty else 0.0)
@@ -192,7 +194,7 @@ class _MaskedPhotometric(torch.autograd.Function):
         grad = np.empty_like(x)
         coef_ssim = -lam * g / (count * nc)
         coef_l1 = (1.0 - lam) * g / (count * nc)
-        consts = (_taps(x.dtype), x.dtype.type(coef_ssim), x.dtype.type(coef_l1))
+        consts = (_taps(x.dtype), x.dtype.type(coef_ssim), x.dtype.type(coef_l1), x.dtype.type(2))
         run_threads(_backward_kernel, (x, y, w, pw, *consts), (grad,), "loss bwd")
         return torch.from_numpy(grad), None, None, None, None, None
 
