@@ -19,7 +19,8 @@ this module does the per-pixel work:
    thread count).
 
 Kernels are generic in the float type (float32 in production, float64 for gradient checks) and cached on disk
-(the first call in a fresh checkout compiles for ~20-60 s).
+(a fresh checkout compiles the whole cpu training step, these kernels with projection, loss and Adam, in ~30 s on
+a busy 2-core machine; later processes load the cache in ~3 s).
 """
 
 from __future__ import annotations
