@@ -6,8 +6,9 @@ this module does the per-pixel work:
 
 1. binning: Gaussians sorted by depth once, then a counting sort by 16×16 tile keeps each tile's list in depth
    order (no per-tile sort);
-2. forward: one thread per tile at a time (tiles sorted by list length and dealt round-robin to Python threads
-   running GIL-free kernels, both cores);
+2. forward: one thread per tile at a time (tiles sorted by list length, longest first, handed out in small chunks
+   to Python threads running GIL-free kernels on both cores; a thread that the OS runs more takes more chunks,
+   which keeps the wall time down on a shared machine);
    Gaussian-major loops over the rows of each Gaussian's 3σ box, all 16 pixels of a row at once, branch-free
    so that LLVM vectorises them (hence the polynomial exp, the bitwise masks, the compile-time tile size and
    ``error_model="numpy"``: each of those alone blocked vectorisation, 3-10x slower); front-to-back compositing
@@ -33,7 +34,7 @@ import torch
 from numba import njit
 
 from core.errors import ConfigError
-from fusion.render.threads import run_threads, timed
+from fusion.render.threads import run_chunks, run_threads, timed
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN, TILE_SIZE
 
 
@@ -229,12 +230,12 @@ def _forward_kernel(
     width,
     height,
     tiles_x,
-    th,
-    n_threads,
+    j0,
+    j1,
     out,
     n_used,
 ):  # pragma: no cover - numba
-    """Tiles order[th], order[th + n_threads], ... into out (H, W, 5) and n_used (H, W) (disjoint per thread)."""
+    """Tiles order[j0:j1] into out (H, W, 5) and n_used (H, W) (disjoint per tile)."""
     ts = _TS  # compile-time 16: lets LLVM vectorise rows without remainder loops
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
@@ -244,7 +245,7 @@ def _forward_kernel(
     alive = np.empty(ts, np.int32)  # pixels of each tile row still compositing
     xs = np.empty(ts, dt)
     ys = np.empty(ts, dt)
-    for j in range(th, n_tiles, n_threads):
+    for j in range(j0, min(j1, n_tiles)):
         t = order[j]
         x0 = (t % tiles_x) * ts
         y0 = (t // tiles_x) * ts
@@ -332,15 +333,15 @@ def _backward_kernel(
     width,
     height,
     tiles_x,
-    th,
-    n_threads,
+    j0,
+    j1,
     out,
     n_used,
     grad_out,
     slot_of,
     g_isect,
 ):  # pragma: no cover - numba
-    """One thread's tiles; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of its tiles' list entries k:
+    """Tiles order[j0:j1]; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of their list entries k:
     d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3)."""
     ts = _TS  # compile-time 16: lets LLVM vectorise rows without remainder loops
     dt = means2d.dtype
@@ -352,7 +353,7 @@ def _backward_kernel(
     row_used = np.empty(ts, np.int32)  # list entries the slowest pixel of each row composited
     xs = np.empty(ts, dt)
     ys = np.empty(ts, dt)
-    for j in range(th, n_tiles, n_threads):
+    for j in range(j0, min(j1, n_tiles)):
         t = order[j]
         x0 = (t % tiles_x) * ts
         y0 = (t // tiles_x) * ts
@@ -503,7 +504,7 @@ class _RasterizeCPU(torch.autograd.Function):
         args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
-        run_threads(_forward_kernel, args, (out, n_used), "raster fwd")
+        run_chunks(_forward_kernel, args, (out, n_used), len(bins.order), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins = args, out, n_used, bins
         return torch.from_numpy(out)
 
@@ -513,7 +514,8 @@ class _RasterizeCPU(torch.autograd.Function):
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         ids = args[6]
         g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
-        run_threads(_backward_kernel, args, (ctx.out, ctx.n_used, go, ctx.bins.slot_of, g_isect), "raster bwd")
+        tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, g_isect)
+        run_chunks(_backward_kernel, args, tail, len(ctx.bins.order), "raster bwd")
         n, dt = args[0].shape[0], args[0].dtype
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins

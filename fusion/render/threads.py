@@ -7,6 +7,7 @@ The thread count is ``numba.get_num_threads()`` (so ``numba.set_num_threads`` go
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -92,6 +93,29 @@ def _run_calls(work: Callable[[int, int], object]) -> None:
     futures = [_pool(n).submit(work, th, n) for th in range(n)]
     for future in futures:
         future.result()
+
+
+def run_chunks(kernel: Callable[..., object], args: tuple, tail: tuple, n_items: int, name: str = "") -> None:
+    """Run ``kernel(*args, j0, j1, *tail)`` over [0, n_items) in chunks handed out on demand to n threads.
+
+    Dynamic rather than static shares: on a shared machine a thread the OS deschedules no longer holds back the
+    others (they take its chunks). The kernel must make the result independent of which thread runs a chunk
+    (each item writes only its own outputs), so results do not depend on the thread count or the schedule.
+    Chunks are ~1/8 of an even share (at least 1 item): ~20 µs of dispatch each.
+    """
+    n = n_threads()
+    if n == 1 or n_items <= 1:
+        with timed(name or "other"):
+            kernel(*args, 0, n_items, *tail)
+        return
+    size = max(1, n_items // (8 * n))
+    counter = itertools.count()  # next() is atomic under the GIL
+
+    def work(_th: int, _n: int) -> None:
+        while (start := next(counter) * size) < n_items:
+            kernel(*args, start, min(n_items, start + size), *tail)
+
+    run_calls(work, name)
 
 
 def chunk(total: int, th: int, n: int) -> tuple[int, int]:
