@@ -9,10 +9,11 @@ this module does the per-pixel work:
 2. forward: one thread per tile at a time (tiles sorted by list length, longest first, handed out in small chunks
    to Python threads running GIL-free kernels on both cores; a thread that the OS runs more takes more chunks,
    which keeps the wall time down on a shared machine);
-   Gaussian-major loops over the rows of each Gaussian's 3σ box, all 16 pixels of a row at once, branch-free
-   so that LLVM vectorises them (hence the polynomial exp, the bitwise masks, the compile-time tile size and
-   ``error_model="numpy"``: each of those alone blocked vectorisation, 3-10x slower); front-to-back compositing
-   with early termination per pixel and per tile;
+   Gaussian-major loops over the units (2 rows × 8 columns, 16 contiguous floats) of each Gaussian's 3σ box,
+   16 pixels at once, branch-free so that LLVM vectorises them (hence the polynomial exp, the bitwise masks,
+   the compile-time unit size, counters in the float type and ``error_model="numpy"``: each of those alone
+   blocked vectorisation or halved its width, 1.5-10x slower); front-to-back compositing with early termination
+   per pixel, per unit and per tile;
 3. backward: the same traversal front to back, with what is still to be composited behind each Gaussian taken
    from the saved forward result (no division by transmittance), gradients accumulated per intersection (each
    tile writes only its own list entries, so no atomics), then summed per Gaussian through the transposed index
