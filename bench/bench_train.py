@@ -3,7 +3,9 @@
 ``python bench/bench_train.py speed [--n 50000] [--size 256x192] [--steps 20]``
     One full training iteration (mask = whole image: render, loss, backward, Adam, densification bookkeeping)
     on a random scene, each part timed, next to OpenSplat 1.1.5's CPU figures (0.119 s/iter at 5 k, 0.209 s/iter
-    at 50 k Gaussians, 256×192, 2 cores, measured on this kind of machine).
+    at 50 k Gaussians, 256×192, 2 cores, measured on this kind of machine). Also the time of every kernel inside
+    those parts (projection, binning, rasteriser forward / backward, per-Gaussian sums, loss forward / backward,
+    Adam), wall and process CPU, medians per iteration; first-call compile / cache-load time reported apart.
 
 ``python bench/bench_train.py tabletop --scene SCENE --project PROJECT [--iterations 2000] ...``
     The hybrid on a data_synth scene that ``hybridsplat run`` has processed: masks and ``needs_splats`` from the
@@ -82,7 +84,12 @@ def bench_speed(args: argparse.Namespace) -> None:
     def clock() -> tuple[float, float]:
         return time.perf_counter(), time.process_time()
 
+    from fusion.render.threads import kernel_times, record_times
+
+    kernels: dict[str, list[tuple[float, float]]] = {}
     for i in range(args.steps + 3):
+        if i == 3:
+            record_times(True)
         c0 = clock()
         out = render_step(params, view, None, args.sh_degree, bg)
         c1 = clock()
@@ -96,16 +103,25 @@ def bench_speed(args: argparse.Namespace) -> None:
         strategy.after_backward(state, out.means2d, width, height, i)
         strategy.refine(state, params, optimizer, i + 1, 10**9, 1.0, torch.Generator())
         c5 = clock()
+        if i == 0:
+            print(f"first iteration (numba compile or cache load, thread pool): {c5[0] - c0[0]:.2f} s")
         if i >= 3:  # warm-up (kernel compilation, thread pool)
             spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
             for k, (a, b) in zip(names, spans, strict=True):
                 parts[k].append(b[0] - a[0])
                 cpu[k].append(b[1] - a[1])
+            for k, v in kernel_times().items():
+                kernels.setdefault(k, []).append(v)
+    record_times(False)
     print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
           f"{torch.get_num_threads()} torch threads; {load()}")  # fmt: skip
     for k, v in parts.items():
         print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
               f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip
+    print("  kernels inside those parts (median per iteration):")
+    for k, v in kernels.items():
+        arr = np.array(v)
+        print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
     total = float(np.median(parts["total"]))
     peer = 0.209 if args.n >= 50_000 else 0.119
     print(f"  OpenSplat 1.1.5 CPU: {peer:.3f} s/iter -> ours {total:.3f} s/iter, ratio {peer / total:.2f}x "

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from fusion.train.loss import masked_photometric_loss, ssim_map
+from fusion.train.loss import masked_photometric_loss, masked_photometric_loss_reference, ssim_map
 
 R = 5  # the window's half width: padding differs between implementations only this close to the border
 
@@ -69,3 +70,51 @@ def test_empty_mask_gives_zero_loss_and_gradient() -> None:
     terms = masked_photometric_loss(x, torch.from_numpy(b), torch.zeros(a.shape[:2], dtype=torch.bool))
     terms.loss.backward()
     assert float(terms.loss.detach()) == 0.0 and float(x.grad.abs().sum()) == 0.0
+
+
+# -- the fused numba loss (fusion/train/loss_cpu.py) against its PyTorch autograd twin ----------------------
+
+
+@pytest.mark.parametrize("masked", [False, True], ids=["whole", "masked"])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+def test_fused_loss_matches_autograd_twin(masked, dtype) -> None:
+    """Loss terms and the gradient w.r.t. the render, mask touching the border (zero padding matters there)."""
+    a, b = images(4, h=37, w=45)
+    mask = None
+    if masked:
+        rng = np.random.default_rng(5)
+        m = rng.uniform(size=a.shape[:2]) < 0.4
+        m[:, :3] = True
+        mask = torch.from_numpy(m)
+    out = {}
+    for name, fn in (("twin", masked_photometric_loss_reference), ("fused", masked_photometric_loss)):
+        x = torch.from_numpy(a).to(dtype).requires_grad_(True)
+        terms = fn(x, torch.from_numpy(b).to(dtype), mask, ssim_lambda=0.2)
+        (3.0 * terms.loss).backward()
+        out[name] = (terms, x.grad)
+    (t_ref, g_ref), (t_new, g_new) = out["twin"], out["fused"]
+    tol = 1e-12 if dtype == torch.float64 else 2e-6
+    for field in ("loss", "l1", "ssim"):
+        np.testing.assert_allclose(
+            float(getattr(t_new, field).detach()), float(getattr(t_ref, field).detach()), rtol=tol, err_msg=field
+        )
+    scale = float(g_ref.abs().max())
+    assert scale > 0
+    np.testing.assert_allclose(g_new.numpy(), g_ref.numpy(), atol=(1e-12 if dtype == torch.float64 else 1e-5) * scale)
+
+
+def test_fused_loss_gradcheck() -> None:
+    a, b = images(6, h=14, w=17)
+    mask = torch.zeros(a.shape[:2], dtype=torch.bool)
+    mask[2:12, 0:9] = True
+    x = torch.from_numpy(a).requires_grad_(True)
+    y = torch.from_numpy(b)
+    assert torch.autograd.gradcheck(lambda t: masked_photometric_loss(t, y, mask).loss, (x,), eps=1e-6, atol=1e-8)
+
+
+def test_fused_loss_is_used_on_cpu() -> None:
+    """The CPU path is the numba Function (so the comparisons above test what training runs)."""
+    a, b = images(7, h=12, w=12)
+    x = torch.from_numpy(a).requires_grad_(True)
+    loss = masked_photometric_loss(x, torch.from_numpy(b), None).loss
+    assert type(loss.grad_fn).__name__ == "_MaskedPhotometricBackward"

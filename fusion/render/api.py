@@ -7,6 +7,7 @@ import torch
 from core.errors import ConfigError, DataError
 from fusion.render.cpu import rasterize_cpu
 from fusion.render.gsplat_backend import gsplat_available, render_gsplat
+from fusion.render.project_cpu import project_splats_cpu
 from fusion.render.projection import project_gaussians
 from fusion.render.reference import rasterize_reference
 from fusion.render.sh import sh_to_colour
@@ -104,27 +105,35 @@ def render(
 
     if means.device.type != "cpu":
         raise ConfigError(f"render: backend {chosen.value!r} runs on CPU tensors, got {means.device}; use 'gsplat'")
-    proj = project_gaussians(means, quats, log_scales, viewmat, K, width, height, near_plane=near_plane)
-    centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
-    colours = sh_to_colour(sh_coeffs, means - centre, degree)
-    features = torch.cat([colours, proj.depths[:, None]], dim=1)  # (N, 4): RGB, z; alpha is appended
-    opacities = torch.sigmoid(logit_opacities)
-    rasterize = rasterize_cpu if chosen is Backend.CPU else rasterize_reference
-    image = rasterize(
-        proj.means2d, proj.conics, opacities, features, proj.extents, proj.depths, proj.visible,
-        width, height, tile_size,
-    )  # fmt: skip
+    if chosen is Backend.CPU:
+        sp = project_splats_cpu(
+            means, quats, log_scales, logit_opacities, sh_coeffs[:, :1], sh_coeffs[:, 1:], viewmat, K, width, height,
+            degree, near_plane=near_plane,
+        )  # fmt: skip
+        means2d, depths, extents, visible = sp.means2d, sp.depths, sp.extents, sp.visible
+        features = torch.cat([sp.colours, depths[:, None]], dim=1)  # (N, 4): RGB, z; alpha is appended
+        image = rasterize_cpu(means2d, sp.conics, sp.opacities, features, extents, depths, visible, width, height,
+                              tile_size)  # fmt: skip
+    else:
+        proj = project_gaussians(means, quats, log_scales, viewmat, K, width, height, near_plane=near_plane)
+        centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
+        colours = sh_to_colour(sh_coeffs, means - centre, degree)
+        features = torch.cat([colours, proj.depths[:, None]], dim=1)
+        opacities = torch.sigmoid(logit_opacities)
+        means2d, depths, extents, visible = proj.means2d, proj.depths, proj.extents, proj.visible
+        image = rasterize_reference(means2d, proj.conics, opacities, features, extents, depths, visible, width,
+                                    height, tile_size)  # fmt: skip
     alpha = image[..., 4]
     colour = image[..., :3] + (1 - alpha)[..., None] * bg
     depth = image[..., 3] / alpha.clamp_min(1e-10)
-    radii = torch.where(proj.visible[:, None], torch.ceil(proj.extents), torch.zeros_like(proj.extents))
+    radii = torch.where(visible[:, None], torch.ceil(extents), torch.zeros_like(extents))
     return RenderResult(
         colour=colour,
         alpha=alpha,
         depth=depth,
-        means2d=proj.means2d,
+        means2d=means2d,
         radii=radii.to(torch.int32),
-        visible=proj.visible,
-        depths=proj.depths,
+        visible=visible,
+        depths=depths,
         backend=chosen,
     )

@@ -5,11 +5,12 @@ as in the original 3DGS code, so the map has the image's size) and its map is av
 are divided by the number of mask pixels, not the image size: dividing by the image size would scale the gradient
 by the mask's share of the image and silently lower the learning rate of small regions.
 
-The five local statistics SSIM needs (μx, μy, E[x²], E[y²], E[xy]) of all channels are blurred together as one
-(15, H, W) stack by two matrix products with banded (H, H) and (W, W) Gaussian matrices (zero padding is built into
-the band): BLAS makes that ~2.5× faster on the CPU than PyTorch's grouped separable convolution, and its backward is
-again two matrix products. Written here rather than taken from a package because the masked average and the fused
-blur are the point (the ones in pytorch-msssim / torchmetrics average over the whole image).
+:func:`masked_photometric_loss` runs the fused numba forward + backward of :mod:`fusion.train.loss_cpu` on CPU
+tensors; :func:`masked_photometric_loss_reference` is its readable PyTorch autograd twin (used on other devices and
+by the tests). In the twin, the five local statistics SSIM needs (μx, μy, E[x²], E[y²], E[xy]) of all channels are
+blurred together as one (15, H, W) stack by two matrix products with banded (H, H) and (W, W) Gaussian matrices (zero
+padding is built into the band). Written here rather than taken from a package because the masked average is the
+point (the ones in pytorch-msssim / torchmetrics average over the whole image).
 """
 
 from __future__ import annotations
@@ -82,8 +83,36 @@ def masked_photometric_loss(
     """(1 − λ) · L1 + λ · (1 − SSIM), both averaged over the pixels where ``mask`` is true (all pixels when None).
 
     rendered, target: (H, W, 3) float images in [0, 1]; mask: (H, W) bool or None. An empty mask gives a zero
-    loss (with a graph, so ``backward`` is harmless).
+    loss (with a graph, so ``backward`` is harmless). CPU tensors take the fused numba kernels (gradient to
+    ``rendered`` only), others :func:`masked_photometric_loss_reference`.
     """
+    if rendered.device.type != "cpu" or ssim_lambda <= 0 or target.requires_grad:
+        return masked_photometric_loss_reference(rendered, target, mask, ssim_lambda)
+    from fusion.train.loss_cpu import masked_photometric_cpu
+
+    if mask is None:
+        key = (rendered.shape[0], rendered.shape[1], rendered.dtype)
+        if key not in _ONES:
+            _ONES[key] = torch.ones(key[:2], dtype=rendered.dtype)
+        weights, count, empty = _ONES[key], float(key[0] * key[1]), False
+    else:
+        weights = mask.to(rendered.dtype)
+        n = float(weights.sum())
+        count, empty = max(n, 1.0), n == 0.0
+    loss, l1, ssim = masked_photometric_cpu(rendered, target.to(rendered.dtype), weights, count, ssim_lambda, empty)
+    return LossTerms(loss, l1, ssim)
+
+
+_ONES: dict[tuple[int, int, torch.dtype], torch.Tensor] = {}
+
+
+def masked_photometric_loss_reference(
+    rendered: torch.Tensor,
+    target: torch.Tensor,
+    mask: torch.Tensor | None = None,
+    ssim_lambda: float = 0.2,
+) -> LossTerms:
+    """The PyTorch autograd twin of :func:`masked_photometric_loss` (same arguments and result)."""
     l1_map = (rendered - target).abs().mean(dim=-1)
     s_map = ssim_map(rendered, target) if ssim_lambda > 0 else None
     if mask is None:

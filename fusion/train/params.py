@@ -5,9 +5,10 @@ Parameters are leaf tensors named as in :data:`PARAM_NAMES`, in the training fra
 - ``means`` (N, 3); ``quats`` (N, 4) (w, x, y, z), unnormalised; ``log_scales`` (N, 3) log σ;
 - ``logit_opacities`` (N,); ``sh_dc`` (N, 1, 3); ``sh_rest`` (N, K − 1, 3) with K = (max degree + 1)².
 
-The optimiser is ``torch.optim.Adam`` with one parameter group per name (``group["name"]``) so that
-densification can index, extend and replace a parameter together with its Adam moments (as gsplat's strategies
-do), and the learning rate of ``means`` can follow its schedule.
+The optimiser is a ``torch.optim.Adam`` (its fused subclass :class:`fusion.train.adam.FusedAdam`) with one
+parameter group per name (``group["name"]``) so that densification can index, extend and replace a parameter
+together with its Adam moments (as gsplat's strategies do), and the learning rate of ``means`` can follow its
+schedule.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 import torch
 
 from core.gaussians import GaussianSet, num_sh_bases
+from fusion.train.adam import FusedAdam
 
 PARAM_NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh_dc", "sh_rest")
 
@@ -88,9 +90,10 @@ def make_parameters(tensors: dict[str, torch.Tensor]) -> dict[str, torch.nn.Para
 
 
 def make_optimizer(params: dict[str, torch.nn.Parameter], lrs: dict[str, float]) -> torch.optim.Adam:
-    """Adam (eps 1e-15 as in 3DGS) with one group per parameter name."""
+    """Adam (eps 1e-15 as in 3DGS) with one group per parameter name: a :class:`fusion.train.adam.FusedAdam`
+    (a ``torch.optim.Adam`` whose step is one fused numba pass on both cores)."""
     groups = [{"params": [params[k]], "lr": lrs[k], "name": k} for k in PARAM_NAMES]
-    return torch.optim.Adam(groups, eps=1e-15, foreach=True)
+    return FusedAdam(groups, eps=1e-15, foreach=True)
 
 
 def update_parameters(

@@ -14,6 +14,7 @@ import torch
 
 from core.errors import ConfigError
 from fusion.render.cpu import rasterize_cpu
+from fusion.render.project_cpu import project_splats_cpu
 from fusion.render.projection import project_gaussians
 from fusion.render.reference import rasterize_reference
 from fusion.render.sh import sh_to_colour
@@ -84,20 +85,27 @@ def render_step(
     """Render trainable splats (``params`` as in :mod:`fusion.train.params`) plus the cached context into ``view``."""
     if backend not in ("cpu", "reference"):
         raise ConfigError(f"training renders with the 'cpu' or 'reference' backend, got {backend!r}")
-    proj = project_gaussians(
-        params["means"], params["quats"], params["log_scales"], view.viewmat, view.K, view.width, view.height
-    )
-    means2d = proj.means2d
+    if backend == "cpu":
+        sp = project_splats_cpu(
+            params["means"], params["quats"], params["log_scales"], params["logit_opacities"], params["sh_dc"],
+            params["sh_rest"], view.viewmat, view.K, view.width, view.height, sh_degree,
+        )  # fmt: skip
+        means2d, conics, depths, extents, visible = sp.means2d, sp.conics, sp.depths, sp.extents, sp.visible
+        colours, opacities = sp.colours, sp.opacities
+    else:
+        proj = project_gaussians(
+            params["means"], params["quats"], params["log_scales"], view.viewmat, view.K, view.width, view.height
+        )
+        means2d, conics, depths, extents, visible = proj.means2d, proj.conics, proj.depths, proj.extents, proj.visible
+        k = (sh_degree + 1) ** 2
+        sh = torch.cat([params["sh_dc"], params["sh_rest"][:, : k - 1]], dim=1)
+        colours = sh_to_colour(sh, params["means"] - view.camera_centre, sh_degree)
+        opacities = torch.sigmoid(params["logit_opacities"])
     if means2d.requires_grad:
         means2d.retain_grad()
-    visible = proj.visible
     if view.tile_prefix is not None and len(visible):
-        visible = visible & boxes_touch_tiles(means2d, proj.extents, view.tile_prefix)
-    k = (sh_degree + 1) ** 2
-    sh = torch.cat([params["sh_dc"], params["sh_rest"][:, : k - 1]], dim=1)
-    colours = sh_to_colour(sh, params["means"] - view.camera_centre, sh_degree)
-    opacities = torch.sigmoid(params["logit_opacities"])
-    parts = [(means2d, proj.conics, proj.depths, proj.extents, opacities, colours, visible)]
+        visible = visible & boxes_touch_tiles(means2d, extents, view.tile_prefix)
+    parts = [(means2d, conics, depths, extents, opacities, colours, visible)]
     if context is not None and len(context):
         parts.append(
             (
@@ -110,7 +118,10 @@ def render_step(
                 torch.ones(len(context), dtype=torch.bool),
             )
         )
-    m2, con, dep, ext, opa, col, vis = (torch.cat(list(x), dim=0) for x in zip(*parts, strict=True))
+    if len(parts) == 1:
+        m2, con, dep, ext, opa, col, vis = parts[0]
+    else:
+        m2, con, dep, ext, opa, col, vis = (torch.cat(list(x), dim=0) for x in zip(*parts, strict=True))
     features = torch.cat([col, dep[:, None]], dim=1)
     rasterize = rasterize_cpu if backend == "cpu" else rasterize_reference
     image = rasterize(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height)
