@@ -19,6 +19,7 @@ photos get masks for evaluation only; the caller decides which views to pass.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -27,6 +28,8 @@ from scipy import ndimage
 
 from core.cameras import Cameras, View
 from core.errors import ConfigError, DataError
+
+HOLE_AREAS = ("depth", "hull", "below", "enclosed")
 
 
 @dataclass(frozen=True)
@@ -56,8 +59,8 @@ class MaskOptions:
     def __post_init__(self) -> None:
         if not (self.footprint > 0 and self.max_radius_px >= 1 and self.close_px >= 0 and self.dilate_px >= 0):
             raise ConfigError("footprint must be > 0, max_radius_px >= 1, close_px and dilate_px >= 0")
-        if self.hole_area not in ("below", "hull", "enclosed"):
-            raise ConfigError(f"hole_area must be 'below', 'hull' or 'enclosed', got {self.hole_area!r}")
+        if self.hole_area not in HOLE_AREAS:
+            raise ConfigError(f"hole_area must be one of {HOLE_AREAS}, got {self.hole_area!r}")
 
 
 @dataclass(frozen=True)
@@ -139,9 +142,11 @@ def photo_mask(
     spacing: float,
     options: MaskOptions = MaskOptions(),
     user_mask: np.ndarray | None = None,
+    depth_map: np.ndarray | None = None,
 ) -> PhotoMask:
     """The mask of one view from the classified cloud (positions (N, 3) float64 in the cameras' frame,
-    needs_splats (N,) bool, spacing metres)."""
+    needs_splats (N,) bool, spacing metres). depth_map: the view's MVS depth map (h, w) float32 metres (≤ 0 =
+    none), used by ``hole_area="depth"``."""
     if spacing <= 0 or not np.isfinite(spacing):
         raise DataError(f"point spacing must be positive, got {spacing}")
     cam = cameras.camera_of(view)
@@ -211,8 +216,11 @@ def region_masks(
     options: MaskOptions = MaskOptions(),
     user_masks: dict[str, np.ndarray] | None = None,
     names: list[str] | None = None,
+    depth: Callable[[str], np.ndarray | None] | None = None,
 ) -> list[PhotoMask]:
-    """:func:`photo_mask` for every view of ``cameras`` (or those named in ``names``), in image-id order."""
+    """:func:`photo_mask` for every view of ``cameras`` (or those named in ``names``), in image-id order.
+
+    depth: image name → its MVS depth map (or None), for ``hole_area="depth"``."""
     pts = np.asarray(positions, dtype=np.float64)
     flags = np.asarray(needs_splats, dtype=bool)
     if len(flags) != len(pts):
@@ -222,5 +230,6 @@ def region_masks(
         if names is not None and view.name not in names:
             continue
         user = None if user_masks is None else user_masks.get(view.name)
-        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user))
+        dmap = depth(view.name) if depth is not None else None
+        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user, dmap))
     return out

@@ -222,3 +222,23 @@ def test_multiview_rejects_mismatched_visibility():
     _, views = _two_view_rig()
     with pytest.raises(DataError):
         multiview_features(np.zeros((2, 3)), [np.array([1])], views)
+
+
+@pytest.mark.parametrize("make", [_wavy_plane, _random_blobs])
+def test_grid_search_gives_the_kdtree_neighbourhoods(make):
+    """The column-grid k-NN (core.knn) and the k-d tree find the same neighbourhoods: equal radii and features."""
+    from classify.features.geometric import level_neighbours
+
+    pts = make(4000)
+    d_grid, i_grid = level_neighbours(pts, 16, GeometricOptions(search="grid"))
+    d_tree, i_tree = level_neighbours(pts, 16, GeometricOptions(search="kdtree"))
+    assert np.array_equal(i_grid[:, 0], np.arange(len(pts))) and np.all(d_grid[:, 0] == 0)
+    np.testing.assert_allclose(d_grid, d_tree, rtol=1e-12, atol=0)
+    # Continuous random coordinates have no ties: the neighbour sets are identical.
+    assert np.array_equal(np.sort(i_grid, axis=1), np.sort(i_tree, axis=1))
+    a = geometric_features(pts, options=GeometricOptions(search="grid"))
+    b = geometric_features(pts, options=GeometricOptions(search="kdtree"))
+    for name in a.features:
+        np.testing.assert_allclose(a.features[name], b.features[name], atol=1e-6, err_msg=name)
+    with pytest.raises(ConfigError):
+        GeometricOptions(search="octree")

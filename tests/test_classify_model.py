@@ -169,3 +169,35 @@ def test_fallback_rules():
 def test_class_set_validation():
     with pytest.raises(ConfigError):
         ClassSet(())
+
+
+def test_threshold_is_the_f1_optimum_on_held_out_points():
+    """Truth = p ≥ 0.7 exactly: the best F1 threshold on the grid is 0.7 (F1 = 1); no positives → 0.5."""
+    from classify.model import _best_threshold
+
+    p = np.linspace(0, 1, 2001)
+    assert _best_threshold(p, p >= 0.7) == pytest.approx(0.7)
+    assert _best_threshold(p, np.zeros_like(p, dtype=bool)) == 0.5
+
+
+def test_spatial_groups_are_blocks():
+    from classify.model import spatial_groups
+
+    pts = np.array([[0.0, 0, 0], [0.4, 0.4, 0.4], [1.2, 0, 0], [0, 1.1, 0], [1.9, 0.1, 0.2]])
+    g = spatial_groups(pts, 1.0, offset=10)
+    assert g[0] == g[1] and g[2] == g[4] and len({g[0], g[2], g[3]}) == 3 and g.min() >= 10
+    with pytest.raises(ConfigError):
+        spatial_groups(pts, 0.0)
+
+
+def test_grouped_hold_out_keeps_blocks_apart():
+    """With groups, no block has rows on both sides of the split: n_train + n_test still covers every row."""
+    from classify.model import spatial_groups
+
+    table, y = _toy_table(2000)
+    rng = np.random.default_rng(3)
+    groups = spatial_groups(rng.uniform(0, 10, (len(y), 3)), 2.5)
+    opts = FeatureOptions(names=("planarity_s0", "ncc_views"))
+    model, report = train(table, y, load_classes(), opts, ForestOptions(n_estimators=8, n_jobs=1), groups=groups)
+    assert report.n_train + report.n_test == len(y) and model.info["held_out"]["grouped"]
+    assert report.binary.f1 > 0.9 and 0.05 <= model.info["threshold"] <= 0.95

@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError, DataError
 
 EIGEN_BACKENDS = ("numba", "numpy", "pgeof")
+NEIGHBOUR_SEARCHES = ("grid", "kdtree")
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,10 @@ class GeometricOptions:
     backend: eigen decomposition: ``numba`` (default, the threaded kernel of :mod:`classify.features.eigen_numba`),
         ``numpy`` (the twin) or ``pgeof`` (library; its middle eigenvalue deviates, see that module).
     spacing_sample: points sampled (seeded) to estimate the median spacing. seed: that sample's seed.
-    chunk_size: points per chunk of the k-NN / eigen work (bounds memory: ~200 B × k per point).
-    workers: threads for the k-NN queries and pgeof (-1: all cores).
+    chunk_size: points per chunk of the k-d tree queries and of the eigen work.
+    workers: threads for the k-d tree queries (-1: all cores; the grid search uses numba's thread count).
+    search: k-NN search: ``grid`` (default, :func:`core.knn.knn_grid`, exact, ~3× less CPU than the tree on
+        survey clouds) or ``kdtree`` (scipy's cKDTree queried in leaf order, the reference).
     """
 
     voxel_factors: tuple[float, ...] = (1.0, 4.0, 12.0)
@@ -46,8 +49,11 @@ class GeometricOptions:
     seed: int = 0
     chunk_size: int = 250_000
     workers: int = -1
+    search: str = "grid"
 
     def __post_init__(self) -> None:
+        if self.search not in NEIGHBOUR_SEARCHES:
+            raise ConfigError(f"search must be one of {NEIGHBOUR_SEARCHES}, got {self.search!r}")
         if self.backend not in EIGEN_BACKENDS:
             raise ConfigError(f"eigen backend must be one of {EIGEN_BACKENDS}, got {self.backend!r}")
         if self.k < 3:
@@ -162,29 +168,47 @@ def eigen_backend(name: str) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndar
     raise ConfigError(f"eigen backend must be one of {EIGEN_BACKENDS}, got {name!r}")
 
 
+def level_neighbours(points: np.ndarray, k: int, options: GeometricOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's k nearest points of ``points`` (N, 3) float64, itself first: distances (N, k) float64 metres
+    (ascending) and indices (N, k) int64, with the search of ``options.search`` (both exact; ties between
+    equidistant neighbours may pick different indices)."""
+    n = len(points)
+    k = min(k, n)
+    if options.search == "grid" and n > k > 1:
+        from core.knn import knn_grid
+
+        d, i = knn_grid(points, k - 1)
+        dist = np.empty((n, k))
+        idx = np.empty((n, k), dtype=np.int64)
+        dist[:, 0], idx[:, 0] = 0.0, np.arange(n)
+        dist[:, 1:], idx[:, 1:] = d, i
+        return dist, idx
+    # Queries in the tree's leaf order are spatially coherent: ~3-4x faster than input order (scipy walks fewer
+    # nodes per query; the same trick as core.knn.knn_kdtree). Results are scattered back to input order.
+    tree = cKDTree(points, leafsize=16, balanced_tree=False, compact_nodes=False)
+    order = np.asarray(tree.indices)
+    dist = np.empty((n, k))
+    idx = np.empty((n, k), dtype=np.int64)
+    for start in range(0, n, options.chunk_size):
+        rows = order[start : start + options.chunk_size]
+        dist[rows], idx[rows] = knn(tree, points[rows], k, options.workers)
+    return dist, idx
+
+
 def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, np.ndarray]:
-    """Eigen analysis of every point of one level with its k nearest neighbours, chunked.
+    """Eigen analysis of every point of one level with its k nearest neighbours (itself included), chunked.
 
     Returns the :class:`Eigen` and the neighbour indices (N, k) int64 (the finest level's are reused for the
     colour variance)."""
     fn = eigen_backend(options.backend)
-    # Queries in the tree's leaf order are spatially coherent: ~3-4x faster than input order (scipy walks fewer
-    # nodes per query; the same trick as fusion.knn.knn_kdtree). Results are scattered back to input order.
-    tree = cKDTree(points, leafsize=16, balanced_tree=False, compact_nodes=False)
-    order = np.asarray(tree.indices)
     n = len(points)
-    k = min(options.k, n)
+    dist, neigh = level_neighbours(points, options.k, options)
     values = np.empty((n, 3))
     normal = np.empty((n, 3))
-    radius = np.empty(n)
-    neigh = np.empty((n, k), dtype=np.int64)
     for start in range(0, n, options.chunk_size):
-        rows = order[start : start + options.chunk_size]
-        d, idx = knn(tree, points[rows], k, options.workers)
-        values[rows], normal[rows] = fn(points, idx)
-        radius[rows] = d[:, -1]
-        neigh[rows] = idx
-    return Eigen(values, normal, radius), neigh
+        sl = slice(start, min(n, start + options.chunk_size))
+        values[sl], normal[sl] = fn(points, neigh[sl])
+    return Eigen(values, normal, dist[:, -1].copy()), neigh
 
 
 # -- features from eigenvalues -------------------------------------------------------------------------------

@@ -58,6 +58,7 @@ class MasksStage(Stage):
         return paths
 
     def outputs(self, ctx: StageContext) -> list[Path]:
+        # The figure is not listed: it is absent when every mask is empty (the record says whether it exists).
         return [ctx.layout.masks_dir, ctx.layout.record(self.name)]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
@@ -65,6 +66,7 @@ class MasksStage(Stage):
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from classify.run import project_masks
+        from core.io.atomic import remove_output
         from core.io.json_io import write_json_atomic
 
         opts: MasksStageOptions = ctx.options(self)
@@ -78,9 +80,16 @@ class MasksStage(Stage):
             user_mask_dir=user,
             held_out=set(ctx.source.holdout_names),
             progress=ctx.progress,
+            figure=ctx.layout.masks_figure,
+            image_dir=ctx.source.image_dir,
+            dense_dir=ctx.layout.dense,
         )
         write_json_atomic(ctx.layout.record(self.name), result)
-        return {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
+        if not result["figure"]:
+            remove_output(ctx.layout.masks_figure)  # a figure of an earlier run would be stale
+        counts = {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
+        counts["figures"] = [str(ctx.layout.masks_figure.relative_to(ctx.layout.root))] if result["figure"] else []
+        return counts
 
     def summary(self, counts: dict[str, Any]) -> str:
         if not counts["training_needed"]:
