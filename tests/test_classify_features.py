@@ -242,3 +242,17 @@ def test_grid_search_gives_the_kdtree_neighbourhoods(make):
         np.testing.assert_allclose(a.features[name], b.features[name], atol=1e-6, err_msg=name)
     with pytest.raises(ConfigError):
         GeometricOptions(search="octree")
+
+
+def test_spacing_from_the_finest_neighbours_equals_point_spacing():
+    """geometric_features takes the spacing from its full-cloud k-NN: the same median as point_spacing (which
+    uses every point below its sample size), duplicates ignored."""
+    from classify.features.geometric import level_neighbours, spacing_from_neighbours
+
+    pts = _wavy_plane(3000)
+    pts = np.r_[pts, pts[:200]]  # duplicates
+    dist, _ = level_neighbours(pts, 16, GeometricOptions())
+    assert spacing_from_neighbours(dist) == pytest.approx(point_spacing(pts), rel=1e-12)
+    assert geometric_features(pts).spacing == pytest.approx(point_spacing(pts), rel=1e-12)
+    with pytest.raises(DataError):
+        spacing_from_neighbours(np.zeros((5, 4)))

@@ -195,11 +195,11 @@ def level_neighbours(points: np.ndarray, k: int, options: GeometricOptions) -> t
     return dist, idx
 
 
-def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, np.ndarray]:
+def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, np.ndarray, np.ndarray]:
     """Eigen analysis of every point of one level with its k nearest neighbours (itself included), chunked.
 
-    Returns the :class:`Eigen` and the neighbour indices (N, k) int64 (the finest level's are reused for the
-    colour variance)."""
+    Returns the :class:`Eigen`, the neighbour indices (N, k) int64 (the finest level's are reused for the
+    colour variance) and their distances (N, k) float64 metres, ascending."""
     fn = eigen_backend(options.backend)
     n = len(points)
     dist, neigh = level_neighbours(points, options.k, options)
@@ -208,7 +208,18 @@ def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, n
     for start in range(0, n, options.chunk_size):
         sl = slice(start, min(n, start + options.chunk_size))
         values[sl], normal[sl] = fn(points, neigh[sl])
-    return Eigen(values, normal, dist[:, -1].copy()), neigh
+    return Eigen(values, normal, dist[:, -1].copy()), neigh, dist
+
+
+def spacing_from_neighbours(dist: np.ndarray) -> float:
+    """The median point spacing (metres) from k-NN distances (N, k) float64, rows ascending, self first: the median
+    over points of the nearest non-zero distance (what :func:`point_spacing` estimates on a sample)."""
+    d = dist[:, 1:]
+    first = np.count_nonzero(d <= 0.0, axis=1)  # duplicates come first in each ascending row
+    ok = first < d.shape[1]
+    if not ok.any():
+        raise DataError("all points coincide: the point spacing is zero")
+    return float(np.median(d[np.flatnonzero(ok), first[ok]]))
 
 
 # -- features from eigenvalues -------------------------------------------------------------------------------
@@ -280,16 +291,23 @@ def geometric_features(
         raise DataError(f"geometric features need at least 3 points, got {len(pts)}")
     if not np.isfinite(pts).all():
         raise DataError("positions contain NaN or infinite values")
-    if spacing is None:
-        spacing = point_spacing(pts, options.spacing_sample, options.seed, options.workers)
     feats: dict[str, np.ndarray] = {}
     finest: np.ndarray | None = None
     for s, factor in enumerate(options.voxel_factors):
+        level, per_point = pts, None
+        if factor > 1.0:
+            if spacing is None:
+                spacing = point_spacing(pts, options.spacing_sample, options.seed, options.workers)
+            level, per_point = voxel_downsample(pts, factor * spacing)
+            if len(level) < 3:
+                level, per_point = pts, None
+        eig, neigh, dist = level_eigen(level, options)
+        if spacing is None:  # a full-cloud level: its k-NN gives the spacing without another search
+            spacing = (
+                spacing_from_neighbours(dist) if dist.shape[1] > 1 else point_spacing(pts, workers=options.workers)
+            )
+        del dist
         cell = factor * spacing
-        level, per_point = (pts, None) if factor <= 1.0 else voxel_downsample(pts, cell)
-        if len(level) < 3:
-            level, per_point = pts, None
-        eig, neigh = level_eigen(level, options)
         if s == 0 and per_point is None:
             finest = neigh
         values = eigen_features(eig, cell, min(options.k, len(level)))
