@@ -41,7 +41,7 @@ from classify.classes import UNLABELLED, load_classes  # noqa: E402
 from classify.fallback import fallback_predict  # noqa: E402
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
 from classify.masks import MaskOptions, region_masks  # noqa: E402
-from classify.model import ForestOptions, predict, scores, train  # noqa: E402
+from classify.model import ForestOptions, predict, scores, spatial_groups, train  # noqa: E402
 from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
 from classify.synthetic import SceneData, load_scene_data  # noqa: E402
 
@@ -55,22 +55,30 @@ def load(root: Path, name: str, classes) -> SceneData:
     return load_scene_data(d / "scene", d / "proj" / "dense", classes, FeatureOptions(), cache=d / "features.npz")
 
 
-def stack(datas: list[SceneData], groups) -> tuple[FeatureTable, np.ndarray]:
+BLOCK_SPACINGS = 16.0
+"""Side of the spatial blocks held out together in training (in point spacings of each scene)."""
+
+
+def stack(datas: list[SceneData], groups) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
+    """Features of the groups, truth codes and spatial blocks (a separate range per scene) of stacked scenes."""
     names = FeatureOptions(groups=groups).selected()
     values = np.concatenate([s.table.select(names).values for s in datas])
     codes = np.concatenate([s.truth.codes for s in datas])
-    return FeatureTable(names, values, 0.0), codes
+    blocks = np.concatenate(
+        [spatial_groups(s.cloud.positions, BLOCK_SPACINGS * s.table.spacing, i * 10**8) for i, s in enumerate(datas)]
+    )
+    return FeatureTable(names, values, 0.0), codes, blocks
 
 
-def fit(datas, groups, classes, seed=0):
-    table, codes = stack(datas, groups)
-    model, report = train(table, codes, classes, FeatureOptions(groups=groups), ForestOptions(seed=seed))
-    return model, report
+def fit(datas, groups, classes, seed=0, forest: ForestOptions | None = None):
+    table, codes, blocks = stack(datas, groups)
+    opts = forest or ForestOptions(seed=seed)
+    return train(table, codes, classes, FeatureOptions(groups=groups), opts, groups=blocks)
 
 
 def point_scores(model, data: SceneData, classes) -> dict:
     table = data.table.select(model.feature_names)
-    pred = predict(model, table)
+    pred = predict(model, table, threshold=float(model.info.get("threshold", 0.5)))
     truth = data.truth
     b = scores(truth.needs_splats, pred.needs_splats, "needs_splats")
     kinds = {m.id: m.kind for m in data.scene.materials}

@@ -16,7 +16,7 @@ import numpy as np
 from classify.classes import ClassSet, load_classes
 from classify.fallback import FALLBACK_FEATURES, fallback_predict
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable, compute_features, views_from_workspace
-from classify.masks import MaskOptions, region_masks
+from classify.masks import MaskOptions, SeenInView, region_masks
 from classify.model import ClassifierModel, Prediction, load_model, predict
 from core.errors import DataError, InputFileError
 from core.pointcloud import PointCloud
@@ -188,9 +188,10 @@ def project_masks(
 
     points_ply: classify/points.ply (``needs_splats`` field). report_json: its report (the point spacing).
     user_mask_dir: ``NAME.png`` (or ``NAME``) white = needs splats, optional per photo.
-    figure: where to write a few photos (from ``image_dir``) with their masks overlaid (the record's ``figure``
-    says whether one was written). dense_dir: the dense workspace whose depth maps mark MVS holes outside the
-    cloud's hull (see :class:`classify.masks.MaskOptions`, ``hole_area``); None: the hull only.
+    image_dir: the photos (at the cameras' resolution): holes are explained only by points seen in each photo
+    (fused by it, or of its colour, see :class:`classify.masks.SeenInView`); figure: where to write a few photos
+    with their masks overlaid (the record's ``figure`` says whether one was written). dense_dir: the dense
+    workspace whose ``fused.ply.vis`` says which photos fused each point (same order as ``points_ply``).
     """
     from core.io.colmap import read_model
     from core.io.images import read_image, write_image
@@ -214,13 +215,20 @@ def project_masks(
                     user[n] = read_image(cand, grayscale=True)
                     break
     # Local positions of the cloud in the model's frame (the sparse model shares the cloud's origin).
-    depth = None
-    if dense_dir is not None and options.holes and options.hole_area == "depth":
-        from classify.features import views_from_workspace
+    seen = None
+    if options.holes and options.explained_by == "seen" and (dense_dir is not None or image_dir is not None):
+        visibility = None
+        if dense_dir is not None:
+            from recon.workspace import read_fused
 
-        depth = views_from_workspace(dense_dir).depth
+            visibility = read_fused(dense_dir).visibility
+            if visibility is not None and len(visibility) != len(cloud):
+                raise DataError(f"fused.ply.vis lists {len(visibility)} points, the classified cloud {len(cloud)}")
+        folder = Path(image_dir) if image_dir is not None else None
+        photo = (lambda name: read_image(folder / name)) if folder is not None else None
+        seen = SeenInView(visibility, cloud.colors, photo)
     masks = region_masks(
-        cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, depth
+        cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, seen
     )
     photos = []
     for i, pm in enumerate(masks):

@@ -61,11 +61,54 @@ def test_holes_inside_the_cloud_but_not_at_the_border():
     pts = pts[~hole]
     # Remove a band at the image's left edge too: uncovered and touching the border = background.
     pts = pts[~(pts[:, 0] < -0.3)]
-    pm = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0))
+    opts = MaskOptions(close_px=0, dilate_px=0, hole_area="hull")
+    pm = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, opts)
     assert pm.points_px == 0 and pm.holes_px > 0
     rows, cols = np.nonzero(pm.mask)
     assert cols.min() >= 30 and cols.max() <= 60 and rows.min() >= 20 and rows.max() <= 40
     assert not pm.mask[:, :5].any()
+    # hull_below (default): a nadir photo sees no sky, so the uncovered band at the border is a hole too.
+    nadir = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0))
+    assert nadir.mask[:, :5].all() and nadir.mask[30, 45] and not nadir.mask[10, 70]
+
+
+def test_hull_below_keeps_the_sky_out():
+    """An upright camera looking horizontally at a wall (top edge at image row 20) with a gap: the gap below the
+    cloud's upper envelope is a hole, the sky above the wall's top edge is never masked."""
+    cam = Camera.pinhole(100.0, 100.0, 40.0, 30.0, 80, 60)
+    # Camera at y = -1 looking along +y, image x = world x, image y = -world z (z up).
+    r = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    view = View.from_matrix(1, "a.png", 1, np.c_[r, -r @ np.array([0.0, -1.0, 0.0])])
+    cams = Cameras({1: cam}, {1: view})
+    g = np.arange(-0.6, 0.6 + 1e-9, 0.01)
+    x, z = np.meshgrid(g, np.arange(-0.4, 0.1 + 1e-9, 0.01), indexing="ij")
+    wall = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]  # top edge at z = 0.1: image row 20
+    gap = (np.abs(wall[:, 0]) < 0.05) & (np.abs(wall[:, 2] + 0.15) < 0.05)
+    pm = photo_mask(cams, view, wall[~gap], np.zeros(int((~gap).sum()), bool), 0.01, MaskOptions(dilate_px=0))
+    assert pm.mask[45, 40] and not pm.mask[:15].any()  # the gap (row 45) yes, the sky (rows < 20) no
+
+
+def test_points_hidden_behind_a_missed_surface_do_not_explain_it():
+    """The floor is fully reconstructed, but the photo shows an unreconstructed bright box over a 20 × 20 px
+    square: the floor points there do not match the photo's colour, so the square is a hole ("seen"); with
+    "all" every point explains its pixels and the mask stays empty. Fused-by-this-view points always explain."""
+    from classify.masks import SeenInView
+
+    cams, view = _rig()
+    pts = _grid()
+    colors = np.full((len(pts), 3), 100, np.uint8)
+    photo = np.full((60, 80, 3), 100, np.uint8)
+    photo[20:40, 30:50] = 220
+    seen = SeenInView(None, colors, lambda name: photo)
+    flags = np.zeros(len(pts), bool)
+    opts = MaskOptions(close_px=0, dilate_px=0)
+    pm = photo_mask(cams, view, pts, flags, 0.01, opts, seen=seen)
+    rows, cols = np.nonzero(pm.mask)
+    assert pm.mask[25:35, 35:45].all() and 18 <= rows.min() and rows.max() <= 41 and 28 <= cols.min()
+    assert cols.max() <= 51
+    assert photo_mask(cams, view, pts, flags, 0.01, MaskOptions(explained_by="all"), seen=seen).empty
+    vis = [np.array([1])] * len(pts)  # every point fused by this photo
+    assert photo_mask(cams, view, pts, flags, 0.01, opts, seen=SeenInView(vis, colors, lambda n: photo)).empty
 
 
 def test_user_masks_are_united_and_empty_masks_reported():

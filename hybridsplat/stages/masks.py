@@ -22,7 +22,8 @@ class MasksStageOptions:
 
     footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
     looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
-    holes: add MVS holes (True). hole_area: hull | below | enclosed (hull).
+    holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
+    explained_by: seen | all (seen): which points explain pixels when looking for holes.
     """
 
     footprint: float = 1.5
@@ -30,7 +31,8 @@ class MasksStageOptions:
     close_px: int = 3
     dilate_px: int = 2
     holes: bool = True
-    hole_area: str = "hull"
+    hole_area: str = "hull_below"
+    explained_by: str = "seen"
 
     def mask_options(self) -> MaskOptions:
         return MaskOptions(
@@ -40,6 +42,7 @@ class MasksStageOptions:
             dilate_px=self.dilate_px,
             holes=self.holes,
             hole_area=self.hole_area,
+            explained_by=self.explained_by,
         )
 
     def __post_init__(self) -> None:
