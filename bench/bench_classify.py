@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from classify.classes import UNLABELLED, load_classes  # noqa: E402
 from classify.fallback import fallback_predict  # noqa: E402
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
-from classify.masks import MaskOptions, region_masks  # noqa: E402
+from classify.masks import MaskOptions, SeenInView, region_masks  # noqa: E402
 from classify.model import ForestOptions, predict, scores, spatial_groups, train  # noqa: E402
 from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
 from classify.synthetic import SceneData, load_scene_data  # noqa: E402
@@ -97,15 +97,19 @@ def point_scores(model, data: SceneData, classes) -> dict:
             "points": len(truth.codes), "per_kind": per_kind, "pred": pred}  # fmt: skip
 
 
-def mask_scores(data: SceneData, needs: np.ndarray, classes) -> dict:
+def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOptions = MaskOptions()) -> dict:
+    """Mask coverage of the pixels that truly need splats and of the rest, over the training photos."""
     from core.io.colmap import read_model
+    from core.io.images import read_image
 
     scene = data.scene
     cams, _ = read_model(data.dense / "sparse")
     spacing = data.table.spacing
     tau = 3.0 * scene.gsd_m
     collab = {m.id for m in scene.materials if m.collaborative}
-    masks = region_masks(cams, data.cloud.positions, needs, spacing, MaskOptions())
+    images = data.dense / "images"
+    seen = SeenInView(data.cloud.visibility, data.cloud.colors, lambda name: read_image(images / name))
+    masks = region_masks(cams, data.cloud.positions, needs, spacing, options, seen=seen)
     tree = cKDTree(data.cloud.positions)
     tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
     empty = 0
