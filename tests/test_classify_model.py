@@ -13,7 +13,7 @@ from classify.features import FeatureGroup, FeatureOptions, FeatureTable
 from classify.labels import labels_from_field, labels_from_masks, point_truth, transfer_labels
 from classify.model import ForestOptions, load_model, predict, save_model, train
 from core.cameras import Camera, Cameras, View
-from core.errors import ConfigError, FormatError, InputFileError
+from core.errors import ConfigError, DataError, FormatError, InputFileError
 
 
 def test_default_classes_and_kind_mapping(tmp_path):
@@ -190,14 +190,39 @@ def test_spatial_groups_are_blocks():
         spatial_groups(pts, 0.0)
 
 
-def test_grouped_hold_out_keeps_blocks_apart():
-    """With groups, no block has rows on both sides of the split: n_train + n_test still covers every row."""
+def test_grouped_out_of_fold_report_and_smoothing():
+    """With groups every labelled row gets an out-of-fold prediction (the report covers them all); with
+    neighbours the model smooths, and predicting without neighbours is refused."""
+    from dataclasses import replace
+
+    from scipy.spatial import cKDTree
+
     from classify.model import spatial_groups
 
     table, y = _toy_table(2000)
     rng = np.random.default_rng(3)
-    groups = spatial_groups(rng.uniform(0, 10, (len(y), 3)), 2.5)
+    pos = rng.uniform(0, 10, (len(y), 3))
+    groups = spatial_groups(pos, 2.5)
     opts = FeatureOptions(names=("planarity_s0", "ncc_views"))
-    model, report = train(table, y, load_classes(), opts, ForestOptions(n_estimators=8, n_jobs=1), groups=groups)
-    assert report.n_train + report.n_test == len(y) and model.info["held_out"]["grouped"]
+    forest = ForestOptions(n_estimators=8, n_jobs=1)
+    model, report = train(table, y, load_classes(), opts, forest, groups=groups)
+    assert report.n_test == len(y) and model.info["held_out"]["grouped"] and model.info["smooth_passes"] == 0
     assert report.binary.f1 > 0.9 and 0.05 <= model.info["threshold"] <= 0.95
+    nb = cKDTree(pos).query(pos, k=5)[1][:, 1:]
+    with_nb = replace(table, neighbours=nb)
+    smoothed, _ = train(with_nb, y, load_classes(), opts, forest, groups=groups)
+    assert smoothed.info["smooth_passes"] == 1
+    assert len(predict(smoothed, with_nb).classification) == len(y)
+    with pytest.raises(DataError):
+        predict(smoothed, table)
+    assert predict(smoothed, table, smooth_passes=0).classification.shape == (len(y),)
+
+
+def test_smoothing_is_the_neighbourhood_mean():
+    from classify.model import smooth_probabilities
+
+    p = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [1.0, 0.0]], np.float32)
+    nb = np.array([[1], [2], [1], [0]])
+    one = smooth_probabilities(p, nb, 1)
+    np.testing.assert_allclose(one, [[0.5, 0.5], [0, 1], [0, 1], [1, 0]])
+    np.testing.assert_allclose(smooth_probabilities(p, nb, 2), smooth_probabilities(one, nb, 1))

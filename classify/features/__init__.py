@@ -64,11 +64,14 @@ class FeatureOptions:
 
 @dataclass(frozen=True)
 class FeatureTable:
-    """names: F feature names; values: (N, F) float32, finite; spacing: the cloud's median point spacing (m)."""
+    """names: F feature names; values: (N, F) float32, finite; spacing: the cloud's median point spacing (m);
+    neighbours: (N, k − 1) int64, each point's nearest other points (the finest geometric neighbourhood, rows of
+    this table), or None when not computed (the prediction's smoothing uses them)."""
 
     names: tuple[str, ...]
     values: np.ndarray
     spacing: float
+    neighbours: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         """The (N,) column of feature ``name``."""
@@ -79,7 +82,8 @@ class FeatureTable:
         missing = [n for n in names if n not in self.names]
         if missing:
             raise DataError(f"features not computed: {', '.join(missing)}")
-        return FeatureTable(tuple(names), self.values[:, [self.names.index(n) for n in names]], self.spacing)
+        cols = [self.names.index(n) for n in names]
+        return FeatureTable(tuple(names), self.values[:, cols], self.spacing, self.neighbours)
 
 
 def compute_features(
@@ -125,6 +129,10 @@ def compute_features(
             workers=options.geometric.workers,
             with_self=geo.neighbours is not None,
         )
+    neighbours = None
+    if geo.neighbours is not None:  # back to the cloud's order: row order[i] has neighbours order[neigh[i]]
+        neighbours = np.empty_like(geo.neighbours)
+        neighbours[order] = order[geo.neighbours]
     del geo
     columns: dict[str, np.ndarray] = {}
     if FeatureGroup.MULTIVIEW in groups:
@@ -144,4 +152,4 @@ def compute_features(
             values[order, j] = col
         else:
             values[:, j] = col
-    return FeatureTable(names, values, spacing)
+    return FeatureTable(names, values, spacing, neighbours)

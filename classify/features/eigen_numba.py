@@ -112,3 +112,25 @@ def eigen_numba(
     normals = np.empty((len(nb), 3))
     _eigen_kernel(pts, nb, bool(with_self), int(offset), values, normals)
     return values, normals
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _smooth_rows_kernel(p, nb, out):  # pragma: no cover - compiled
+    n, m = nb.shape
+    c = p.shape[1]
+    for i in numba.prange(n):
+        for j in range(c):
+            out[i, j] = p[i, j]
+        for t in range(m):
+            q = nb[i, t]
+            for j in range(c):
+                out[i, j] += p[q, j]
+        for j in range(c):
+            out[i, j] /= m + 1
+
+
+def smooth_rows(p: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Per row i of ``p`` (N, C) float32: the mean of rows i and ``neighbours[i]`` ((N, m) int64), (N, C) float32."""
+    out = np.empty_like(p)
+    _smooth_rows_kernel(p, neighbours, out)
+    return out
