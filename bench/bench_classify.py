@@ -30,6 +30,7 @@ import subprocess
 import sys
 import time
 import tracemalloc
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -41,9 +42,9 @@ from classify.classes import UNLABELLED, load_classes  # noqa: E402
 from classify.fallback import fallback_predict  # noqa: E402
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
 from classify.masks import MaskOptions, SeenInView, region_masks  # noqa: E402
-from classify.model import ForestOptions, predict, scores, spatial_groups, train  # noqa: E402
+from classify.model import ForestOptions, predict, scores, train  # noqa: E402
 from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
-from classify.synthetic import SceneData, load_scene_data  # noqa: E402
+from classify.synthetic import SceneData, load_scene_data, stack_scenes  # noqa: E402
 
 GEO = (FeatureGroup.GEOMETRIC,)
 GEO_RAD = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC)
@@ -55,25 +56,19 @@ def load(root: Path, name: str, classes) -> SceneData:
     return load_scene_data(d / "scene", d / "proj" / "dense", classes, FeatureOptions(), cache=d / "features.npz")
 
 
-BLOCK_SPACINGS = 16.0
-"""Side of the spatial blocks held out together in training (in point spacings of each scene)."""
+def stack(datas: list[SceneData], groups, by_scene: bool) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
+    """Features of the groups, truth codes and training groups (scenes or spatial blocks) of stacked scenes."""
+    return stack_scenes(datas, FeatureOptions(groups=groups).selected(), by_scene)
 
 
-def stack(datas: list[SceneData], groups) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
-    """Features of the groups, truth codes and spatial blocks (a separate range per scene) of stacked scenes."""
-    names = FeatureOptions(groups=groups).selected()
-    values = np.concatenate([s.table.select(names).values for s in datas])
-    codes = np.concatenate([s.truth.codes for s in datas])
-    blocks = np.concatenate(
-        [spatial_groups(s.cloud.positions, BLOCK_SPACINGS * s.table.spacing, i * 10**8) for i, s in enumerate(datas)]
-    )
-    return FeatureTable(names, values, 0.0), codes, blocks
-
-
-def fit(datas, groups, classes, seed=0, forest: ForestOptions | None = None):
-    table, codes, blocks = stack(datas, groups)
-    opts = forest or ForestOptions(seed=seed)
-    return train(table, codes, classes, FeatureOptions(groups=groups), opts, groups=blocks)
+def fit(datas, groups, classes, forest: ForestOptions = ForestOptions(), by_scene: bool = True):
+    """A forest on the stacked scenes; by_scene: out-of-fold predictions (threshold, report) leave one scene out
+    (when there are at least two scenes), else spatial blocks."""
+    by_scene = by_scene and len(datas) >= 2
+    table, codes, blocks = stack(datas, groups, by_scene)
+    if by_scene:
+        forest = replace(forest, folds=len(datas))
+    return train(table, codes, classes, FeatureOptions(groups=groups), forest, groups=blocks)
 
 
 def point_scores(model, data: SceneData, classes) -> dict:
@@ -150,30 +145,46 @@ def part_score(args) -> dict:
         counts = np.bincount(t.codes[t.codes != UNLABELLED], minlength=5)
         print(f"{n}: {len(t.codes)} points, needs splats {t.needs_splats.mean():.3f}, far {t.far.mean():.3f}, "
               f"tau {t.tau:.4f} m, class counts {counts}")  # fmt: skip
+    every = list(train_sets.values())
+    plain = ForestOptions(smooth_passes=0)
+    main = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     experiments = {
-        "all features (both scenes)": (list(train_sets.values()), ALL),
-        "geometric only": (list(train_sets.values()), GEO),
-        "geometric + radiometric": (list(train_sets.values()), GEO_RAD),
+        "all features (both scenes)": (every, ALL, main),
+        "all features, no smoothing": (every, ALL, plain),
+        "geometric only": (every, GEO, ForestOptions()),
+        "geometric + radiometric": (every, GEO_RAD, ForestOptions()),
+        "geometric only, no smoothing": (every, GEO, plain),
+        "geometric + radiometric, no smoothing": (every, GEO_RAD, plain),
     }
     tab = [k for k in train_sets if k.startswith("tabletop")]
     aer = [k for k in train_sets if k.startswith("aerial")]
     if tab and aer:
-        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL)
-        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL)
-    for label, (datas, groups) in experiments.items():
-        model, report = fit(datas, groups, classes)
-        res = {"held_out_in_training_f1": report.binary.f1}
+        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL, ForestOptions())
+        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL, ForestOptions())
+    mask_options = MaskOptions(dilate_px=args.dilate_px)
+    for label, (datas, groups, forest) in experiments.items():
+        if args.only and not any(o in label for o in args.only):
+            continue
+        model, report = fit(datas, groups, classes, forest, by_scene=not args.block_folds)
+        res = {"held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"]}
+        res["smooth_passes"] = model.info["smooth_passes"]
         for n, d in test_sets.items():
             s = point_scores(model, d, classes)
             pred = s.pop("pred")
-            if label.startswith("all features"):
-                s["masks"] = mask_scores(d, pred.needs_splats, classes)
-                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes)
+            if label.startswith("all features (") and not args.no_masks:
+                s["masks"] = mask_scores(d, pred.needs_splats, classes, mask_options)
+                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes, mask_options)
+                m = s["masks"]
+                print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
+                      f"{m['coverage_of_rest_incl_background']:.3f} of the rest "
+                      f"({m['coverage_of_rest_scene']:.3f} of the rest without background)")  # fmt: skip
                 fb = fallback_predict(d.table, classes)
                 s["fallback_f1"] = scores(d.truth.needs_splats, fb.needs_splats, "fb").f1
                 s["importances_top10"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:10])
             res[n] = s
-            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f})")
+            per_kind = s["per_kind"].items()
+            kinds = ", ".join(f"{k} {v.get('recall', v.get('kept_collaborative')):.2f}" for k, v in per_kind)
+            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f}); {kinds}")
         out["results"][label] = res
     return out
 
@@ -297,6 +308,13 @@ def main() -> None:
     ap.add_argument("--data", default="/work/data_classify")
     ap.add_argument("--train", nargs="+", default=["tabletop_s7", "aerial_s7"])
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
+    ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
+    ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
+    ap.add_argument("--no-masks", action="store_true", help="skip the mask scores")
+    ap.add_argument("--trees", type=int, default=ForestOptions().n_estimators, help="trees of the main model")
+    ap.add_argument("--depth", type=int, default=ForestOptions().max_depth, help="depth of the main model")
+    ap.add_argument("--smooth", type=int, default=ForestOptions().smooth_passes, help="smoothing of the main model")
+    ap.add_argument("--block-folds", action="store_true", help="threshold from spatial-block folds, not per scene")
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--backends", default="numba,numpy,pgeof", help="eigen backends timed side by side")

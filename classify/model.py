@@ -203,8 +203,10 @@ def train(
 
     The forest is fitted on a class-balanced sample (at most ``max_samples_per_class`` per class). The report
     and the needs-splats threshold come from held-out points that keep the data's class frequencies:
-    groups: (N,) int64 spatial block of each row (:func:`spatial_groups`): ``options.folds`` grouped folds give
-    every row an out-of-fold prediction (whole blocks held out, so neighbouring points, which share their
+    groups: (N,) int64 group of each row: spatial blocks (:func:`spatial_groups`) or whole scenes (a fold per
+    scene when ``options.folds`` ≥ their number: each scene is predicted by a forest that never saw it, as a new
+    project will be). ``min(options.folds, groups)`` grouped folds give every row an out-of-fold prediction
+    (whole blocks held out, so neighbouring points, which share their
     neighbourhoods, are never on both sides); with ``table.neighbours`` the out-of-fold probabilities are smoothed
     as :func:`predict` will smooth them (``smooth_passes``). Without groups: one held-out split by point
     (``test_fraction``, stratified, optimistic) and no smoothing. Score across scenes
@@ -224,18 +226,20 @@ def train(
     if len(rows) < 10:
         raise DataError(f"training needs at least 10 labelled points, got {len(rows)}")
     x = table.values
-    grouped = groups is not None and len(np.unique(np.asarray(groups)[rows])) >= options.folds
+    n_groups = len(np.unique(np.asarray(groups)[rows])) if groups is not None else 0
+    grouped = n_groups >= 2
+    folds = min(options.folds, n_groups)
     smooth = options.smooth_passes if grouped and table.neighbours is not None else 0
     if grouped:
         # Out-of-fold probabilities of every row (labelled or not: smoothing reads the neighbours' too).
         g = np.asarray(groups)
         ids = np.unique(g, return_inverse=True)[1].reshape(-1)
         rng = np.random.default_rng(options.seed)
-        fold_of_group = rng.permutation(np.arange(ids.max() + 1) % options.folds)
+        fold_of_group = rng.permutation(np.arange(ids.max() + 1) % folds)
         fold = fold_of_group[ids]
         proba = np.zeros((len(y), len(classes.codes)), dtype=np.float32)
         col_of = {int(c): i for i, c in enumerate(classes.codes)}
-        for f in range(options.folds):
+        for f in range(folds):
             fit_rows = rows[fold[rows] != f]
             fit_rows = fit_rows[_balanced_sample(y[fit_rows], options.max_samples_per_class, options.seed)]
             forest = _forest(options)
