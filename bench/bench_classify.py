@@ -161,7 +161,7 @@ def part_score(args) -> dict:
     if tab and aer:
         experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL, ForestOptions())
         experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL, ForestOptions())
-    mask_options = MaskOptions(dilate_px=args.dilate_px)
+    mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
     for label, (datas, groups, forest) in experiments.items():
         if args.only and not any(o in label for o in args.only):
             continue
@@ -310,6 +310,7 @@ def main() -> None:
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
     ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
+    ap.add_argument("--dilate-spacings", type=float, default=MaskOptions().dilate_spacings, help="(spacings)")
     ap.add_argument("--no-masks", action="store_true", help="skip the mask scores")
     ap.add_argument("--trees", type=int, default=ForestOptions().n_estimators, help="trees of the main model")
     ap.add_argument("--depth", type=int, default=ForestOptions().max_depth, help="depth of the main model")

@@ -47,6 +47,9 @@ class MaskOptions:
     2.5: on tabletop_s7 / aerial_s7 it kept the false holes of sparse but correct regions under 10 % of the rest).
     max_radius_px: footprint cap (default 12 px). occlusion_tolerance: relative depth under which a point counts as
     in front (default 2 %). close_px / dilate_px: radii (pixels) of the closing and the dilation (defaults 3 / 2).
+    dilate_spacings: the dilation radius in point spacings at the view's median depth, when larger than
+    ``dilate_px`` (default 3: ~5 px on tabletop_s1, 3 px on aerial_s1; a margin tied to the sampling, not to the
+    image size; 0 = ``dilate_px`` only).
     holes: whether MVS holes are added (default True). hole_area: "hull_below" (default), "hull", "below" or
     "enclosed"; explained_by: "seen" (default) or "all"; colour_tolerance: mean absolute RGB difference (/255)
     under which a point's colour matches the photo (best of the 3×3 pixels around its projection; default 0.04)
@@ -60,6 +63,7 @@ class MaskOptions:
     occlusion_tolerance: float = 0.02
     close_px: int = 3
     dilate_px: int = 2
+    dilate_spacings: float = 3.0
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"
@@ -71,6 +75,8 @@ class MaskOptions:
     def __post_init__(self) -> None:
         if not (self.footprint > 0 and self.max_radius_px >= 1 and self.close_px >= 0 and self.dilate_px >= 0):
             raise ConfigError("footprint must be > 0, max_radius_px >= 1, close_px and dilate_px >= 0")
+        if not (self.dilate_spacings >= 0 and np.isfinite(self.dilate_spacings)):
+            raise ConfigError(f"dilate_spacings must be >= 0, got {self.dilate_spacings}")
         if self.hole_area not in HOLE_AREAS:
             raise ConfigError(f"hole_area must be one of {HOLE_AREAS}, got {self.hole_area!r}")
         if self.explained_by not in EXPLAINED_BY:
@@ -259,8 +265,12 @@ def photo_mask(
     union = (from_points | holes | user).astype(np.uint8)
     if options.close_px > 0:
         union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, _disk(options.close_px))
-    if options.dilate_px > 0:
-        union = cv2.dilate(union, _disk(options.dilate_px))
+    dilate = options.dilate_px
+    if options.dilate_spacings > 0 and len(idx):
+        spacing_px = spacing * fx / float(np.median(zz))
+        dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
+    if dilate > 0:
+        union = cv2.dilate(union, _disk(dilate))
     mask = union.astype(bool)
     npx = float(h * w)
     return PhotoMask(

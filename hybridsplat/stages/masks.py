@@ -21,7 +21,8 @@ class MasksStageOptions:
     """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
 
     footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
-    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
+    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the
+    dilation in point spacings at the photo's median depth when larger (3).
     holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
     explained_by: seen | all (seen): which points explain pixels when looking for holes.
     """
@@ -30,6 +31,7 @@ class MasksStageOptions:
     hole_footprint: float = 2.5
     close_px: int = 3
     dilate_px: int = 2
+    dilate_spacings: float = 3.0
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"
@@ -40,6 +42,7 @@ class MasksStageOptions:
             hole_footprint=self.hole_footprint,
             close_px=self.close_px,
             dilate_px=self.dilate_px,
+            dilate_spacings=self.dilate_spacings,
             holes=self.holes,
             hole_area=self.hole_area,
             explained_by=self.explained_by,
