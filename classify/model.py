@@ -135,14 +135,21 @@ def scores(truth: np.ndarray, pred: np.ndarray, name: str) -> ClassScores:
     return ClassScores(name, prec, rec, f1, int(t.sum()))
 
 
-def _best_threshold(p_needs: np.ndarray, truth: np.ndarray) -> float:
+def _best_threshold(p_needs: np.ndarray, truth: np.ndarray, groups: np.ndarray | None = None) -> float:
     """The needs-splats probability threshold (0.05..0.95, step 0.025) with the best binary F1 of held-out points
     drawn with the data's own class frequencies (not the balanced training sample: balanced class weights favour
-    the rare needs-splats classes, and this moves the decision back to the data's prior)."""
+    the rare needs-splats classes, and this moves the decision back to the data's prior).
+
+    groups: (N,) project of each point: the threshold maximises the mean of the projects' F1 (each project counts
+    once, however many points or positives it has), else the F1 of all points pooled."""
     if len(p_needs) == 0 or not truth.any():
         return 0.5
     grid = np.round(np.arange(0.05, 0.951, 0.025), 3)
-    f1 = [scores(truth, p_needs >= t, "t").f1 for t in grid]
+    if groups is None:
+        f1 = [scores(truth, p_needs >= t, "t").f1 for t in grid]
+    else:
+        members = [groups == g for g in np.unique(groups) if truth[groups == g].any()]
+        f1 = [float(np.mean([scores(truth[m], p_needs[m] >= t, "t").f1 for m in members])) for t in grid]
     return float(grid[int(np.argmax(f1))])
 
 
@@ -269,7 +276,9 @@ def train(
     yte = y[test]
     truth_needs = classes.needs_splats_of(yte)
     p_needs = p_test[:, classes.needs_splats_of(classes.codes)].sum(axis=1)
-    threshold = _best_threshold(p_needs, truth_needs)
+    # Leave-one-group-out (a fold per group: the groups are projects): each project counts once in the threshold.
+    per_project = np.asarray(groups)[test] if grouped and folds == n_groups else None
+    threshold = _best_threshold(p_needs, truth_needs, per_project)
     pred = classes.codes[p_test.argmax(axis=1)].astype(np.uint8)
     per_class = tuple(scores(yte == c.code, pred == c.code, c.name) for c in classes.classes)
     binary = scores(truth_needs, p_needs >= threshold, "needs_splats")

@@ -226,3 +226,17 @@ def test_smoothing_is_the_neighbourhood_mean():
     one = smooth_probabilities(p, nb, 1)
     np.testing.assert_allclose(one, [[0.5, 0.5], [0, 1], [0, 1], [1, 0]])
     np.testing.assert_allclose(smooth_probabilities(p, nb, 2), smooth_probabilities(one, nb, 1))
+
+
+def test_threshold_per_project_counts_each_project_once():
+    """Project A (10 001 points, truth p ≥ 0.7) dominates the pooled F1: best cut 0.7. Project B (200 points:
+    negatives at p = 0.1, positives at 0.35) has F1 1 only for cuts in (0.1, 0.35]; the mean of the two projects'
+    F1 is best at 0.35 (A keeps F1 0.63 there, B drops to 0 above it)."""
+    from classify.model import _best_threshold
+
+    pa = np.linspace(0, 1, 10001)
+    p = np.r_[pa, np.full(100, 0.1), np.full(100, 0.35)]
+    truth = np.r_[pa >= 0.7, np.zeros(100, bool), np.ones(100, bool)]
+    groups = np.r_[np.zeros(len(pa), int), np.ones(200, int)]
+    assert _best_threshold(p, truth) == pytest.approx(0.7)
+    assert _best_threshold(p, truth, groups) == pytest.approx(0.35)
