@@ -1,7 +1,8 @@
 """Classification benchmark: quality on data_synth scenes and throughput on a 1-million-point cloud.
 
-Quality (``--part score``): models trained on the TRAINING scenes (default: tabletop and aerial, seed 7, the
-seeds of the shipped default model) are scored on SCORING scenes made with another seed (default 1):
+Quality (``--part score``): models trained on the TRAINING scenes (default: those of the shipped default model,
+``scripts/train_default_classifier.py``, TRAINING_SCENES) are scored on SCORING scenes made with another seed
+(default 1):
 binary needs-splats F1, recall per material kind, mask coverage of the pixels that truly need splats and of
 the rest, a feature ablation (geometric / + radiometric / + multi-view), cross-scene generalisation
 (tabletop → aerial and back) and the no-model fallback. Scenes are reduced (24 views at 320×240) and
@@ -37,6 +38,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+
+from train_default_classifier import TRAINING_SCENES  # noqa: E402
 
 from classify.classes import UNLABELLED, load_classes  # noqa: E402
 from classify.fallback import fallback_predict  # noqa: E402
@@ -310,7 +314,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", choices=("score", "speed", "all"), default="all")
     ap.add_argument("--data", default="/work/data_classify")
-    ap.add_argument("--train", nargs="+", default=["tabletop_s7", "aerial_s7"])
+    ap.add_argument("--train", nargs="+", default=[f"{p}_s{s}" for p, s, _ in TRAINING_SCENES])
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
     ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
