@@ -1,7 +1,8 @@
 """Classification benchmark: quality on data_synth scenes and throughput on a 1-million-point cloud.
 
-Quality (``--part score``): models trained on the TRAINING scenes (default: tabletop and aerial, seed 7, the
-seeds of the shipped default model) are scored on SCORING scenes made with another seed (default 1):
+Quality (``--part score``): models trained on the TRAINING scenes (default: those of the shipped default model,
+``scripts/train_default_classifier.py``, TRAINING_SCENES) are scored on SCORING scenes made with another seed
+(default 1):
 binary needs-splats F1, recall per material kind, mask coverage of the pixels that truly need splats and of
 the rest, a feature ablation (geometric / + radiometric / + multi-view), cross-scene generalisation
 (tabletop → aerial and back) and the no-model fallback. Scenes are reduced (24 views at 320×240) and
@@ -30,20 +31,24 @@ import subprocess
 import sys
 import time
 import tracemalloc
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+
+from train_default_classifier import TRAINING_SCENES  # noqa: E402
 
 from classify.classes import UNLABELLED, load_classes  # noqa: E402
 from classify.fallback import fallback_predict  # noqa: E402
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
-from classify.masks import MaskOptions, region_masks  # noqa: E402
+from classify.masks import MaskOptions, SeenInView, region_masks  # noqa: E402
 from classify.model import ForestOptions, predict, scores, train  # noqa: E402
 from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
-from classify.synthetic import SceneData, load_scene_data  # noqa: E402
+from classify.synthetic import SceneData, load_scene_data, stack_scenes  # noqa: E402
 
 GEO = (FeatureGroup.GEOMETRIC,)
 GEO_RAD = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC)
@@ -55,22 +60,24 @@ def load(root: Path, name: str, classes) -> SceneData:
     return load_scene_data(d / "scene", d / "proj" / "dense", classes, FeatureOptions(), cache=d / "features.npz")
 
 
-def stack(datas: list[SceneData], groups) -> tuple[FeatureTable, np.ndarray]:
-    names = FeatureOptions(groups=groups).selected()
-    values = np.concatenate([s.table.select(names).values for s in datas])
-    codes = np.concatenate([s.truth.codes for s in datas])
-    return FeatureTable(names, values, 0.0), codes
+def stack(datas: list[SceneData], groups, by_scene: bool) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
+    """Features of the groups, truth codes and training groups (scenes or spatial blocks) of stacked scenes."""
+    return stack_scenes(datas, FeatureOptions(groups=groups).selected(), by_scene)
 
 
-def fit(datas, groups, classes, seed=0):
-    table, codes = stack(datas, groups)
-    model, report = train(table, codes, classes, FeatureOptions(groups=groups), ForestOptions(seed=seed))
-    return model, report
+def fit(datas, groups, classes, forest: ForestOptions = ForestOptions(), by_scene: bool = True):
+    """A forest on the stacked scenes; by_scene: out-of-fold predictions (threshold, report) leave one scene out
+    (when there are at least two scenes), else spatial blocks."""
+    by_scene = by_scene and len(datas) >= 2
+    table, codes, blocks = stack(datas, groups, by_scene)
+    if by_scene:
+        forest = replace(forest, folds=len(datas))
+    return train(table, codes, classes, FeatureOptions(groups=groups), forest, groups=blocks)
 
 
 def point_scores(model, data: SceneData, classes) -> dict:
     table = data.table.select(model.feature_names)
-    pred = predict(model, table)
+    pred = predict(model, table, threshold=float(model.info.get("threshold", 0.5)))
     truth = data.truth
     b = scores(truth.needs_splats, pred.needs_splats, "needs_splats")
     kinds = {m.id: m.kind for m in data.scene.materials}
@@ -89,15 +96,19 @@ def point_scores(model, data: SceneData, classes) -> dict:
             "points": len(truth.codes), "per_kind": per_kind, "pred": pred}  # fmt: skip
 
 
-def mask_scores(data: SceneData, needs: np.ndarray, classes) -> dict:
+def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOptions = MaskOptions()) -> dict:
+    """Mask coverage of the pixels that truly need splats and of the rest, over the training photos."""
     from core.io.colmap import read_model
+    from core.io.images import read_image
 
     scene = data.scene
     cams, _ = read_model(data.dense / "sparse")
     spacing = data.table.spacing
     tau = 3.0 * scene.gsd_m
     collab = {m.id for m in scene.materials if m.collaborative}
-    masks = region_masks(cams, data.cloud.positions, needs, spacing, MaskOptions())
+    images = data.dense / "images"
+    seen = SeenInView(data.cloud.visibility, data.cloud.colors, lambda name: read_image(images / name))
+    masks = region_masks(cams, data.cloud.positions, needs, spacing, options, seen=seen)
     tree = cKDTree(data.cloud.positions)
     tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
     empty = 0
@@ -138,30 +149,46 @@ def part_score(args) -> dict:
         counts = np.bincount(t.codes[t.codes != UNLABELLED], minlength=5)
         print(f"{n}: {len(t.codes)} points, needs splats {t.needs_splats.mean():.3f}, far {t.far.mean():.3f}, "
               f"tau {t.tau:.4f} m, class counts {counts}")  # fmt: skip
+    every = list(train_sets.values())
+    plain = ForestOptions(smooth_passes=0)
+    main = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     experiments = {
-        "all features (both scenes)": (list(train_sets.values()), ALL),
-        "geometric only": (list(train_sets.values()), GEO),
-        "geometric + radiometric": (list(train_sets.values()), GEO_RAD),
+        "all features (both scenes)": (every, ALL, main),
+        "all features, no smoothing": (every, ALL, plain),
+        "geometric only": (every, GEO, ForestOptions()),
+        "geometric + radiometric": (every, GEO_RAD, ForestOptions()),
+        "geometric only, no smoothing": (every, GEO, plain),
+        "geometric + radiometric, no smoothing": (every, GEO_RAD, plain),
     }
     tab = [k for k in train_sets if k.startswith("tabletop")]
     aer = [k for k in train_sets if k.startswith("aerial")]
     if tab and aer:
-        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL)
-        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL)
-    for label, (datas, groups) in experiments.items():
-        model, report = fit(datas, groups, classes)
-        res = {"held_out_in_training_f1": report.binary.f1}
+        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL, ForestOptions())
+        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL, ForestOptions())
+    mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
+    for label, (datas, groups, forest) in experiments.items():
+        if args.only and not any(o in label for o in args.only):
+            continue
+        model, report = fit(datas, groups, classes, forest, by_scene=not args.block_folds)
+        res = {"held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"]}
+        res["smooth_passes"] = model.info["smooth_passes"]
         for n, d in test_sets.items():
             s = point_scores(model, d, classes)
             pred = s.pop("pred")
-            if label.startswith("all features"):
-                s["masks"] = mask_scores(d, pred.needs_splats, classes)
-                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes)
+            if label.startswith("all features (") and not args.no_masks:
+                s["masks"] = mask_scores(d, pred.needs_splats, classes, mask_options)
+                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes, mask_options)
+                m = s["masks"]
+                print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
+                      f"{m['coverage_of_rest_incl_background']:.3f} of the rest "
+                      f"({m['coverage_of_rest_scene']:.3f} of the rest without background)")  # fmt: skip
                 fb = fallback_predict(d.table, classes)
                 s["fallback_f1"] = scores(d.truth.needs_splats, fb.needs_splats, "fb").f1
                 s["importances_top10"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:10])
             res[n] = s
-            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f})")
+            per_kind = s["per_kind"].items()
+            kinds = ", ".join(f"{k} {v.get('recall', v.get('kept_collaborative')):.2f}" for k, v in per_kind)
+            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f}); {kinds}")
         out["results"][label] = res
     return out
 
@@ -209,19 +236,23 @@ def part_speed(args) -> dict:
     sample = FeatureTable(names, rng.normal(size=(20000, len(names))).astype(np.float32), 0.0)
     labels = rng.choice(classes.codes, 20000)
     model, _ = train(sample, labels, classes, FeatureOptions(groups=GEO_RAD), ForestOptions(n_jobs=threads))
-    for backend in args.backends.split(","):
-        opts = FeatureOptions(groups=GEO_RAD, geometric=GeometricOptions(backend=backend, workers=threads))
+    # Warm-up on a small cloud: numba kernels compile (or load their cache) outside the timings.
+    compute_features(synthetic_million(5000), FeatureOptions(groups=GEO_RAD))
+    for variant in args.backends.split(","):
+        backend, _, search = variant.partition("/")
+        geo = GeometricOptions(backend=backend, workers=threads, search=search or "grid")
+        opts = FeatureOptions(groups=GEO_RAD, geometric=geo)
         tracemalloc.start()
         c0 = cpu_seconds()
         t0 = time.perf_counter()
         table = compute_features(cloud, opts)
         t1 = time.perf_counter()
-        predict(model, table)
+        predict(model, table, smooth_passes=1)  # as the default model predicts: smoothed over the neighbours
         t2 = time.perf_counter()
         cpu = cpu_seconds() - c0
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-        out[backend] = {
+        out[variant] = {
             "features_s": t1 - t0,
             "predict_s": t2 - t1,
             "points_per_s": args.n / (t2 - t0),
@@ -231,7 +262,7 @@ def part_speed(args) -> dict:
             "points_per_s_if_idle_upper_bound": args.n / (cpu / threads),
             "peak_traced_MiB": peak / 2**20,
         }
-        print(f"{backend}: features {t1 - t0:.2f} s + prediction {t2 - t1:.2f} s = {args.n / (t2 - t0):,.0f} points/s; "
+        print(f"{variant}: features {t1 - t0:.2f} s + prediction {t2 - t1:.2f} s = {args.n / (t2 - t0):,.0f} points/s; "
               f"CPU {cpu:.1f} s (≤ {args.n / (cpu / threads):,.0f} points/s on {threads} idle cores); "
               f"peak traced {peak / 2**20:.0f} MiB")  # fmt: skip
     try:
@@ -283,11 +314,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", choices=("score", "speed", "all"), default="all")
     ap.add_argument("--data", default="/work/data_classify")
-    ap.add_argument("--train", nargs="+", default=["tabletop_s7", "aerial_s7"])
+    ap.add_argument("--train", nargs="+", default=[f"{p}_s{s}" for p, s, _ in TRAINING_SCENES])
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
+    ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
+    ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
+    ap.add_argument("--dilate-spacings", type=float, default=MaskOptions().dilate_spacings, help="(spacings)")
+    ap.add_argument("--no-masks", action="store_true", help="skip the mask scores")
+    ap.add_argument("--trees", type=int, default=ForestOptions().n_estimators, help="trees of the main model")
+    ap.add_argument("--depth", type=int, default=ForestOptions().max_depth, help="depth of the main model")
+    ap.add_argument("--smooth", type=int, default=ForestOptions().smooth_passes, help="smoothing of the main model")
+    ap.add_argument("--block-folds", action="store_true", help="threshold from spatial-block folds, not per scene")
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--backends", default="numba,numpy,pgeof", help="eigen backends timed side by side")
+    ap.add_argument("--backends", default="numba,numba/kdtree,numpy,pgeof",
+                    help="eigen backends (/search: grid or kdtree) timed side by side")  # fmt: skip
     ap.add_argument("--no-jakteristics", action="store_true")
     ap.add_argument("--mv-scene", default=None, help="project folder whose fused cloud is replicated for multi-view")
     ap.add_argument("--json", default=None, help="write the figures here")

@@ -32,6 +32,11 @@ class ForestOptions:
     n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 10. class_weight: "balanced"
     (classes weighted by inverse frequency; None = unweighted). max_samples_per_class: points per class drawn
     (seeded) for training, bounding time and size (50 000). n_jobs: threads (-1: all). seed: every random choice.
+    smooth_passes: passes of averaging the class probabilities over each point's finest neighbourhood before
+    the decision (1; 0 = none). Needs-splats regions are contiguous surfaces: averaging removes isolated false
+    positives and fills gaps (on tabletop_s1 / aerial_s1 it raised the binary F1 by ~0.06; see
+    docs/classify.md). Used only when training has spatial groups and neighbours (else 0 is recorded).
+    folds: grouped folds of the out-of-fold predictions that choose the threshold and make the report (3).
     """
 
     n_estimators: int = 32
@@ -41,8 +46,12 @@ class ForestOptions:
     max_samples_per_class: int = 50_000
     n_jobs: int = -1
     seed: int = 0
+    smooth_passes: int = 1
+    folds: int = 3
 
     def __post_init__(self) -> None:
+        if self.smooth_passes < 0 or self.folds < 2:
+            raise ConfigError(f"smooth_passes must be >= 0 and folds >= 2, got {self.smooth_passes}, {self.folds}")
         if self.n_estimators < 1 or self.min_samples_leaf < 1 or self.max_samples_per_class < 1:
             raise ConfigError("n_estimators, min_samples_leaf and max_samples_per_class must be >= 1")
         if self.class_weight not in (None, "balanced", "balanced_subsample"):
@@ -126,17 +135,21 @@ def scores(truth: np.ndarray, pred: np.ndarray, name: str) -> ClassScores:
     return ClassScores(name, prec, rec, f1, int(t.sum()))
 
 
-def _best_threshold(forest: object, x: np.ndarray, truth: np.ndarray, classes: ClassSet) -> float:
-    """The needs-splats probability threshold (0.3..0.95, step 0.05) with the best held-out binary F1.
+def _best_threshold(p_needs: np.ndarray, truth: np.ndarray, groups: np.ndarray | None = None) -> float:
+    """The needs-splats probability threshold (0.05..0.95, step 0.025) with the best binary F1 of held-out points
+    drawn with the data's own class frequencies (not the balanced training sample: balanced class weights favour
+    the rare needs-splats classes, and this moves the decision back to the data's prior).
 
-    The balanced class weights favour the rare needs-splats classes; this moves the decision back."""
-    if len(x) == 0 or not truth.any():
+    groups: (N,) project of each point: the threshold maximises the mean of the projects' F1 (each project counts
+    once, however many points or positives it has), else the F1 of all points pooled."""
+    if len(p_needs) == 0 or not truth.any():
         return 0.5
-    p = forest.predict_proba(x)  # type: ignore[attr-defined]
-    bad = classes.needs_splats_of(np.asarray(forest.classes_, dtype=np.uint8))  # type: ignore[attr-defined]
-    pns = p[:, bad].sum(axis=1)
-    grid = np.round(np.arange(0.3, 0.951, 0.05), 2)
-    f1 = [scores(truth, pns >= t, "t").f1 for t in grid]
+    grid = np.round(np.arange(0.05, 0.951, 0.025), 3)
+    if groups is None:
+        f1 = [scores(truth, p_needs >= t, "t").f1 for t in grid]
+    else:
+        members = [groups == g for g in np.unique(groups) if truth[groups == g].any()]
+        f1 = [float(np.mean([scores(truth[m], p_needs[m] >= t, "t").f1 for m in members])) for t in grid]
     return float(grid[int(np.argmax(f1))])
 
 
@@ -153,6 +166,36 @@ def _forest(options: ForestOptions) -> object:
     )
 
 
+def smooth_probabilities(proba: np.ndarray, neighbours: np.ndarray, passes: int = 1) -> np.ndarray:
+    """Each row of ``proba`` (N, C) float replaced by the mean over the point and its ``neighbours`` ((N, m) int64,
+    the point's nearest others), ``passes`` times: (N, C) float32. Written by hand (numba) because the gather of
+    N × m rows would otherwise need an (N, m, C) temporary."""
+    out = np.ascontiguousarray(proba, dtype=np.float32)
+    nb = np.ascontiguousarray(neighbours, dtype=np.int64)
+    if len(nb) != len(out):
+        raise DataError(f"{len(nb)} neighbour rows for {len(out)} probability rows")
+    for _ in range(passes):
+        out = _smooth_kernel(out, nb)
+    return out
+
+
+def _smooth_kernel(p: np.ndarray, nb: np.ndarray) -> np.ndarray:
+    from classify.features.eigen_numba import smooth_rows
+
+    return smooth_rows(p, nb)
+
+
+def _decide(
+    proba: np.ndarray, trained: np.ndarray, classes: ClassSet, threshold: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """classification (N,) uint8, its probability (N,) float32, needs_splats (N,) bool, p_needs (N,) float32."""
+    best = proba.argmax(axis=1)
+    cls = trained[best].astype(np.uint8)
+    prob = proba[np.arange(len(best)), best].astype(np.float32)
+    pns = proba[:, classes.needs_splats_of(trained)].sum(axis=1).astype(np.float32)
+    return cls, prob, pns >= threshold, pns
+
+
 def train(
     table: FeatureTable,
     labels: np.ndarray,
@@ -161,49 +204,112 @@ def train(
     options: ForestOptions = ForestOptions(),
     test_fraction: float = 0.25,
     info: dict[str, object] | None = None,
+    groups: np.ndarray | None = None,
 ) -> tuple[ClassifierModel, TrainingReport]:
-    """Train on the labelled rows of ``table`` (labels (N,) uint8 codes, UNLABELLED ignored), hold out a
-    stratified ``test_fraction`` for the report, then refit on all labelled rows (seeded throughout).
+    """Train a forest on the labelled rows of ``table`` (labels (N,) uint8 codes, UNLABELLED ignored), seeded.
 
-    The held-out split is by point; points of one scene are spatially correlated, so these figures are
-    optimistic: score across scenes (``bench/bench_classify.py``) for the honest figure.
+    The forest is fitted on a class-balanced sample (at most ``max_samples_per_class`` per class). The report
+    and the needs-splats threshold come from held-out points that keep the data's class frequencies:
+    groups: (N,) int64 group of each row: spatial blocks (:func:`spatial_groups`) or whole scenes (a fold per
+    scene when ``options.folds`` ≥ their number: each scene is predicted by a forest that never saw it, as a new
+    project will be). ``min(options.folds, groups)`` grouped folds give every row an out-of-fold prediction
+    (whole blocks held out, so neighbouring points, which share their
+    neighbourhoods, are never on both sides); with ``table.neighbours`` the out-of-fold probabilities are smoothed
+    as :func:`predict` will smooth them (``smooth_passes``). Without groups: one held-out split by point
+    (``test_fraction``, stratified, optimistic) and no smoothing. Score across scenes
+    (``bench/bench_classify.py``) for the honest figure.
     """
     from sklearn.model_selection import train_test_split
 
     y = np.asarray(labels, dtype=np.uint8)
     if len(y) != len(table.values):
         raise DataError(f"{len(y)} labels for {len(table.values)} points")
+    if groups is not None and len(groups) != len(y):
+        raise DataError(f"{len(groups)} groups for {len(y)} points")
     unknown = set(np.unique(y).tolist()) - set(classes.codes.tolist()) - {UNLABELLED}
     if unknown:
         raise DataError(f"labels use codes {sorted(unknown)} that the class set does not define")
     rows = np.flatnonzero(y != UNLABELLED)
     if len(rows) < 10:
         raise DataError(f"training needs at least 10 labelled points, got {len(rows)}")
-    rows = rows[_balanced_sample(y[rows], options.max_samples_per_class, options.seed)]
-    x, yy = table.values[rows], y[rows]
-    present, counts = np.unique(yy, return_counts=True)
-    stratify = yy if counts.min() >= 2 and len(present) > 1 else None
-    xtr, xte, ytr, yte = train_test_split(x, yy, test_size=test_fraction, random_state=options.seed, stratify=stratify)
-    forest = _forest(options)
-    forest.fit(xtr, ytr)  # type: ignore[attr-defined]
-    pred = forest.predict(xte)  # type: ignore[attr-defined]
-    threshold = _best_threshold(forest, xte, classes.needs_splats_of(yte), classes)
+    x = table.values
+    n_groups = len(np.unique(np.asarray(groups)[rows])) if groups is not None else 0
+    grouped = n_groups >= 2
+    folds = min(options.folds, n_groups)
+    smooth = options.smooth_passes if grouped and table.neighbours is not None else 0
+    if grouped:
+        # Out-of-fold probabilities of every row (labelled or not: smoothing reads the neighbours' too).
+        g = np.asarray(groups)
+        ids = np.unique(g, return_inverse=True)[1].reshape(-1)
+        rng = np.random.default_rng(options.seed)
+        fold_of_group = rng.permutation(np.arange(ids.max() + 1) % folds)
+        fold = fold_of_group[ids]
+        proba = np.zeros((len(y), len(classes.codes)), dtype=np.float32)
+        col_of = {int(c): i for i, c in enumerate(classes.codes)}
+        for f in range(folds):
+            fit_rows = rows[fold[rows] != f]
+            fit_rows = fit_rows[_balanced_sample(y[fit_rows], options.max_samples_per_class, options.seed)]
+            forest = _forest(options)
+            forest.fit(x[fit_rows], y[fit_rows])  # type: ignore[attr-defined]
+            out = np.flatnonzero(fold == f)
+            if len(out):
+                cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
+                proba[np.ix_(out, cols)] = forest.predict_proba(x[out])  # type: ignore[attr-defined]
+        if smooth:
+            proba = smooth_probabilities(proba, table.neighbours, smooth)  # type: ignore[arg-type]
+        test = rows
+        p_test = proba[test]
+        n_train = len(rows)
+    else:
+        present, counts = np.unique(y[rows], return_counts=True)
+        stratify = y[rows] if counts.min() >= 2 and len(present) > 1 else None
+        tr, te = train_test_split(rows, test_size=test_fraction, random_state=options.seed, stratify=stratify)
+        tr = tr[_balanced_sample(y[tr], options.max_samples_per_class, options.seed)]
+        forest = _forest(options)
+        forest.fit(x[tr], y[tr])  # type: ignore[attr-defined]
+        col_of = {int(c): i for i, c in enumerate(classes.codes)}
+        p_test = np.zeros((len(te), len(classes.codes)), dtype=np.float32)
+        cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
+        p_test[:, cols] = forest.predict_proba(x[te])  # type: ignore[attr-defined]
+        test = te
+        n_train = len(tr)
+    yte = y[test]
+    truth_needs = classes.needs_splats_of(yte)
+    p_needs = p_test[:, classes.needs_splats_of(classes.codes)].sum(axis=1)
+    # Leave-one-group-out (a fold per group: the groups are projects): each project counts once in the threshold.
+    per_project = np.asarray(groups)[test] if grouped and folds == n_groups else None
+    threshold = _best_threshold(p_needs, truth_needs, per_project)
+    pred = classes.codes[p_test.argmax(axis=1)].astype(np.uint8)
     per_class = tuple(scores(yte == c.code, pred == c.code, c.name) for c in classes.classes)
-    binary = scores(classes.needs_splats_of(yte), classes.needs_splats_of(pred), "needs_splats")
-    codes = classes.codes
-    conf = np.zeros((len(codes), len(codes)), dtype=np.int64)
-    pos = {int(c): i for i, c in enumerate(codes)}
-    for t, p in zip(yte, pred, strict=True):
-        conf[pos[int(t)], pos[int(p)]] += 1
+    binary = scores(truth_needs, p_needs >= threshold, "needs_splats")
+    pos = {int(c): i for i, c in enumerate(classes.codes)}
+    conf = np.zeros((len(classes.codes), len(classes.codes)), dtype=np.int64)
+    np.add.at(conf, (np.array([pos[int(t)] for t in yte], dtype=np.int64),
+                     np.array([pos[int(q)] for q in pred], dtype=np.int64)), 1)  # fmt: skip
+    every = rows[_balanced_sample(y[rows], options.max_samples_per_class, options.seed)]
     final = _forest(options)
-    final.fit(x, yy)  # type: ignore[attr-defined]
+    final.fit(x[every], y[every])  # type: ignore[attr-defined]
     imp = dict(zip(table.names, (float(v) for v in final.feature_importances_), strict=True))  # type: ignore[attr-defined]
-    report = TrainingReport(per_class, binary, conf, classes.names, imp, len(ytr), len(yte))
+    report = TrainingReport(per_class, binary, conf, classes.names, imp, n_train, len(test))
     model = ClassifierModel(final, table.names, feature_options, classes, dict(info or {}))
     model.info["forest_options"] = asdict(options)
-    model.info["held_out"] = {"needs_splats_f1": binary.f1, "n_test": len(yte)}
+    model.info["held_out"] = {"needs_splats_f1": binary.f1, "n_test": len(test), "grouped": bool(grouped)}
     model.info["threshold"] = threshold
+    model.info["smooth_passes"] = int(smooth)
     return model, report
+
+
+def spatial_groups(positions: np.ndarray, block: float, offset: int = 0) -> np.ndarray:
+    """(N,) int64 id of the cubic block of side ``block`` metres holding each point (positions (N, 3) float64),
+    plus ``offset`` (give each scene its own range when several are stacked), for :func:`train`'s ``groups``."""
+    if not (block > 0 and np.isfinite(block)):
+        raise ConfigError(f"block must be a positive length in metres, got {block}")
+    pts = np.asarray(positions, dtype=np.float64)
+    if len(pts) == 0:
+        return np.zeros(0, np.int64)
+    keys = np.floor((pts - pts.min(axis=0)) / block).astype(np.int64)
+    _, ids = np.unique(keys, axis=0, return_inverse=True)
+    return ids.reshape(-1).astype(np.int64) + int(offset)
 
 
 @dataclass(frozen=True)
@@ -218,12 +324,18 @@ class Prediction:
 
 
 def predict(
-    model: ClassifierModel, table: FeatureTable, chunk_size: int = 500_000, threshold: float = 0.5
+    model: ClassifierModel,
+    table: FeatureTable,
+    chunk_size: int = 500_000,
+    threshold: float = 0.5,
+    smooth_passes: int | None = None,
 ) -> Prediction:
     """Classify every row of ``table``; its feature names must be the model's (else :class:`FormatError`).
 
-    needs_splats = summed probability of the needs-splats classes ≥ ``threshold`` (the binary decision the
-    masks use); classification = the most probable class.
+    The class probabilities are smoothed over each point's neighbours (``table.neighbours``) ``smooth_passes``
+    times (None: the model's own setting, ``info["smooth_passes"]``); a model that smooths and a table without
+    neighbours raise :class:`DataError`. needs_splats = summed probability of the needs-splats classes ≥
+    ``threshold`` (the binary decision the masks use); classification = the most probable class.
     """
     if tuple(table.names) != tuple(model.feature_names):
         missing = [n for n in model.feature_names if n not in table.names]
@@ -232,21 +344,19 @@ def predict(
             f"the model expects {len(model.feature_names)} features, the data has {len(table.names)} "
             f"(missing: {', '.join(missing) or 'none'}; extra: {', '.join(extra) or 'none'}; or another order)"
         )
+    passes = int(model.info.get("smooth_passes", 0)) if smooth_passes is None else int(smooth_passes)  # type: ignore[call-overload]
+    if passes and table.neighbours is None:
+        raise DataError("this model smooths its probabilities over neighbours, but the feature table has none")
     forest = model.forest
-    trained_codes = np.asarray(forest.classes_, dtype=np.uint8)  # type: ignore[attr-defined]
-    bad_mask = model.classes.needs_splats_of(trained_codes)
+    trained = np.asarray(forest.classes_, dtype=np.uint8)  # type: ignore[attr-defined]
     n = len(table.values)
-    cls = np.empty(n, dtype=np.uint8)
-    prob = np.empty(n, dtype=np.float32)
-    pns = np.empty(n, dtype=np.float32)
+    proba = np.empty((n, len(trained)), dtype=np.float32)
     for start in range(0, n, chunk_size):
         sl = slice(start, min(n, start + chunk_size))
-        p = forest.predict_proba(table.values[sl])  # type: ignore[attr-defined]
-        best = p.argmax(axis=1)
-        cls[sl] = trained_codes[best]
-        prob[sl] = p[np.arange(len(best)), best]
-        pns[sl] = p[:, bad_mask].sum(axis=1)
-    return Prediction(cls, prob, pns >= threshold, pns)
+        proba[sl] = forest.predict_proba(table.values[sl])  # type: ignore[attr-defined]
+    if passes:
+        proba = smooth_probabilities(proba, table.neighbours, passes)  # type: ignore[arg-type]
+    return Prediction(*_decide(proba, trained, model.classes, threshold))
 
 
 # -- persistence ------------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ import numpy as np
 from classify.classes import ClassSet, load_classes
 from classify.fallback import FALLBACK_FEATURES, fallback_predict
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable, compute_features, views_from_workspace
-from classify.masks import MaskOptions, region_masks
+from classify.masks import MaskOptions, SeenInView, region_masks
 from classify.model import ClassifierModel, Prediction, load_model, predict
 from core.errors import DataError, InputFileError
 from core.pointcloud import PointCloud
@@ -34,7 +34,8 @@ def resolve_model_path(model: str) -> Path | None:
 @dataclass
 class ClassifiedCloud:
     """The classified dense cloud: ``cloud``, ``prediction``, the feature ``spacing`` (m), the ``classes``, what
-    classified it (``model``: a path, or ``fallback``) and the wall time (``seconds``)."""
+    classified it (``model``: a path, or ``fallback``), the wall time (``seconds``), the feature names and the
+    model's feature importances (name → mean decrease in impurity; None for the fallback)."""
 
     cloud: PointCloud
     prediction: Prediction
@@ -43,6 +44,7 @@ class ClassifiedCloud:
     model: str
     seconds: float
     feature_names: tuple[str, ...]
+    importances: dict[str, float] | None = None
 
     def report(self) -> dict[str, object]:
         p = self.prediction
@@ -56,6 +58,7 @@ class ClassifiedCloud:
             "seconds": self.seconds,
             "features": list(self.feature_names),
             "classes": self.classes.to_dict(),
+            "importances": self.importances,
         }
 
 
@@ -102,7 +105,56 @@ def classify_dense(dense_dir: str | PathLike[str], model: str = "default", thres
     classes = loaded.classes if loaded is not None else load_classes()
     pred, table = classify_cloud(cloud, loaded, dense_dir, classes, threshold)
     name = str(path) if loaded is not None else "fallback"
-    return ClassifiedCloud(cloud, pred, table.spacing, classes, name, time.perf_counter() - t0, table.names)
+    importances = None
+    if loaded is not None:
+        values = getattr(loaded.forest, "feature_importances_", None)
+        if values is not None:
+            importances = {n: float(v) for n, v in zip(loaded.feature_names, values, strict=True)}
+    seconds = time.perf_counter() - t0
+    return ClassifiedCloud(cloud, pred, table.spacing, classes, name, seconds, table.names, importances)
+
+
+def write_classify_figures(
+    result: ClassifiedCloud, classes_png: str | PathLike[str], importances_png: str | PathLike[str] | None
+) -> list[Path]:
+    """The report's figures of a classification: the cloud coloured by class (``classes_png``) and, when the
+    model has them and a path is given, the feature importances (``importances_png``); written atomically.
+    Returns the files written."""
+    from classify.figures import classified_cloud_png
+    from classify.figures import importances_png as imp_png
+    from core.io.atomic import write_bytes_atomic
+
+    written = [Path(classes_png)]
+    png = classified_cloud_png(result.cloud.positions, result.prediction.classification, result.classes)
+    write_bytes_atomic(classes_png, png)
+    if importances_png is not None and result.importances:
+        names = list(result.importances)
+        write_bytes_atomic(importances_png, imp_png(names, [result.importances[n] for n in names]))
+        written.append(Path(importances_png))
+    return written
+
+
+def write_masks_figure(
+    path: str | PathLike[str],
+    masks: dict[str, np.ndarray],
+    coverage: dict[str, float],
+    photo: Callable[[str], np.ndarray],
+    count: int = 4,
+) -> Path | None:
+    """Up to ``count`` photos with their masks overlaid (the photos with the largest coverage, evenly picked among
+    the non-empty ones), written atomically as a PNG to ``path``; None (nothing written) when every mask is empty.
+
+    masks: image name → (H, W) bool. coverage: image name → share of the photo. photo: name → (H, W, 3) uint8."""
+    from classify.figures import masks_png
+    from core.io.atomic import write_bytes_atomic
+
+    names = [n for n in sorted(masks, key=lambda n: -coverage[n]) if coverage[n] > 0]
+    if not names:
+        return None
+    pick = names if len(names) <= count else [names[i] for i in np.linspace(0, len(names) - 1, count).astype(int)]
+    panels = [(n, photo(n), masks[n], coverage[n]) for n in pick]
+    write_bytes_atomic(path, masks_png(panels))
+    return Path(path)
 
 
 def write_classified(path: str | PathLike[str], result: ClassifiedCloud) -> Path:
@@ -128,11 +180,18 @@ def project_masks(
     user_mask_dir: Path | None = None,
     held_out: set[str] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    figure: Path | None = None,
+    image_dir: Path | None = None,
+    dense_dir: Path | None = None,
 ) -> dict[str, object]:
     """Write one mask PNG per registered, not held-out photo (``mask_path(name)``); return the record.
 
     points_ply: classify/points.ply (``needs_splats`` field). report_json: its report (the point spacing).
     user_mask_dir: ``NAME.png`` (or ``NAME``) white = needs splats, optional per photo.
+    image_dir: the photos (at the cameras' resolution): holes are explained only by points seen in each photo
+    (fused by it, or of its colour, see :class:`classify.masks.SeenInView`); figure: where to write a few photos
+    with their masks overlaid (the record's ``figure`` says whether one was written). dense_dir: the dense
+    workspace whose ``fused.ply.vis`` says which photos fused each point (same order as ``points_ply``).
     """
     from core.io.colmap import read_model
     from core.io.images import read_image, write_image
@@ -156,7 +215,21 @@ def project_masks(
                     user[n] = read_image(cand, grayscale=True)
                     break
     # Local positions of the cloud in the model's frame (the sparse model shares the cloud's origin).
-    masks = region_masks(cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names)
+    seen = None
+    if options.holes and options.explained_by == "seen" and (dense_dir is not None or image_dir is not None):
+        visibility = None
+        if dense_dir is not None:
+            from recon.workspace import read_fused
+
+            visibility = read_fused(dense_dir).visibility
+            if visibility is not None and len(visibility) != len(cloud):
+                raise DataError(f"fused.ply.vis lists {len(visibility)} points, the classified cloud {len(cloud)}")
+        folder = Path(image_dir) if image_dir is not None else None
+        photo = (lambda name: read_image(folder / name)) if folder is not None else None
+        seen = SeenInView(visibility, cloud.colors, photo)
+    masks = region_masks(
+        cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, seen
+    )
     photos = []
     for i, pm in enumerate(masks):
         path = mask_path(pm.name)
@@ -175,11 +248,20 @@ def project_masks(
         if progress is not None:
             progress("masks", i + 1, len(masks))
     empty = sum(p["empty"] for p in photos)
+    drawn = None
+    if figure is not None and image_dir is not None:
+        drawn = write_masks_figure(
+            figure,
+            {pm.name: pm.mask for pm in masks},
+            {pm.name: pm.coverage for pm in masks},
+            lambda name: read_image(Path(image_dir) / name),
+        )
     return {
         "photos": len(photos),
         "empty": empty,
         "mean_coverage": float(np.mean([p["coverage"] for p in photos])) if photos else 0.0,
         "training_needed": empty < len(photos),
         "held_out_skipped": sorted(held_out or ()),
+        "figure": drawn is not None,
         "per_photo": photos,
     }

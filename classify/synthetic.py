@@ -58,5 +58,41 @@ def load_scene_data(
             Path(cache).parent.mkdir(parents=True, exist_ok=True)
             with atomic_path(cache) as tmp, open(tmp, "wb") as f:
                 np.savez(f, names=np.array(table.names), values=table.values, spacing=table.spacing)
+    if table.neighbours is None:  # not cached: the finest neighbourhood, as compute_features finds it
+        from dataclasses import replace
+
+        from classify.features.geometric import level_neighbours
+
+        _, neighbours = level_neighbours(cloud.positions, options.geometric.k, options.geometric)
+        table = replace(table, neighbours=neighbours)
     truth = scene_point_truth(cloud, scene, classes, tau_gsd)
     return SceneData(cloud, table, truth, scene, dense)
+
+
+BLOCK_SPACINGS = 16.0
+"""Side of the spatial blocks held out together in training, in point spacings of each scene."""
+
+
+def stack_scenes(
+    datas: list[SceneData], names: tuple[str, ...], by_scene: bool = False
+) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
+    """The features ``names`` of several scenes as one table (with their neighbours, re-indexed), the truth codes
+    (N,) uint8 and the groups (N,) int64 for training: the index of each row's scene (``by_scene``) or its
+    spatial block (:func:`classify.model.spatial_groups`, a range per scene)."""
+    from classify.model import spatial_groups
+
+    values, codes, blocks, neighbours = [], [], [], []
+    offset = 0
+    for i, d in enumerate(datas):
+        values.append(d.table.select(names).values)
+        codes.append(d.truth.codes)
+        if by_scene:
+            blocks.append(np.full(len(d.table.values), i, dtype=np.int64))
+        else:
+            blocks.append(spatial_groups(d.cloud.positions, BLOCK_SPACINGS * d.table.spacing, i * 10**8))
+        if d.table.neighbours is not None:
+            neighbours.append(d.table.neighbours + offset)
+        offset += len(d.table.values)
+    nb = np.concatenate(neighbours) if len(neighbours) == len(datas) else None
+    table = FeatureTable(tuple(names), np.concatenate(values), 0.0, nb)
+    return table, np.concatenate(codes), np.concatenate(blocks)

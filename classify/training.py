@@ -10,7 +10,7 @@ import numpy as np
 from classify.classes import UNLABELLED, load_classes
 from classify.features import FeatureOptions, FeatureTable, compute_features, views_from_workspace
 from classify.labels import labels_from_field, labels_from_masks, scene_point_truth, transfer_labels
-from classify.model import ForestOptions, TrainingReport, save_model, train
+from classify.model import ForestOptions, TrainingReport, save_model, spatial_groups, train
 from core.errors import ConfigError, DataError, InputFileError
 
 
@@ -52,6 +52,7 @@ def train_from_projects(
     options = FeatureOptions(names=feature_names, geometric=FeatureOptions().geometric)
     tables: list[FeatureTable] = []
     labels: list[np.ndarray] = []
+    blocks: list[np.ndarray] = []
     for i, dense in enumerate(dense_dirs):
         cloud = read_fused(dense)
         table = compute_features(cloud, options, views_from_workspace(dense))
@@ -83,14 +84,15 @@ def train_from_projects(
             y = labels_from_masks(cloud.positions, cams, masks, cloud.visibility)
         tables.append(table)
         labels.append(y)
+        # Held-out blocks of 16 point spacings, a separate range per project (see classify.model.train).
+        blocks.append(spatial_groups(cloud.positions, 16.0 * table.spacing, i * 10**8))
     table = FeatureTable(tables[0].names, np.concatenate([t.values for t in tables]), tables[0].spacing)
     y = np.concatenate(labels)
     if np.all(y == UNLABELLED):
         raise DataError("no point received a label")
     info = {"projects": [str(d) for d in dense_dirs], "scenes": [str(s) for s in scenes or []], "seed": seed}
-    model, report = train(
-        table, y, classes, options, ForestOptions(n_estimators=trees, max_depth=max_depth, seed=seed), info=info
-    )
+    forest = ForestOptions(n_estimators=trees, max_depth=max_depth, seed=seed)
+    model, report = train(table, y, classes, options, forest, info=info, groups=np.concatenate(blocks))
     per_class = {c.name: c.f1 for c in report.per_class}
     model.info["report"] = {"needs_splats_f1": report.binary.f1, "per_class_f1": per_class}
     save_model(model, out)

@@ -480,6 +480,47 @@ def _panel_views(per_view: Mapping[str, list[Mapping[str, Any]]], max_panels: in
     return ranked[: max(0, int(max_panels))]
 
 
+_CLASSIFY_CAPTIONS = {
+    "classes": "the dense cloud coloured by class (top and side views)",
+    "importances": "the classifier's feature importances",
+    "masks": "photos with their region masks (red: splats are trained there)",
+}
+
+
+def _classification_section(report: Mapping[str, Any]) -> list[str]:
+    """HTML of the classify and masks stages' figures (files named, relative to the project, in their counts
+    under ``figures``) with a line of their counts; [] when neither stage recorded a figure."""
+    e = html.escape
+    stages = report.get("stages") or {}
+    root = Path(str(report.get("project", ".")))
+    figs, lines = [], []
+    for stage in ("classify", "masks"):
+        counts = (stages.get(stage) or {}).get("counts") or {}
+        for rel in counts.get("figures") or []:
+            kind = Path(str(rel)).stem
+            tag = _thumbnail_tag(root / str(rel), f"{stage} {kind}", max_side=1100)
+            if tag:
+                caption = _CLASSIFY_CAPTIONS.get(kind, kind)
+                figs.append(f"<figure style='max-width:1100px'>{tag}<figcaption>{e(caption)}</figcaption></figure>")
+    c = (stages.get("classify") or {}).get("counts") or {}
+    if isinstance(c.get("points"), int) and c["points"] > 0:
+        per = ", ".join(f"{e(str(k))} {v:,}" for k, v in (c.get("per_class") or {}).items())
+        lines.append(f"<p>{c['points']:,} points, {c.get('needs_splats', 0) / c['points']:.1%} need splats "
+                     f"({per}); model {e(Path(str(c.get('model', '?'))).name)}.</p>")  # fmt: skip
+    m = (stages.get("masks") or {}).get("counts") or {}
+    if isinstance(m.get("photos"), int):
+        if m.get("training_needed") is False:
+            lines.append(f"<p>{m['photos']} masks, all empty: no splat training is needed.</p>")
+        else:
+            cov = m.get("mean_coverage")
+            share = f"{cov:.1%}" if isinstance(cov, (int, float)) else "n/a"
+            lines.append(f"<p>{m['photos']} masks, mean coverage {share} of the photo, "
+                         f"{m.get('empty', 0)} empty (skipped by training).</p>")  # fmt: skip
+    if not figs and not lines:
+        return []
+    return ["<h2>Classification and region masks</h2>"] + lines + figs
+
+
 def to_html(
     report: Mapping[str, Any],
     eval_dir: Path | None,
@@ -543,6 +584,7 @@ def to_html(
     if panels:
         parts += [f"<h2>Renders and error maps</h2><p class='note'>The {len(chosen)} held-out view(s) with the "
                   "lowest PSNR (downscaled).</p>"] + panels  # fmt: skip
+    parts += _classification_section(report)
     stages = report.get("stages") or {}
     if stages:
         names = list(stages)

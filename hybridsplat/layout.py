@@ -98,6 +98,26 @@ class ProjectLayout:
         """The user's ``--splat-masks``, normalised to ``<image name>.png``."""
         return self.classify_dir / "user_masks"
 
+    @property
+    def classify_figures_dir(self) -> Path:
+        """Figures of the classification for the report (PNG)."""
+        return self.classify_dir / "figures"
+
+    @property
+    def classes_figure(self) -> Path:
+        """The classified cloud, top and side views coloured by class."""
+        return self.classify_figures_dir / "classes.png"
+
+    @property
+    def importances_figure(self) -> Path:
+        """The classifier's feature importances."""
+        return self.classify_figures_dir / "importances.png"
+
+    @property
+    def masks_figure(self) -> Path:
+        """A few photos with their region masks overlaid."""
+        return self.classify_figures_dir / "masks.png"
+
     # -- splats ---------------------------------------------------------------------------------
     @property
     def splats_dir(self) -> Path:
@@ -221,6 +241,9 @@ class ProjectLayout:
             "classify/report.json": self.classify_report,
             "classify/masks/": self.masks_dir,
             "classify/user_masks/": self.user_masks_dir,
+            "classify/figures/classes.png": self.classes_figure,
+            "classify/figures/importances.png": self.importances_figure,
+            "classify/figures/masks.png": self.masks_figure,
             "splats/trained.ply": self.trained_splats,
             "splats/cleaned.ply": self.cleaned_splats,
             "splats/snapshots/": self.snapshots_dir,

@@ -222,3 +222,72 @@ def test_multiview_rejects_mismatched_visibility():
     _, views = _two_view_rig()
     with pytest.raises(DataError):
         multiview_features(np.zeros((2, 3)), [np.array([1])], views)
+
+
+@pytest.mark.parametrize("make", [_wavy_plane, _random_blobs])
+def test_grid_search_gives_the_kdtree_neighbourhoods(make):
+    """The column-grid k-NN (core.knn) and the k-d tree find the same neighbourhoods: equal radii and features."""
+    from classify.features.geometric import level_neighbours
+
+    pts = make(4000)
+    d_grid, i_grid = level_neighbours(pts, 16, GeometricOptions(search="grid"))
+    d_tree, i_tree = level_neighbours(pts, 16, GeometricOptions(search="kdtree"))
+    assert i_grid.shape == (len(pts), 15) and not (i_grid == np.arange(len(pts))[:, None]).any()
+    np.testing.assert_allclose(d_grid, d_tree, rtol=1e-12, atol=0)
+    d_ref, _ = cKDTree(pts).query(pts, k=16)
+    np.testing.assert_allclose(d_grid, d_ref[:, 1:], rtol=1e-12, atol=0)
+    # Continuous random coordinates have no ties: the neighbour sets are identical.
+    assert np.array_equal(np.sort(i_grid, axis=1), np.sort(i_tree, axis=1))
+    a = geometric_features(pts, options=GeometricOptions(search="grid"))
+    b = geometric_features(pts, options=GeometricOptions(search="kdtree"))
+    for name in a.features:
+        np.testing.assert_allclose(a.features[name], b.features[name], atol=1e-6, err_msg=name)
+    with pytest.raises(ConfigError):
+        GeometricOptions(search="octree")
+
+
+def test_spacing_from_the_finest_neighbours_equals_point_spacing():
+    """geometric_features takes the spacing from its full-cloud k-NN: the same median as point_spacing (which
+    uses every point below its sample size), duplicates ignored."""
+    from classify.features.geometric import level_neighbours, spacing_from_neighbours
+
+    pts = _wavy_plane(3000)
+    pts = np.r_[pts, pts[:200]]  # duplicates
+    dist, _ = level_neighbours(pts, 16, GeometricOptions())
+    assert spacing_from_neighbours(dist) == pytest.approx(point_spacing(pts), rel=1e-12)
+    assert geometric_features(pts).spacing == pytest.approx(point_spacing(pts), rel=1e-12)
+    with pytest.raises(DataError):
+        spacing_from_neighbours(np.zeros((5, 4)))
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy", "pgeof"])
+def test_implicit_self_equals_the_listed_self(backend):
+    """with_self (the point itself not listed, at row offset) gives the same eigen analysis as listing it."""
+    from classify.features.geometric import eigen_backend
+
+    pts = _wavy_plane(1000)
+    _, idx = cKDTree(pts).query(pts, k=16)
+    fn = eigen_backend(backend)
+    w_ref, n_ref = fn(pts, idx[200:700])
+    w, n = fn(pts, idx[200:700, 1:], True, 200)
+    np.testing.assert_allclose(w, w_ref, rtol=1e-6, atol=1e-18)
+    assert np.min(np.abs(np.sum(n * n_ref, axis=1))) > 1 - 1e-5
+
+
+def test_features_follow_the_points_whatever_their_order():
+    """compute_features works on a spatially sorted copy: permuting the input permutes every feature row."""
+    from classify.features.geometric import spatial_order
+
+    rng = np.random.default_rng(4)
+    pts = _wavy_plane(3000)
+    cloud = PointCloud(pts, colors=rng.integers(0, 255, (len(pts), 3)).astype(np.uint8))
+    perm = rng.permutation(len(pts))
+    shuffled = PointCloud(pts[perm], colors=cloud.colors[perm])
+    opts = FeatureOptions(groups=(FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC))
+    a, b = compute_features(cloud, opts), compute_features(shuffled, opts)
+    np.testing.assert_allclose(b.values, a.values[perm], rtol=1e-5, atol=1e-6)
+    order = spatial_order(pts)
+    assert np.array_equal(np.sort(order), np.arange(len(pts)))
+    # Morton order keeps neighbours close in memory: consecutive points are near in space.
+    step = np.linalg.norm(np.diff(pts[order], axis=0), axis=1)
+    assert np.median(step) < 0.2 * np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1))

@@ -35,7 +35,7 @@ def test_non_collaborative_square_is_masked_and_nothing_else():
     cams, view = _rig()
     pts = _grid()
     bad = (np.abs(pts[:, 0]) < 0.1) & (np.abs(pts[:, 1]) < 0.1)  # a 20 × 20 px square in the image centre
-    pm = photo_mask(cams, view, pts, bad, spacing=0.01, options=MaskOptions(dilate_px=0, close_px=0))
+    pm = photo_mask(cams, view, pts, bad, spacing=0.01, options=MaskOptions(dilate_px=0, close_px=0, dilate_spacings=0))
     rows, cols = np.nonzero(pm.mask)
     assert 8 <= rows.min() <= 20 and 40 <= rows.max() <= 52 and 18 <= cols.min() <= 30 and 50 <= cols.max() <= 62
     # Footprint 1.5 px: the square grows by at most 2 px on each side.
@@ -61,11 +61,58 @@ def test_holes_inside_the_cloud_but_not_at_the_border():
     pts = pts[~hole]
     # Remove a band at the image's left edge too: uncovered and touching the border = background.
     pts = pts[~(pts[:, 0] < -0.3)]
-    pm = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0))
+    opts = MaskOptions(close_px=0, dilate_px=0, hole_area="hull", dilate_spacings=0)
+    pm = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, opts)
     assert pm.points_px == 0 and pm.holes_px > 0
     rows, cols = np.nonzero(pm.mask)
     assert cols.min() >= 30 and cols.max() <= 60 and rows.min() >= 20 and rows.max() <= 40
     assert not pm.mask[:, :5].any()
+    # hull_below (default): a nadir photo sees no sky, so the uncovered band at the border is a hole too.
+    nadir = photo_mask(
+        cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0)
+    )
+    assert nadir.mask[:, :5].all() and nadir.mask[30, 45] and not nadir.mask[10, 70]
+
+
+def test_hull_below_keeps_the_sky_out():
+    """An upright camera looking horizontally at a wall (top edge at image row 20) with a gap: the gap below the
+    cloud's upper envelope is a hole, the sky above the wall's top edge is never masked."""
+    cam = Camera.pinhole(100.0, 100.0, 40.0, 30.0, 80, 60)
+    # Camera at y = -1 looking along +y, image x = world x, image y = -world z (z up).
+    r = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+    view = View.from_matrix(1, "a.png", 1, np.c_[r, -r @ np.array([0.0, -1.0, 0.0])])
+    cams = Cameras({1: cam}, {1: view})
+    g = np.arange(-0.6, 0.6 + 1e-9, 0.01)
+    x, z = np.meshgrid(g, np.arange(-0.4, 0.1 + 1e-9, 0.01), indexing="ij")
+    wall = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]  # top edge at z = 0.1: image row 20
+    gap = (np.abs(wall[:, 0]) < 0.05) & (np.abs(wall[:, 2] + 0.15) < 0.05)
+    pm = photo_mask(
+        cams, view, wall[~gap], np.zeros(int((~gap).sum()), bool), 0.01, MaskOptions(dilate_px=0, dilate_spacings=0)
+    )
+    assert pm.mask[45, 40] and not pm.mask[:15].any()  # the gap (row 45) yes, the sky (rows < 20) no
+
+
+def test_points_hidden_behind_a_missed_surface_do_not_explain_it():
+    """The floor is fully reconstructed, but the photo shows an unreconstructed bright box over a 20 × 20 px
+    square: the floor points there do not match the photo's colour, so the square is a hole ("seen"); with
+    "all" every point explains its pixels and the mask stays empty. Fused-by-this-view points always explain."""
+    from classify.masks import SeenInView
+
+    cams, view = _rig()
+    pts = _grid()
+    colors = np.full((len(pts), 3), 100, np.uint8)
+    photo = np.full((60, 80, 3), 100, np.uint8)
+    photo[20:40, 30:50] = 220
+    seen = SeenInView(None, colors, lambda name: photo)
+    flags = np.zeros(len(pts), bool)
+    opts = MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0)
+    pm = photo_mask(cams, view, pts, flags, 0.01, opts, seen=seen)
+    rows, cols = np.nonzero(pm.mask)
+    assert pm.mask[25:35, 35:45].all() and 18 <= rows.min() and rows.max() <= 41 and 28 <= cols.min()
+    assert cols.max() <= 51
+    assert photo_mask(cams, view, pts, flags, 0.01, MaskOptions(explained_by="all"), seen=seen).empty
+    vis = [np.array([1])] * len(pts)  # every point fused by this photo
+    assert photo_mask(cams, view, pts, flags, 0.01, opts, seen=SeenInView(vis, colors, lambda n: photo)).empty
 
 
 def test_user_masks_are_united_and_empty_masks_reported():
@@ -73,7 +120,21 @@ def test_user_masks_are_united_and_empty_masks_reported():
     pts = _grid()
     user = np.zeros((60, 80), np.uint8)
     user[:5, :5] = 255
-    masks = region_masks(cams, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(dilate_px=0), {"a.png": user})
+    masks = region_masks(
+        cams, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(dilate_px=0, dilate_spacings=0), {"a.png": user}
+    )
     assert masks[0].user_px == 25 / 4800 and masks[0].mask[:5, :5].all()
     none = region_masks(cams, pts, np.zeros(len(pts), bool), 0.01)
     assert none[0].empty and none[0].coverage == 0.0
+
+
+def test_dilation_in_spacings():
+    """f = 100 px at 1 m and 1 cm spacing: 1 px per spacing, so 3 spacings dilate the 20 × 20 square by 3 px."""
+    cams, view = _rig()
+    pts = _grid()
+    bad = (np.abs(pts[:, 0]) < 0.1) & (np.abs(pts[:, 1]) < 0.1)
+    base = MaskOptions(dilate_px=0, close_px=0, dilate_spacings=0, holes=False)
+    a = photo_mask(cams, view, pts, bad, 0.01, base).mask
+    b = photo_mask(cams, view, pts, bad, 0.01, MaskOptions(dilate_px=0, close_px=0, holes=False)).mask
+    rows_a, rows_b = np.nonzero(a)[0], np.nonzero(b)[0]
+    assert rows_b.min() == rows_a.min() - 3 and rows_b.max() == rows_a.max() + 3

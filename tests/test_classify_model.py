@@ -13,7 +13,7 @@ from classify.features import FeatureGroup, FeatureOptions, FeatureTable
 from classify.labels import labels_from_field, labels_from_masks, point_truth, transfer_labels
 from classify.model import ForestOptions, load_model, predict, save_model, train
 from core.cameras import Camera, Cameras, View
-from core.errors import ConfigError, FormatError, InputFileError
+from core.errors import ConfigError, DataError, FormatError, InputFileError
 
 
 def test_default_classes_and_kind_mapping(tmp_path):
@@ -169,3 +169,74 @@ def test_fallback_rules():
 def test_class_set_validation():
     with pytest.raises(ConfigError):
         ClassSet(())
+
+
+def test_threshold_is_the_f1_optimum_on_held_out_points():
+    """Truth = p ≥ 0.7 exactly: the best F1 threshold on the grid is 0.7 (F1 = 1); no positives → 0.5."""
+    from classify.model import _best_threshold
+
+    p = np.linspace(0, 1, 2001)
+    assert _best_threshold(p, p >= 0.7) == pytest.approx(0.7)
+    assert _best_threshold(p, np.zeros_like(p, dtype=bool)) == 0.5
+
+
+def test_spatial_groups_are_blocks():
+    from classify.model import spatial_groups
+
+    pts = np.array([[0.0, 0, 0], [0.4, 0.4, 0.4], [1.2, 0, 0], [0, 1.1, 0], [1.9, 0.1, 0.2]])
+    g = spatial_groups(pts, 1.0, offset=10)
+    assert g[0] == g[1] and g[2] == g[4] and len({g[0], g[2], g[3]}) == 3 and g.min() >= 10
+    with pytest.raises(ConfigError):
+        spatial_groups(pts, 0.0)
+
+
+def test_grouped_out_of_fold_report_and_smoothing():
+    """With groups every labelled row gets an out-of-fold prediction (the report covers them all); with
+    neighbours the model smooths, and predicting without neighbours is refused."""
+    from dataclasses import replace
+
+    from scipy.spatial import cKDTree
+
+    from classify.model import spatial_groups
+
+    table, y = _toy_table(2000)
+    rng = np.random.default_rng(3)
+    pos = rng.uniform(0, 10, (len(y), 3))
+    groups = spatial_groups(pos, 2.5)
+    opts = FeatureOptions(names=("planarity_s0", "ncc_views"))
+    forest = ForestOptions(n_estimators=8, n_jobs=1)
+    model, report = train(table, y, load_classes(), opts, forest, groups=groups)
+    assert report.n_test == len(y) and model.info["held_out"]["grouped"] and model.info["smooth_passes"] == 0
+    assert report.binary.f1 > 0.9 and 0.05 <= model.info["threshold"] <= 0.95
+    nb = cKDTree(pos).query(pos, k=5)[1][:, 1:]
+    with_nb = replace(table, neighbours=nb)
+    smoothed, _ = train(with_nb, y, load_classes(), opts, forest, groups=groups)
+    assert smoothed.info["smooth_passes"] == 1
+    assert len(predict(smoothed, with_nb).classification) == len(y)
+    with pytest.raises(DataError):
+        predict(smoothed, table)
+    assert predict(smoothed, table, smooth_passes=0).classification.shape == (len(y),)
+
+
+def test_smoothing_is_the_neighbourhood_mean():
+    from classify.model import smooth_probabilities
+
+    p = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [1.0, 0.0]], np.float32)
+    nb = np.array([[1], [2], [1], [0]])
+    one = smooth_probabilities(p, nb, 1)
+    np.testing.assert_allclose(one, [[0.5, 0.5], [0, 1], [0, 1], [1, 0]])
+    np.testing.assert_allclose(smooth_probabilities(p, nb, 2), smooth_probabilities(one, nb, 1))
+
+
+def test_threshold_per_project_counts_each_project_once():
+    """Project A (10 001 points, truth p ≥ 0.7) dominates the pooled F1: best cut 0.7. Project B (200 points:
+    negatives at p = 0.1, positives at 0.35) has F1 1 only for cuts in (0.1, 0.35]; the mean of the two projects'
+    F1 is best at 0.35 (A keeps F1 0.63 there, B drops to 0 above it)."""
+    from classify.model import _best_threshold
+
+    pa = np.linspace(0, 1, 10001)
+    p = np.r_[pa, np.full(100, 0.1), np.full(100, 0.35)]
+    truth = np.r_[pa >= 0.7, np.zeros(100, bool), np.ones(100, bool)]
+    groups = np.r_[np.zeros(len(pa), int), np.ones(200, int)]
+    assert _best_threshold(p, truth) == pytest.approx(0.7)
+    assert _best_threshold(p, truth, groups) == pytest.approx(0.35)

@@ -92,3 +92,75 @@ def test_trained_model_in_classify_dense(workspace, tmp_path):
     assert result.model == str(path)
     with pytest.raises(InputFileError):
         classify_dense(ws.root, model=str(tmp_path / "missing.skops"))
+
+
+def _decode_png(data: bytes) -> np.ndarray:
+    import cv2
+
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None
+    return img[..., ::-1]  # RGB
+
+
+def test_figures_show_the_classes_importances_and_masks(tmp_path):
+    """The class figure holds the colour of each class present and none of an absent one; the mask overlay is
+    red exactly on the mask; the importances chart is an image."""
+    from classify.figures import class_colour, classified_cloud_png, importances_png, masks_png, overlay
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 1, (3000, 3))
+    codes = np.where(pts[:, 0] > 0.8, 1, 0).astype(np.uint8)  # a reflective strip; no transparent points
+    img = _decode_png(classified_cloud_png(pts, codes, load_classes())).astype(int)
+
+    def has(code: int) -> bool:
+        target = np.round(np.array(class_colour(code)) * 255).astype(int)
+        return bool((np.abs(img - target).max(axis=2) <= 3).sum() > 20)
+
+    assert has(0) and has(1) and not has(2)
+    photo = np.full((40, 60, 3), 200, np.uint8)
+    mask = np.zeros((40, 60), bool)
+    mask[10:20, 30:50] = True
+    over = overlay(photo, mask)
+    inner = over[12:18, 32:48].reshape(-1, 3)
+    assert np.all(inner[:, 0] > inner[:, 1] + 50)  # red blend inside
+    assert np.array_equal(over[30:, :20], photo[30:, :20])  # untouched far from the mask
+    assert _decode_png(masks_png([("a.png", photo, mask, 0.08)] * 3)).shape[0] > 100
+    assert _decode_png(importances_png(["a", "b", "c"], [0.5, 0.3, 0.2])).shape[1] > 100
+
+
+def test_report_shows_the_classification_figures(workspace, tmp_path):
+    """classify + masks on the hand-made workspace write the figures; the report's HTML embeds them."""
+    from classify.run import write_classify_figures
+    from eval.report import to_html
+
+    ws, _ = workspace
+    result = classify_dense(ws.root, model="none")
+    points = write_classified(tmp_path / "classify" / "points.ply", result)
+    report = tmp_path / "classify" / "report.json"
+    write_json_atomic(report, result.report())
+    figs = write_classify_figures(result, tmp_path / "fig" / "classes.png", tmp_path / "fig" / "importances.png")
+    assert [f.name for f in figs] == ["classes.png"]  # the fallback has no importances
+    record = project_masks(
+        points, report, ws.sparse, lambda n: tmp_path / "masks" / f"{n}.png",
+        figure=tmp_path / "fig" / "masks.png", image_dir=ws.images,
+    )  # fmt: skip
+    assert record["figure"] and (tmp_path / "fig" / "masks.png").is_file()
+    stages = {
+        "classify": {"counts": {"points": 10, "needs_splats": 2, "per_class": {"a": 8}, "model": "m",
+                                "figures": ["fig/classes.png"]}},
+        "masks": {"counts": {"photos": 3, "empty": 0, "mean_coverage": 0.1, "training_needed": True,
+                             "figures": ["fig/masks.png"]}},
+    }  # fmt: skip
+    page = to_html(_minimal_report(tmp_path, stages), None, None)
+    assert "Classification and region masks" in page and page.count("data:image/jpeg;base64,") == 2
+    assert "20.0% need splats" in page and "mean coverage 10.0%" in page
+    assert "Classification and region masks" not in to_html(_minimal_report(tmp_path, {}), None, None)
+
+
+def _minimal_report(root, stages) -> dict:
+    for st in stages.values():
+        st.update(seconds=1.0, peak_mb=10.0, skipped=False, reason=None, cached=False)
+    return {
+        "project": str(root), "generated_utc": "now", "timings": {"total_seconds": 0.0}, "products": {},
+        "stages": stages, "versions": {}, "config": {}, "units": "m",
+    }  # fmt: skip

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from classify.features.geometric import GeometricOptions, geometric_features, point_spacing
+from classify.features.geometric import GeometricOptions, geometric_features, point_spacing, spatial_order
 from classify.features.multiview import MultiViewOptions, ViewData, multiview_features, views_from_workspace
 from classify.features.radiometric import color_variance, rgb_hsv
 from classify.features.registry import (
@@ -64,11 +64,14 @@ class FeatureOptions:
 
 @dataclass(frozen=True)
 class FeatureTable:
-    """names: F feature names; values: (N, F) float32, finite; spacing: the cloud's median point spacing (m)."""
+    """names: F feature names; values: (N, F) float32, finite; spacing: the cloud's median point spacing (m);
+    neighbours: (N, k − 1) int64, each point's nearest other points (the finest geometric neighbourhood, rows of
+    this table), or None when not computed (the prediction's smoothing uses them)."""
 
     names: tuple[str, ...]
     values: np.ndarray
     spacing: float
+    neighbours: np.ndarray | None = None
 
     def column(self, name: str) -> np.ndarray:
         """The (N,) column of feature ``name``."""
@@ -79,7 +82,8 @@ class FeatureTable:
         missing = [n for n in names if n not in self.names]
         if missing:
             raise DataError(f"features not computed: {', '.join(missing)}")
-        return FeatureTable(tuple(names), self.values[:, [self.names.index(n) for n in names]], self.spacing)
+        cols = [self.names.index(n) for n in names]
+        return FeatureTable(tuple(names), self.values[:, cols], self.spacing, self.neighbours)
 
 
 def compute_features(
@@ -101,31 +105,51 @@ def compute_features(
     cloud.validate("dense cloud")
     specs = feature_specs(options.n_scales)
     groups = {specs[n].group for n in names}
-    columns: dict[str, np.ndarray] = {}
-    geo = geometric_features(cloud.positions, cloud.normals, options.geometric)
+    if FeatureGroup.RADIOMETRIC in groups and cloud.colors is None:
+        raise ConfigError("radiometric features need point colours; the cloud has none")
+    if FeatureGroup.MULTIVIEW in groups and views is None:
+        raise ConfigError("multi-view features need the photos and cameras (a dense workspace)")
+    # Geometric and radiometric features are computed on the points sorted along a space-filling curve (cache-
+    # friendly neighbour gathers) and written back in the cloud's order; multi-view features in the cloud's order.
+    order = spatial_order(cloud.positions)
+    sorted_columns: dict[str, np.ndarray] = {}
+    normals = cloud.normals[order] if cloud.normals is not None else None
+    geo = geometric_features(cloud.positions[order], normals, options.geometric)
     spacing = geo.spacing
     if FeatureGroup.GEOMETRIC in groups:
-        columns.update(geo.features)
+        sorted_columns.update(geo.features)
     if FeatureGroup.RADIOMETRIC in groups:
-        if cloud.colors is None:
-            raise ConfigError("radiometric features need point colours; the cloud has none")
-        columns.update(rgb_hsv(cloud.colors))
-        columns["color_variance"] = color_variance(
-            cloud.colors,
+        colors = cloud.colors[order]  # type: ignore[index]
+        sorted_columns.update(rgb_hsv(colors))
+        sorted_columns["color_variance"] = color_variance(
+            colors,
             neighbours=geo.neighbours,
-            positions=cloud.positions,
+            positions=cloud.positions[order],
             k=options.geometric.k,
             workers=options.geometric.workers,
+            with_self=geo.neighbours is not None,
         )
+    neighbours = None
+    if geo.neighbours is not None:  # back to the cloud's order: row order[i] has neighbours order[neigh[i]]
+        neighbours = np.empty_like(geo.neighbours)
+        neighbours[order] = order[geo.neighbours]
+    del geo
+    columns: dict[str, np.ndarray] = {}
     if FeatureGroup.MULTIVIEW in groups:
-        if views is None:
-            raise ConfigError("multi-view features need the photos and cameras (a dense workspace)")
+        assert views is not None
         columns.update(multiview_features(cloud.positions, cloud.visibility, views, options.multiview))
     values = np.empty((len(cloud), len(names)), dtype=np.float32)
     for j, name in enumerate(names):
-        col = np.asarray(columns[name], dtype=np.float32)
+        in_order = name in sorted_columns
+        col = np.asarray(sorted_columns[name] if in_order else columns[name], dtype=np.float32)
         bad = ~np.isfinite(col)
-        if bad.mean() > 0.01:
-            raise DataError(f"feature {name!r} is non-finite for {int(bad.sum())} of {len(col)} points")
-        values[:, j] = np.where(bad, 0.0, col)
-    return FeatureTable(names, values, spacing)
+        n_bad = int(np.count_nonzero(bad))
+        if n_bad > 0.01 * len(col):
+            raise DataError(f"feature {name!r} is non-finite for {n_bad} of {len(col)} points")
+        if n_bad:
+            col = np.where(bad, np.float32(0.0), col)
+        if in_order:
+            values[order, j] = col
+        else:
+            values[:, j] = col
+    return FeatureTable(names, values, spacing, neighbours)

@@ -68,12 +68,14 @@ def _eig3(c00, c01, c02, c11, c12, c22, out_w, out_n):  # pragma: no cover - com
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _eigen_kernel(points, neighbours, values, normals):  # pragma: no cover - compiled
-    n, k = neighbours.shape
+def _eigen_kernel(points, neighbours, with_self, offset, values, normals):  # pragma: no cover - compiled
+    n, m = neighbours.shape
+    k = m + 1 if with_self else m
+    first = -1 if with_self else 0  # j = -1 stands for the point itself
     for i in numba.prange(n):
         mx = my = mz = 0.0
-        for j in range(k):
-            t = neighbours[i, j]
+        for j in range(first, m):
+            t = offset + i if j < 0 else neighbours[i, j]
             mx += points[t, 0]
             my += points[t, 1]
             mz += points[t, 2]
@@ -81,8 +83,8 @@ def _eigen_kernel(points, neighbours, values, normals):  # pragma: no cover - co
         my /= k
         mz /= k
         c00 = c01 = c02 = c11 = c12 = c22 = 0.0
-        for j in range(k):
-            t = neighbours[i, j]
+        for j in range(first, m):
+            t = offset + i if j < 0 else neighbours[i, j]
             dx = points[t, 0] - mx
             dy = points[t, 1] - my
             dz = points[t, 2] - mz
@@ -98,12 +100,37 @@ def _eigen_kernel(points, neighbours, values, normals):  # pragma: no cover - co
                 values[i, j] = 0.0
 
 
-def eigen_numba(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def eigen_numba(
+    points: np.ndarray, neighbours: np.ndarray, with_self: bool = False, offset: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (N, 3) descending (metres², covariance divided by k) and smallest-eigenvector normals (N, 3)
-    of ``points`` (M, 3) float64 over ``neighbours`` (N, k) int64; same contract as ``eigen_numpy``."""
+    of ``points`` (M, 3) float64 over ``neighbours`` (N, k) int64; same contract as ``eigen_numpy`` (with_self:
+    row i's own point ``offset + i`` belongs to its neighbourhood too, without being listed)."""
     pts = np.ascontiguousarray(points, dtype=np.float64)
     nb = np.ascontiguousarray(neighbours, dtype=np.int64)
     values = np.empty((len(nb), 3))
     normals = np.empty((len(nb), 3))
-    _eigen_kernel(pts, nb, values, normals)
+    _eigen_kernel(pts, nb, bool(with_self), int(offset), values, normals)
     return values, normals
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _smooth_rows_kernel(p, nb, out):  # pragma: no cover - compiled
+    n, m = nb.shape
+    c = p.shape[1]
+    for i in numba.prange(n):
+        for j in range(c):
+            out[i, j] = p[i, j]
+        for t in range(m):
+            q = nb[i, t]
+            for j in range(c):
+                out[i, j] += p[q, j]
+        for j in range(c):
+            out[i, j] /= m + 1
+
+
+def smooth_rows(p: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """Per row i of ``p`` (N, C) float32: the mean of rows i and ``neighbours[i]`` ((N, m) int64), (N, C) float32."""
+    out = np.empty_like(p)
+    _smooth_rows_kernel(p, neighbours, out)
+    return out

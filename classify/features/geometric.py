@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError, DataError
 
 EIGEN_BACKENDS = ("numba", "numpy", "pgeof")
+NEIGHBOUR_SEARCHES = ("grid", "kdtree")
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,10 @@ class GeometricOptions:
     backend: eigen decomposition: ``numba`` (default, the threaded kernel of :mod:`classify.features.eigen_numba`),
         ``numpy`` (the twin) or ``pgeof`` (library; its middle eigenvalue deviates, see that module).
     spacing_sample: points sampled (seeded) to estimate the median spacing. seed: that sample's seed.
-    chunk_size: points per chunk of the k-NN / eigen work (bounds memory: ~200 B × k per point).
-    workers: threads for the k-NN queries and pgeof (-1: all cores).
+    chunk_size: points per chunk of the k-d tree queries and of the eigen work.
+    workers: threads for the k-d tree queries (-1: all cores; the grid search uses numba's thread count).
+    search: k-NN search: ``grid`` (default, :func:`core.knn.knn_grid`, exact, ~3× less CPU than the tree on
+        survey clouds) or ``kdtree`` (scipy's cKDTree queried in leaf order, the reference).
     """
 
     voxel_factors: tuple[float, ...] = (1.0, 4.0, 12.0)
@@ -46,8 +49,11 @@ class GeometricOptions:
     seed: int = 0
     chunk_size: int = 250_000
     workers: int = -1
+    search: str = "grid"
 
     def __post_init__(self) -> None:
+        if self.search not in NEIGHBOUR_SEARCHES:
+            raise ConfigError(f"search must be one of {NEIGHBOUR_SEARCHES}, got {self.search!r}")
         if self.backend not in EIGEN_BACKENDS:
             raise ConfigError(f"eigen backend must be one of {EIGEN_BACKENDS}, got {self.backend!r}")
         if self.k < 3:
@@ -70,6 +76,23 @@ class Eigen:
 
 
 # -- spacing, pyramid, neighbours ----------------------------------------------------------------------------
+def spatial_order(positions: np.ndarray, bits: int = 16) -> np.ndarray:
+    """A permutation (N,) int64 that sorts points (N, 3) float64 along a Morton (Z-order) curve of their bounding
+    box (``bits`` per axis): neighbours in space become neighbours in memory, so the k-NN gathers of the
+    features hit the cache (clouds are often stored in scan or random order)."""
+    pts = np.asarray(positions, dtype=np.float64)
+    if len(pts) == 0:
+        return np.zeros(0, np.int64)
+    lo = pts.min(axis=0)
+    span = max(float((pts.max(axis=0) - lo).max()), 1e-300)
+    q = np.minimum(((pts - lo) / span * (1 << bits)).astype(np.uint64), np.uint64((1 << bits) - 1))
+    code = np.zeros(len(pts), dtype=np.uint64)
+    for b in range(bits):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + axis)
+    return np.argsort(code, kind="stable")
+
+
 def point_spacing(positions: np.ndarray, sample: int = 100_000, seed: int = 0, workers: int = -1) -> float:
     """Median distance (metres) from a point to its nearest other point, on a seeded sample of ``sample`` points.
 
@@ -111,9 +134,20 @@ def knn(tree: cKDTree, query: np.ndarray, k: int, workers: int = -1) -> tuple[np
 
 
 # -- eigen backends ----------------------------------------------------------------------------------------
-def eigen_numpy(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _with_self(neighbours: np.ndarray, with_self: bool, offset: int) -> np.ndarray:
+    if not with_self:
+        return neighbours
+    own = np.arange(offset, offset + len(neighbours), dtype=np.int64)[:, None]
+    return np.concatenate([own, np.asarray(neighbours, dtype=np.int64)], axis=1)
+
+
+def eigen_numpy(
+    points: np.ndarray, neighbours: np.ndarray, with_self: bool = False, offset: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """The twin: eigenvalues (N, 3) descending and smallest-eigenvector normals (N, 3) of the covariance
-    (divided by k) of ``points[neighbours]`` (neighbours (N, k) int64), with numpy's batched ``eigh`` in float64."""
+    (divided by k) of ``points[neighbours]`` (neighbours (N, k) int64), with numpy's batched ``eigh`` in float64.
+    with_self: row i's own point ``offset + i`` belongs to its neighbourhood too, without being listed."""
+    neighbours = _with_self(neighbours, with_self, offset)
     x = points[neighbours]
     x = x - x.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", x, x) / neighbours.shape[1]
@@ -121,7 +155,9 @@ def eigen_numpy(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray,
     return np.clip(w[:, ::-1], 0.0, None), v[:, :, 0]
 
 
-def eigen_pgeof(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def eigen_pgeof(
+    points: np.ndarray, neighbours: np.ndarray, with_self: bool = False, offset: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """The library: the same quantities from ``pgeof.compute_features`` (float32 inside).
 
     pgeof returns length = √λ1, surface = √(√λ1·√λ2), volume = (√λ1·√λ2·√λ3)^(1/3) (checked against the twin in
@@ -129,6 +165,7 @@ def eigen_pgeof(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray,
     """
     import pgeof
 
+    neighbours = _with_self(neighbours, with_self, offset)
     n, k = neighbours.shape
     centred = (points - points.mean(axis=0)).astype(np.float32)
     nn = neighbours.astype(np.uint32).ravel()
@@ -145,7 +182,7 @@ def eigen_pgeof(points: np.ndarray, neighbours: np.ndarray) -> tuple[np.ndarray,
     return s**2, normal
 
 
-def eigen_backend(name: str) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+def eigen_backend(name: str) -> Callable[..., tuple[np.ndarray, np.ndarray]]:
     """The eigen function called ``name`` (``pgeof`` falls back to an ImportError message if not installed)."""
     if name == "numpy":
         return eigen_numpy
@@ -162,29 +199,55 @@ def eigen_backend(name: str) -> Callable[[np.ndarray, np.ndarray], tuple[np.ndar
     raise ConfigError(f"eigen backend must be one of {EIGEN_BACKENDS}, got {name!r}")
 
 
-def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, np.ndarray]:
-    """Eigen analysis of every point of one level with its k nearest neighbours, chunked.
+def level_neighbours(points: np.ndarray, k: int, options: GeometricOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's k − 1 nearest *other* points of ``points`` (N, 3) float64 (its neighbourhood of k is itself and
+    these): distances (N, k − 1) float64 metres (ascending) and indices (N, k − 1) int64, with the search of
+    ``options.search`` (both exact; ties between equidistant neighbours may pick different indices)."""
+    from core.knn import drop_self, knn_grid
 
-    Returns the :class:`Eigen` and the neighbour indices (N, k) int64 (the finest level's are reused for the
-    colour variance)."""
-    fn = eigen_backend(options.backend)
+    n = len(points)
+    k = max(2, min(k, n))
+    if options.search == "grid" and n > k:
+        return knn_grid(points, k - 1)
     # Queries in the tree's leaf order are spatially coherent: ~3-4x faster than input order (scipy walks fewer
-    # nodes per query; the same trick as fusion.knn.knn_kdtree). Results are scattered back to input order.
+    # nodes per query; the same trick as core.knn.knn_kdtree). Results are scattered back to input order.
     tree = cKDTree(points, leafsize=16, balanced_tree=False, compact_nodes=False)
     order = np.asarray(tree.indices)
-    n = len(points)
-    k = min(options.k, n)
-    values = np.empty((n, 3))
-    normal = np.empty((n, 3))
-    radius = np.empty(n)
-    neigh = np.empty((n, k), dtype=np.int64)
+    dist = np.empty((n, k - 1))
+    idx = np.empty((n, k - 1), dtype=np.int64)
     for start in range(0, n, options.chunk_size):
         rows = order[start : start + options.chunk_size]
-        d, idx = knn(tree, points[rows], k, options.workers)
-        values[rows], normal[rows] = fn(points, idx)
-        radius[rows] = d[:, -1]
-        neigh[rows] = idx
-    return Eigen(values, normal, radius), neigh
+        d, i = knn(tree, points[rows], k, options.workers)
+        dist[rows], idx[rows] = drop_self(d, i, rows)
+    return dist, idx
+
+
+def level_eigen(points: np.ndarray, options: GeometricOptions) -> tuple[Eigen, np.ndarray, np.ndarray]:
+    """Eigen analysis of every point of one level with its k nearest neighbours (itself included), chunked.
+
+    Returns the :class:`Eigen`, the indices (N, k − 1) int64 of the neighbours other than the point itself (the
+    finest level's are reused for the colour variance) and their distances (N, k − 1) float64 metres, ascending."""
+    fn = eigen_backend(options.backend)
+    n = len(points)
+    dist, neigh = level_neighbours(points, options.k, options)
+    values = np.empty((n, 3))
+    normal = np.empty((n, 3))
+    for start in range(0, n, options.chunk_size):
+        sl = slice(start, min(n, start + options.chunk_size))
+        values[sl], normal[sl] = fn(points, neigh[sl], True, start)
+    return Eigen(values, normal, dist[:, -1].copy()), neigh, dist
+
+
+def spacing_from_neighbours(dist: np.ndarray) -> float:
+    """The median point spacing (metres) from the distances (N, m) float64 to each point's nearest others, rows
+    ascending: the median over points of the nearest non-zero distance (what :func:`point_spacing` estimates on
+    a sample)."""
+    d = dist
+    first = np.count_nonzero(d <= 0.0, axis=1)  # duplicates come first in each ascending row
+    ok = first < d.shape[1]
+    if not ok.any():
+        raise DataError("all points coincide: the point spacing is zero")
+    return float(np.median(d[np.flatnonzero(ok), first[ok]]))
 
 
 # -- features from eigenvalues -------------------------------------------------------------------------------
@@ -234,7 +297,8 @@ def normal_deviation(mvs_normals: np.ndarray | None, plane_normals: np.ndarray) 
 @dataclass(frozen=True)
 class GeometricResult:
     """features: name (``linearity_s0``...) → (N,) float32; spacing: median point spacing (metres);
-    neighbours: the finest level's k-NN (N, k) int64 when scale 0 is the full cloud, else None."""
+    neighbours: the finest level's k − 1 nearest others of each point (N, k − 1) int64 (the point itself is
+    implied) when scale 0 is the full cloud, else None."""
 
     features: dict[str, np.ndarray]
     spacing: float
@@ -256,16 +320,23 @@ def geometric_features(
         raise DataError(f"geometric features need at least 3 points, got {len(pts)}")
     if not np.isfinite(pts).all():
         raise DataError("positions contain NaN or infinite values")
-    if spacing is None:
-        spacing = point_spacing(pts, options.spacing_sample, options.seed, options.workers)
     feats: dict[str, np.ndarray] = {}
     finest: np.ndarray | None = None
     for s, factor in enumerate(options.voxel_factors):
+        level, per_point = pts, None
+        if factor > 1.0:
+            if spacing is None:
+                spacing = point_spacing(pts, options.spacing_sample, options.seed, options.workers)
+            level, per_point = voxel_downsample(pts, factor * spacing)
+            if len(level) < 3:
+                level, per_point = pts, None
+        eig, neigh, dist = level_eigen(level, options)
+        if spacing is None:  # a full-cloud level: its k-NN gives the spacing without another search
+            spacing = (
+                spacing_from_neighbours(dist) if dist.shape[1] > 1 else point_spacing(pts, workers=options.workers)
+            )
+        del dist
         cell = factor * spacing
-        level, per_point = (pts, None) if factor <= 1.0 else voxel_downsample(pts, cell)
-        if len(level) < 3:
-            level, per_point = pts, None
-        eig, neigh = level_eigen(level, options)
         if s == 0 and per_point is None:
             finest = neigh
         values = eigen_features(eig, cell, min(options.k, len(level)))

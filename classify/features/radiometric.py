@@ -28,16 +28,18 @@ def color_variance(
     k: int = 16,
     chunk_size: int = 250_000,
     workers: int = -1,
+    with_self: bool = False,
 ) -> np.ndarray:
     """Standard deviation of the colour over each point's neighbourhood, /255, averaged over R, G, B: (N,) float32.
 
-    neighbours: (N, k) int64 indices of each point's neighbours (the finest geometric level's); when None they
-    are found among ``positions`` (N, 3) with a k-NN query.
+    neighbours: (N, k) int64 indices of each point's neighbours (the finest geometric level's; with_self: the
+    point itself belongs to its neighbourhood without being listed); when None they are found among
+    ``positions`` (N, 3) with a k-NN query (self included).
     """
     c = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
     n = len(c)
     if neighbours is not None:
-        return _color_std_kernel(c, np.ascontiguousarray(neighbours, dtype=np.int64))
+        return _color_std_kernel(c, np.ascontiguousarray(neighbours, dtype=np.int64), bool(with_self))
     out = np.empty(n, dtype=np.float32)
     tree = None if neighbours is not None else cKDTree(np.asarray(positions, dtype=np.float64))
     for start in range(0, n, chunk_size):
@@ -53,17 +55,23 @@ def color_variance(
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _color_std_kernel(c: np.ndarray, neighbours: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """Per row of ``neighbours``: the population std of ``c`` (N, 3) over those rows, averaged over channels."""
-    n, k = neighbours.shape
+def _color_std_kernel(c: np.ndarray, neighbours: np.ndarray, with_self: bool) -> np.ndarray:  # pragma: no cover
+    """Per row of ``neighbours`` (plus row i itself when ``with_self``): the population std of ``c`` (N, 3) over
+    those rows, averaged over channels."""
+    n, m = neighbours.shape
+    k = m + 1 if with_self else m
+    first = -1 if with_self else 0
     out = np.empty(n, dtype=np.float32)
     for i in numba.prange(n):
         acc = 0.0
         for ch in range(3):
             s = 0.0
             s2 = 0.0
-            for j in range(k):
-                v = c[neighbours[i, j], ch]
+            for j in range(first, m):
+                t = np.int64(i)
+                if j >= 0:
+                    t = neighbours[i, j]
+                v = c[t, ch]
                 s += v
                 s2 += v * v
             mean = s / k

@@ -2,7 +2,9 @@
 
 The cloud keeps its positions, colours and normals and gains ``classification`` (uint8 class code),
 ``probability`` (float32, of that class) and ``needs_splats`` (uint8 0/1). classify/report.json records the
-model, the classes, the point spacing (the masks stage uses it) and the counts per class.
+model, the classes, the point spacing (the masks stage uses it), the counts per class and the model's feature
+importances. The report shows classify/figures/classes.png (the cloud coloured by class) and, with a model,
+classify/figures/importances.png.
 """
 
 from __future__ import annotations
@@ -47,10 +49,17 @@ class ClassifyStage(Stage):
         return paths + ([model] if model is not None and model.is_file() else [])
 
     def outputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.classified_points, ctx.layout.classify_report]
+        paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.classes_figure]
+        return paths + ([ctx.layout.importances_figure] if self._has_model(ctx) else [])
+
+    def _has_model(self, ctx: StageContext) -> bool:
+        from classify.run import resolve_model_path
+
+        model = resolve_model_path(ctx.options(self).model)
+        return model is not None and model.is_file()
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from classify.run import classify_dense, write_classified
+        from classify.run import classify_dense, write_classified, write_classify_figures
         from core.io.json_io import write_json_atomic
 
         opts: ClassifyStageOptions = ctx.options(self)
@@ -60,7 +69,11 @@ class ClassifyStage(Stage):
         write_classified(ctx.layout.classified_points, result)
         report = result.report()
         write_json_atomic(ctx.layout.classify_report, report)
-        return {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
+        importances = ctx.layout.importances_figure if self._has_model(ctx) else None
+        figures = write_classify_figures(result, ctx.layout.classes_figure, importances)
+        counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
+        counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
+        return counts
 
     def summary(self, counts: dict[str, Any]) -> str:
         share = counts["needs_splats"] / max(counts["points"], 1)

@@ -21,16 +21,20 @@ class MasksStageOptions:
     """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
 
     footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
-    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px).
-    holes: add MVS holes (True). hole_area: hull | below | enclosed (hull).
+    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the
+    dilation in point spacings at the photo's median depth when larger (3).
+    holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
+    explained_by: seen | all (seen): which points explain pixels when looking for holes.
     """
 
     footprint: float = 1.5
     hole_footprint: float = 2.5
     close_px: int = 3
     dilate_px: int = 2
+    dilate_spacings: float = 3.0
     holes: bool = True
-    hole_area: str = "hull"
+    hole_area: str = "hull_below"
+    explained_by: str = "seen"
 
     def mask_options(self) -> MaskOptions:
         return MaskOptions(
@@ -38,8 +42,10 @@ class MasksStageOptions:
             hole_footprint=self.hole_footprint,
             close_px=self.close_px,
             dilate_px=self.dilate_px,
+            dilate_spacings=self.dilate_spacings,
             holes=self.holes,
             hole_area=self.hole_area,
+            explained_by=self.explained_by,
         )
 
     def __post_init__(self) -> None:
@@ -58,6 +64,7 @@ class MasksStage(Stage):
         return paths
 
     def outputs(self, ctx: StageContext) -> list[Path]:
+        # The figure is not listed: it is absent when every mask is empty (the record says whether it exists).
         return [ctx.layout.masks_dir, ctx.layout.record(self.name)]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
@@ -65,6 +72,7 @@ class MasksStage(Stage):
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from classify.run import project_masks
+        from core.io.atomic import remove_output
         from core.io.json_io import write_json_atomic
 
         opts: MasksStageOptions = ctx.options(self)
@@ -78,9 +86,16 @@ class MasksStage(Stage):
             user_mask_dir=user,
             held_out=set(ctx.source.holdout_names),
             progress=ctx.progress,
+            figure=ctx.layout.masks_figure,
+            image_dir=ctx.source.image_dir,
+            dense_dir=ctx.layout.dense,
         )
         write_json_atomic(ctx.layout.record(self.name), result)
-        return {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
+        if not result["figure"]:
+            remove_output(ctx.layout.masks_figure)  # a figure of an earlier run would be stale
+        counts = {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
+        counts["figures"] = [str(ctx.layout.masks_figure.relative_to(ctx.layout.root))] if result["figure"] else []
+        return counts
 
     def summary(self, counts: dict[str, Any]) -> str:
         if not counts["training_needed"]:
