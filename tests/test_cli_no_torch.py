@@ -1,0 +1,298 @@
+"""Bad input to a command that uses torch is refused before torch is imported (issue 12: every case < 5 s).
+
+Each case runs the real CLI (``python -m hybridsplat``) in a subprocess through a small wrapper that records,
+when the interpreter exits, the names in ``sys.modules``. A case passes only when the command exits 2 with one
+line ``hybridsplat: error: ...`` naming the bad file, no traceback, AND the recorded module list exists, holds
+``hybridsplat.cli`` (the command really ran) and does not hold ``torch``. A positive control (valid input
+whose command does compute with torch) shows that the recording sees torch when it is imported.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fuzz.cases import colmap_model, gaussian_ply, image_pair, png, truncate
+from fuzz.harness import REPO
+
+#: Runs ``python -m hybridsplat ARGS`` and writes the sorted ``sys.modules`` names to $HS_MODULES_OUT at exit.
+_WRAPPER = textwrap.dedent(
+    """
+    import atexit, json, os, runpy, sys
+
+    def _record():
+        with open(os.environ["HS_MODULES_OUT"], "w") as f:
+            json.dump(sorted(sys.modules), f)
+
+    atexit.register(_record)
+    sys.argv[0] = "hybridsplat"
+    runpy.run_module("hybridsplat", run_name="__main__", alter_sys=True)
+    """
+)
+
+
+def _run(argv: list[str], tmp_path: Path) -> tuple[int, str, set[str]]:
+    """(exit status, stderr, names of the modules imported by the end) of the CLI run in a subprocess."""
+    record = tmp_path / "modules.json"
+    record.unlink(missing_ok=True)
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(REPO),
+        "HS_MODULES_OUT": str(record),
+        "OMP_WAIT_POLICY": "PASSIVE",
+        "OMP_NUM_THREADS": "1",
+    }
+    env.pop("HYBRIDSPLAT_LPIPS_WEIGHTS", None)
+    proc = subprocess.run(
+        [sys.executable, "-c", _WRAPPER, *map(str, argv)],
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert record.is_file(), f"the module list was not written (exit {proc.returncode}):\n{proc.stderr}"
+    modules = set(json.loads(record.read_text()))
+    assert "hybridsplat.cli" in modules, "the CLI did not run"
+    return proc.returncode, proc.stderr, modules
+
+
+def _torch_modules(modules: set[str]) -> list[str]:
+    return sorted(m for m in modules if m == "torch" or m.startswith("torch."))
+
+
+def _lpips_weights(path: Path, seed: int = 0) -> Path:
+    """Random weights with the shapes of LPIPS v0.1 / AlexNet (accepted by eval.lpips.read_weights)."""
+    rng = np.random.default_rng(seed)
+    arrays, cin = {}, 3
+    for key, ch, k in (("features.0", 64, 11), ("features.3", 192, 5), ("features.6", 384, 3),
+                       ("features.8", 256, 3), ("features.10", 256, 3)):  # fmt: skip
+        arrays[f"{key}.weight"] = rng.normal(0, 0.05, (ch, cin, k, k)).astype(np.float32)
+        arrays[f"{key}.bias"] = np.zeros(ch, np.float32)
+        cin = ch
+    for i, ch in enumerate((64, 192, 384, 256, 256)):
+        arrays[f"lin{i}.model.1.weight"] = np.abs(rng.normal(0, 0.1, (1, ch, 1, 1))).astype(np.float32)
+    np.savez(path, **arrays)
+    return path
+
+
+# -- the malformed inputs: each builds its files in a folder and returns (argv, the file the error names) ------
+def _eval_images_truncated_photo(d: Path) -> tuple[list, str]:
+    renders, photos = image_pair(d)
+    truncate(photos / "v0.png", (photos / "v0.png").stat().st_size // 2)
+    return ["eval", "images", renders, photos, "--no-lpips", "--json", d / "out.json"], "v0.png"
+
+
+def _eval_images_truncated_photo_with_lpips(d: Path) -> tuple[list, str]:
+    """Good LPIPS weights, bad photo: the images are read before the LPIPS network is built in torch."""
+    renders, photos = image_pair(d)
+    truncate(photos / "v0.png", (photos / "v0.png").stat().st_size // 2)
+    w = _lpips_weights(d / "lpips.npz")
+    return ["eval", "images", renders, photos, "--lpips-weights", w, "--json", d / "out.json"], "v0.png"
+
+
+def _eval_images_mask_wrong_size(d: Path) -> tuple[list, str]:
+    renders, photos = image_pair(d)
+    png(d / "masks" / "v0.png", h=10, w=10)
+    w = _lpips_weights(d / "lpips.npz")
+    argv = ["eval", "images", renders, photos, "--masks", d / "masks", "--lpips-weights", w]
+    return argv, "v0.png"
+
+
+def _eval_images_truncated_weights(d: Path) -> tuple[list, str]:
+    renders, photos = image_pair(d)
+    w = _lpips_weights(d / "lpips.npz")
+    truncate(w, w.stat().st_size // 2)
+    return ["eval", "images", renders, photos, "--lpips-weights", w, "--json", d / "out.json"], "lpips.npz"
+
+
+def _eval_images_nan_weights(d: Path) -> tuple[list, str]:
+    renders, photos = image_pair(d)
+    w = _lpips_weights(d / "lpips.npz")
+    with np.load(w) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["features.3.bias"][7] = np.nan
+    np.savez(w, **arrays)
+    return ["eval", "images", renders, photos, "--lpips-weights", w], "lpips.npz"
+
+
+def _eval_render_truncated_gaussians(d: Path) -> tuple[list, str]:
+    model = colmap_model(d / "sparse")
+    gs = gaussian_ply(d / "g.ply")
+    truncate(gs, gs.stat().st_size - 7)
+    return ["eval", "render", gs, model, d, "--no-lpips"], "g.ply"
+
+
+def _eval_render_truncated_cameras(d: Path) -> tuple[list, str]:
+    model = colmap_model(d / "sparse")
+    gs = gaussian_ply(d / "g.ply")
+    truncate(model / "cameras.bin", (model / "cameras.bin").stat().st_size - 1)
+    return ["eval", "render", gs, model, d, "--no-lpips"], "cameras.bin"
+
+
+def _eval_render_bad_weights(d: Path) -> tuple[list, str]:
+    """Good splats and cameras, a photo for each view, bad weights: refused before rendering (torch)."""
+    import pycolmap
+
+    model = colmap_model(d / "sparse")
+    for image in pycolmap.Reconstruction(str(model)).images.values():
+        png(d / "photos" / image.name, h=48, w=64)
+    gs = gaussian_ply(d / "g.ply")
+    w = d / "lpips.npz"
+    w.write_bytes(b"PK\x03\x04" + bytes(100))
+    return ["eval", "render", gs, model, d / "photos", "--lpips-weights", w], "lpips.npz"
+
+
+def _render_unknown_camera_model(d: Path) -> tuple[list, str]:
+    import struct
+
+    model = colmap_model(d / "sparse")
+    data = bytearray((model / "cameras.bin").read_bytes())
+    struct.pack_into("<i", data, 8 + 4, 99)
+    (model / "cameras.bin").write_bytes(bytes(data))
+    return ["render", gaussian_ply(d / "g.ply"), "--cameras", model, "--out", d / "renders"], "cameras.bin"
+
+
+def _render_inf_scale(d: Path) -> tuple[list, str]:
+    import plyfile
+
+    gs = gaussian_ply(d / "g.ply")
+    ply = plyfile.PlyData.read(str(gs), mmap=False)
+    ply["vertex"].data["scale_0"][3] = np.inf
+    ply.write(str(gs))
+    return ["render", gs, "--cameras", colmap_model(d / "sparse"), "--out", d / "renders"], "g.ply"
+
+
+def _report_metrics_wrong_types(d: Path) -> tuple[list, str]:
+    (d / "project" / "eval").mkdir(parents=True)
+    (d / "project" / "eval" / "metrics.json").write_text('{"products": {"mvs": {"c2c": {"mean": "big"}}}}')
+    return ["report", d / "project"], "metrics.json"
+
+
+def _project(d: Path) -> Path:
+    """A project folder as `hybridsplat run` leaves it after sfm: config.toml, photos, sparse/ (2 cameras, 4 images)."""
+    import pycolmap
+
+    from hybridsplat.config import InputOptions, ProjectConfig
+
+    project = d / "project"
+    model = colmap_model(project / "sparse")
+    for image in pycolmap.Reconstruction(str(model)).images.values():
+        png(d / "photos" / image.name, h=48, w=64)
+    config = ProjectConfig(input=InputOptions(path=str(d / "photos"), holdout=0))
+    (project / "config.toml").write_text(config.to_toml())
+    return project
+
+
+def _mvs_truncated_images_bin(d: Path) -> tuple[list, str]:
+    project = _project(d)
+    images = project / "sparse" / "images.bin"
+    truncate(images, images.stat().st_size // 2)
+    return ["mvs", project, "--backend", "cpu"], "images.bin"
+
+
+def _train_bad_config(d: Path) -> tuple[list, str]:
+    project = _project(d)
+    config = project / "config.toml"
+    config.write_text(config.read_text() + "\n[train]\niterations = 'many'\n")
+    return ["train", project], "config.toml"
+
+
+def _train_missing_dense(d: Path) -> tuple[list, str]:
+    """After sfm only: the train stage's inputs (dense workspace, masks, MVS Gaussians) do not exist."""
+    project = _project(d)
+    return ["train", project], str(project)
+
+
+def _view_truncated_ply(d: Path) -> tuple[list, str]:
+    gs = gaussian_ply(d / "g.ply")
+    truncate(gs, gs.stat().st_size // 2)
+    return ["view", gs, "--port", "0", "--seconds", "0.1"], "g.ply"
+
+
+CASES = {
+    "eval-images-truncated-photo": _eval_images_truncated_photo,
+    "eval-images-truncated-photo-with-lpips": _eval_images_truncated_photo_with_lpips,
+    "eval-images-mask-wrong-size": _eval_images_mask_wrong_size,
+    "eval-images-truncated-weights": _eval_images_truncated_weights,
+    "eval-images-nan-weights": _eval_images_nan_weights,
+    "eval-render-truncated-gaussians": _eval_render_truncated_gaussians,
+    "eval-render-truncated-cameras": _eval_render_truncated_cameras,
+    "eval-render-bad-weights": _eval_render_bad_weights,
+    "render-unknown-camera-model": _render_unknown_camera_model,
+    "render-inf-scale": _render_inf_scale,
+    "report-metrics-wrong-types": _report_metrics_wrong_types,
+    "mvs-truncated-images-bin": _mvs_truncated_images_bin,
+    "train-bad-config": _train_bad_config,
+    "train-missing-dense": _train_missing_dense,
+    "view-truncated-ply": _view_truncated_ply,
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input_is_refused_before_torch_is_imported(name: str, tmp_path: Path) -> None:
+    argv, culprit = CASES[name](tmp_path)
+    code, err, modules = _run(argv, tmp_path)
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert "Traceback" not in err and "internal error" not in err, err
+    assert code == 2, f"exit {code}:\n{err}"
+    assert len(lines) == 1 and lines[0].startswith("hybridsplat: error: ") and culprit in lines[0], err
+    assert _torch_modules(modules) == [], f"torch was imported before the bad input was found:\n{err}"
+
+
+def test_the_module_record_sees_torch_when_a_command_computes_with_it(tmp_path: Path) -> None:
+    """Positive control: valid renders, photos and LPIPS weights → exit 0, LPIPS computed in torch."""
+    renders, photos = image_pair(tmp_path)
+    out = tmp_path / "out.json"
+    code, err, modules = _run(
+        ["eval", "images", renders, photos, "--lpips-weights", _lpips_weights(tmp_path / "w.npz"), "--json", out],
+        tmp_path,
+    )
+    assert code == 0, err
+    lpips = json.loads(out.read_text())["full"]["mean"]["lpips"]
+    assert lpips is not None and np.isfinite(lpips) and lpips > 0
+    assert "torch" in modules and "eval.lpips" in modules
+
+
+@pytest.mark.parametrize(
+    ("code", "heavy"),
+    [
+        ("import hybridsplat.cli", ("torch", "open3d")),
+        ("from hybridsplat.pipeline import STAGE_OPTIONS, load_config", ("torch", "open3d")),
+        ("from hybridsplat.stages import STAGES", ("torch", "open3d")),
+        ("import eval.lpips", ("torch",)),
+    ],
+    ids=["cli", "pipeline", "stages", "eval.lpips"],
+)
+def test_imports_do_not_load_torch(code: str, heavy: tuple[str, ...]) -> None:
+    """The CLI, the pipeline with every stage module, and eval.lpips import without torch (nor open3d)."""
+    probe = f"{code}\nimport sys\nprint(sorted(m for m in sys.modules if m.split('.')[0] in {heavy!r}))"
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        env={**os.environ, "PYTHONPATH": str(REPO)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    ).stdout
+    assert out.strip() == "[]", out
+
+
+def test_lazy_stage_package_offers_the_same_stages() -> None:
+    """``STAGES`` keeps the pipeline order; :func:`stage_named` returns those same objects, by their names."""
+    import hybridsplat.stages as stages
+
+    names = [s.name for s in stages.STAGES]
+    assert names == ["sfm", "mvs", "classify", "masks", "convert", "train", "clean", "merge", "mesh", "eval", "report"]
+    for stage in stages.STAGES:
+        assert stages.stage_named(stage.name) is stage
+        assert getattr(stages, type(stage).__name__) is type(stage)
+    with pytest.raises(KeyError):
+        stages.stage_named("frobnicate")
