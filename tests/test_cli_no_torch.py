@@ -1,10 +1,11 @@
 """Bad input to a command that uses torch is refused before torch is imported (issue 12: every case < 5 s).
 
 Each case runs the real CLI (``python -m hybridsplat``) in a subprocess through a small wrapper that records,
-when the interpreter exits, the names in ``sys.modules``. A case passes only when the command exits 2 with one
-line ``hybridsplat: error: ...`` naming the bad file, no traceback, AND the recorded module list exists, holds
-``hybridsplat.cli`` (the command really ran) and does not hold ``torch``. A positive control (valid input
-whose command does compute with torch) shows that the recording sees torch when it is imported.
+when the interpreter exits, the names in ``sys.modules`` (``MODULE_RECORDER`` in ``tests/fuzz/harness.py``).
+A case passes only when the command exits 2 with one line ``hybridsplat: error: ...`` naming the bad file, no
+traceback, AND the recorded module list exists, holds ``hybridsplat.cli`` (the command really ran) and does
+not hold ``torch``. A positive control (valid input whose command does compute with torch) shows that the
+recording sees torch when it is imported.
 """
 
 from __future__ import annotations
@@ -13,58 +14,26 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fuzz.cases import colmap_model, gaussian_ply, image_pair, png, truncate
-from fuzz.harness import REPO
-
-#: Runs ``python -m hybridsplat ARGS`` and writes the sorted ``sys.modules`` names to $HS_MODULES_OUT at exit.
-_WRAPPER = textwrap.dedent(
-    """
-    import atexit, json, os, runpy, sys
-
-    def _record():
-        with open(os.environ["HS_MODULES_OUT"], "w") as f:
-            json.dump(sorted(sys.modules), f)
-
-    atexit.register(_record)
-    sys.argv[0] = "hybridsplat"
-    runpy.run_module("hybridsplat", run_name="__main__", alter_sys=True)
-    """
-)
+from fuzz.harness import REPO, read_modules, run_cli
 
 
-def _run(argv: list[str], tmp_path: Path) -> tuple[int, str, set[str]]:
+def _run(argv: list, tmp_path: Path) -> tuple[int, str, frozenset[str]]:
     """(exit status, stderr, names of the modules imported by the end) of the CLI run in a subprocess."""
     record = tmp_path / "modules.json"
-    record.unlink(missing_ok=True)
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(REPO),
-        "HS_MODULES_OUT": str(record),
-        "OMP_WAIT_POLICY": "PASSIVE",
-        "OMP_NUM_THREADS": "1",
-    }
-    env.pop("HYBRIDSPLAT_LPIPS_WEIGHTS", None)
-    proc = subprocess.run(
-        [sys.executable, "-c", _WRAPPER, *map(str, argv)],
-        cwd=tmp_path,
-        env=env,
-        stdin=subprocess.DEVNULL,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert record.is_file(), f"the module list was not written (exit {proc.returncode}):\n{proc.stderr}"
-    modules = set(json.loads(record.read_text()))
+    code, _out, err, _seconds, _peak = run_cli([str(a) for a in argv], tmp_path, timeout=120, record_modules=record)
+    modules = read_modules(record)
+    assert modules is not None, f"the module list was not written (exit {code}):\n{err}"
     assert "hybridsplat.cli" in modules, "the CLI did not run"
-    return proc.returncode, proc.stderr, modules
+    assert code is not None, "killed at the time limit"
+    return code, err, modules
 
 
-def _torch_modules(modules: set[str]) -> list[str]:
+def _torch_modules(modules: frozenset[str]) -> list[str]:
     return sorted(m for m in modules if m == "torch" or m.startswith("torch."))
 
 
