@@ -11,7 +11,7 @@ heavy libraries (torch, open3d, numba, ...) it had imported when it exited; a su
 case among those that imported torch. ``HYBRIDSPLAT_FUZZ_REPO=/path/to/checkout`` runs another checkout's CLI
 (e.g. main, for a before/after comparison) on the same cases.
 
-Usage: ``PYTHONPATH=. python bench/bench_fuzz.py [--only GLOB] [--repeat-baseline 3] [--modules]``
+Usage: ``PYTHONPATH=. python bench/bench_fuzz.py [--only GLOB[,GLOB...]] [--repeat-baseline 3] [--modules]``
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def load() -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", default="*", help="run only the cases whose name matches this glob")
+    parser.add_argument("--only", default="*", help="run only the cases whose name matches one of these globs (a,b)")
     parser.add_argument("--repeat-baseline", type=int, default=3)
     parser.add_argument("--modules", action="store_true", help="record the heavy libraries each case imports")
     args = parser.parse_args()
@@ -58,7 +58,7 @@ def main() -> None:
         )
         outcomes = []
         for case in all_cases():
-            if not fnmatch.fnmatch(case.name, args.only):
+            if not any(fnmatch.fnmatch(case.name, glob) for glob in args.only.split(",")):
                 continue
             o = run_case(case, root / case.name, record_modules=args.modules)
             outcomes.append(o)

@@ -237,8 +237,9 @@ def test_the_module_record_sees_torch_when_a_command_computes_with_it(tmp_path: 
         ("from hybridsplat.pipeline import STAGE_OPTIONS, load_config", ("torch", "open3d")),
         ("from hybridsplat.stages import STAGES", ("torch", "open3d")),
         ("import eval.lpips", ("torch",)),
+        ("import fusion.render, fusion.train, fusion.train.init", ("torch",)),
     ],
-    ids=["cli", "pipeline", "stages", "eval.lpips"],
+    ids=["cli", "pipeline", "stages", "eval.lpips", "fusion-packages"],
 )
 def test_imports_do_not_load_torch(code: str, heavy: tuple[str, ...]) -> None:
     """The CLI, the pipeline with every stage module, and eval.lpips import without torch (nor open3d)."""
@@ -265,3 +266,19 @@ def test_lazy_stage_package_offers_the_same_stages() -> None:
         assert getattr(stages, type(stage).__name__) is type(stage)
     with pytest.raises(KeyError):
         stages.stage_named("frobnicate")
+
+
+@pytest.mark.parametrize("package", ["fusion.render", "fusion.train", "hybridsplat.stages"])
+def test_lazy_packages_resolve_every_exported_name(package: str) -> None:
+    """Each name of ``__all__`` resolves, to the object its defining submodule holds; unknown names still fail."""
+    import importlib
+
+    module = importlib.import_module(package)
+    for name in module.__all__:
+        value = getattr(module, name)
+        assert value is not None
+        origin = getattr(value, "__module__", None)
+        if origin is not None and origin.startswith(package + "."):
+            assert getattr(importlib.import_module(origin), name) is value
+    with pytest.raises(AttributeError):
+        module.no_such_name  # noqa: B018
