@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fuzz.cases import colmap_model, gaussian_ply, image_pair, png, truncate
+from fuzz.cases import cloud_ply, colmap_model, gaussian_ply, image_pair, png, truncate
 from fuzz.harness import REPO, read_modules, run_cli
 
 
@@ -150,34 +150,44 @@ def _project(d: Path) -> Path:
     import pycolmap
 
     from hybridsplat.config import InputOptions, ProjectConfig
+    from hybridsplat.layout import ProjectLayout
 
-    project = d / "project"
-    model = colmap_model(project / "sparse")
+    layout = ProjectLayout(d / "project")
+    model = colmap_model(layout.sparse)
     for image in pycolmap.Reconstruction(str(model)).images.values():
         png(d / "photos" / image.name, h=48, w=64)
     config = ProjectConfig(input=InputOptions(path=str(d / "photos"), holdout=0))
-    (project / "config.toml").write_text(config.to_toml())
-    return project
+    layout.config.write_text(config.to_toml())
+    return layout.root
 
 
 def _mvs_truncated_images_bin(d: Path) -> tuple[list, str]:
+    from hybridsplat.layout import ProjectLayout
+
     project = _project(d)
-    images = project / "sparse" / "images.bin"
+    images = ProjectLayout(project).sparse / "images.bin"
     truncate(images, images.stat().st_size // 2)
     return ["mvs", project, "--backend", "cpu"], "images.bin"
 
 
 def _train_bad_config(d: Path) -> tuple[list, str]:
-    project = _project(d)
-    config = project / "config.toml"
+    from hybridsplat.layout import ProjectLayout
+
+    config = ProjectLayout(_project(d)).config
     config.write_text(config.read_text() + "\n[train]\niterations = 'many'\n")
-    return ["train", project], "config.toml"
+    return ["train", config.parent], config.name
 
 
-def _train_missing_dense(d: Path) -> tuple[list, str]:
-    """After sfm only: the train stage's inputs (dense workspace, masks, MVS Gaussians) do not exist."""
-    project = _project(d)
-    return ["train", project], str(project)
+def _train_truncated_dense_cameras(d: Path) -> tuple[list, str]:
+    """A classified cloud and a region mask exist (training is due), the dense model's cameras.bin is cut."""
+    from hybridsplat.layout import ProjectLayout
+
+    layout = ProjectLayout(_project(d))
+    cloud_ply(layout.classified_points)
+    png(layout.masks_dir / "mask.png", h=48, w=64)
+    dense_model = colmap_model(layout.dense_workspace.sparse)
+    truncate(dense_model / "cameras.bin", (dense_model / "cameras.bin").stat().st_size - 1)
+    return ["train", layout.root], "cameras.bin"
 
 
 def _view_truncated_ply(d: Path) -> tuple[list, str]:
@@ -200,7 +210,7 @@ CASES = {
     "report-metrics-wrong-types": _report_metrics_wrong_types,
     "mvs-truncated-images-bin": _mvs_truncated_images_bin,
     "train-bad-config": _train_bad_config,
-    "train-missing-dense": _train_missing_dense,
+    "train-truncated-dense-cameras": _train_truncated_dense_cameras,
     "view-truncated-ply": _view_truncated_ply,
 }
 
@@ -225,7 +235,7 @@ def test_the_module_record_sees_torch_when_a_command_computes_with_it(tmp_path: 
         tmp_path,
     )
     assert code == 0, err
-    lpips = json.loads(out.read_text())["full"]["mean"]["lpips"]
+    lpips = json.loads(out.read_text())["per_view"][0]["full"]["lpips"]
     assert lpips is not None and np.isfinite(lpips) and lpips > 0
     assert "torch" in modules and "eval.lpips" in modules
 
@@ -241,11 +251,14 @@ def test_the_module_record_sees_torch_when_a_command_computes_with_it(tmp_path: 
     ],
     ids=["cli", "pipeline", "stages", "eval.lpips", "fusion-packages"],
 )
-def test_imports_do_not_load_torch(code: str, heavy: tuple[str, ...]) -> None:
-    """The CLI, the pipeline with every stage module, and eval.lpips import without torch (nor open3d)."""
-    probe = f"{code}\nimport sys\nprint(sorted(m for m in sys.modules if m.split('.')[0] in {heavy!r}))"
+def test_imports_do_not_load_torch(code: str, heavy: tuple[str, ...], tmp_path: Path) -> None:
+    """The CLI, the pipeline with every stage module, and eval.lpips import without torch (nor open3d).
+
+    Run in an empty folder: ``python -c`` puts the working directory first on ``sys.path``."""
+    probe = f"{code}\nimport sys\nprint(sorted({{m.split('.')[0] for m in sys.modules}} & set({heavy!r})))"
     out = subprocess.run(
         [sys.executable, "-c", probe],
+        cwd=tmp_path,
         env={**os.environ, "PYTHONPATH": str(REPO)},
         capture_output=True,
         text=True,
