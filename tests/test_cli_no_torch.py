@@ -190,6 +190,13 @@ def _train_truncated_dense_cameras(d: Path) -> tuple[list, str]:
     return ["train", layout.root], "cameras.bin"
 
 
+def _run_photo_folder_without_photos(d: Path) -> tuple[list, str]:
+    """`run` on a folder that holds no photo: refused before any stage (or torch) is loaded; nothing written."""
+    (d / "photos").mkdir()
+    (d / "photos" / "notes.txt").write_text("no photos here")
+    return ["run", d / "photos", "--out", d / "project"], "photos"
+
+
 def _view_truncated_ply(d: Path) -> tuple[list, str]:
     gs = gaussian_ply(d / "g.ply")
     truncate(gs, gs.stat().st_size // 2)
@@ -211,6 +218,7 @@ CASES = {
     "mvs-truncated-images-bin": _mvs_truncated_images_bin,
     "train-bad-config": _train_bad_config,
     "train-truncated-dense-cameras": _train_truncated_dense_cameras,
+    "run-folder-without-photos": _run_photo_folder_without_photos,
     "view-truncated-ply": _view_truncated_ply,
 }
 
@@ -219,10 +227,10 @@ CASES = {
 def test_bad_input_is_refused_before_torch_is_imported(name: str, tmp_path: Path) -> None:
     argv, culprit = CASES[name](tmp_path)
     code, err, modules = _run(argv, tmp_path)
-    lines = [line for line in err.strip().splitlines() if line.strip()]
+    errors = [line for line in err.splitlines() if line.startswith("hybridsplat: error: ")]
     assert "Traceback" not in err and "internal error" not in err, err
     assert code == 2, f"exit {code}:\n{err}"
-    assert len(lines) == 1 and lines[0].startswith("hybridsplat: error: ") and culprit in lines[0], err
+    assert len(errors) == 1 and culprit in errors[0], err  # (`run` prints its "INPUT -> PROJECT" line first)
     assert _torch_modules(modules) == [], f"torch was imported before the bad input was found:\n{err}"
 
 
