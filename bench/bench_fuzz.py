@@ -46,7 +46,8 @@ def main() -> None:
     args = parser.parse_args()
     root = Path(tempfile.mkdtemp(prefix="bench_fuzz_"))
     try:
-        base = [run_cli(["--version"], root) for _ in range(args.repeat_baseline)]
+        record = root / ".baseline.modules.json" if args.modules else None  # same wrapper as the cases
+        base = [run_cli(["--version"], root, record_modules=record) for _ in range(args.repeat_baseline)]
         base_s = min(b[3] for b in base)
         base_mb = max(b[4] for b in base)
         print(f"CLI of {REPO}")
