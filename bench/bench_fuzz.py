@@ -1,10 +1,12 @@
 """Time and peak memory of every malformed-input case of ``tests/fuzz`` through the CLI.
 
 Each case runs ``python -m hybridsplat ...`` in a subprocess (60 s, 2 GB address space, as the tests).
-Peak memory is the child's own peak RSS (``wait4``) minus the baseline: the peak RSS of
-``hybridsplat --version``, which imports the same command modules. Targets: every case < 5 s and
-< 500 MB above the baseline. Prints one row per case, then the verdict counts (clean, traceback,
-silent success, output left behind, unclear) and the slowest and largest cases, with ``uptime``'s load.
+Peak memory is the child's peak RSS minus the baseline: the peak RSS of ``hybridsplat --version``, which
+imports the same command modules. Without ``--modules`` the peak is ``wait4``'s ``ru_maxrss``, which also
+counts the copy of this (growing) process made by ``fork``; with ``--modules`` it is the child's own VmHWM.
+Targets: every case < 5 s and < 500 MB above the baseline. Prints one row per case, then the verdict counts
+(clean, traceback, silent success, output left behind, unclear) and the slowest and largest cases, with
+``uptime``'s load.
 
 With ``--modules`` each case runs through ``MODULE_RECORDER`` (tests/fuzz/harness.py) and a column names the
 heavy libraries (torch, open3d, numba, ...) it had imported when it exited; a summary line gives the slowest

@@ -34,15 +34,23 @@ REPO = Path(os.environ.get("HYBRIDSPLAT_FUZZ_REPO") or Path(__file__).resolve().
 #: Heavy libraries whose import :func:`heavy_imports` reports (a bad input should be refused before them).
 HEAVY = ("torch", "open3d", "numba", "sklearn", "pycolmap", "cv2")
 
-#: ``python -c`` program equal to ``python -m hybridsplat ARGS`` that also writes the sorted names in
-#: ``sys.modules`` as JSON to the file named by $HYBRIDSPLAT_MODULES_OUT when the interpreter exits.
+#: ``python -c`` program equal to ``python -m hybridsplat ARGS`` that also writes, when the interpreter exits,
+#: JSON ``{"modules": sorted names in sys.modules, "vm_hwm_kb": VmHWM of /proc/self/status}`` to the file
+#: named by $HYBRIDSPLAT_MODULES_OUT. VmHWM is the peak RSS of the process's own address space: unlike
+#: ``wait4``'s ``ru_maxrss`` it does not count the copy of the (possibly large) parent made by ``fork``.
 MODULE_RECORDER = textwrap.dedent(
     """
     import atexit, json, os, runpy, sys
 
     def _record():
+        hwm = None
+        try:
+            with open("/proc/self/status") as status:
+                hwm = next((int(line.split()[1]) for line in status if line.startswith("VmHWM:")), None)
+        except OSError:
+            pass
         with open(os.environ["HYBRIDSPLAT_MODULES_OUT"], "w") as f:
-            json.dump(sorted(sys.modules), f)
+            json.dump({"modules": sorted(sys.modules), "vm_hwm_kb": hwm}, f)
 
     atexit.register(_record)
     sys.argv[0] = "hybridsplat"
@@ -59,7 +67,7 @@ class Outcome:
     code: int | None
     stderr: str
     seconds: float
-    peak_rss_mb: float
+    peak_rss_mb: float  # VmHWM when the run was recorded (see MODULE_RECORDER), else wait4's ru_maxrss
     leftovers: tuple[str, ...]
     verdict: str
     invocation: Invocation
@@ -72,12 +80,18 @@ def heavy_imports(modules: frozenset[str] | set[str]) -> list[str]:
     return [lib for lib in HEAVY if lib in tops]
 
 
+def _read_record(record: Path) -> dict:
+    try:
+        data = json.loads(record.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
 def read_modules(record: Path) -> frozenset[str] | None:
     """The module names written by :data:`MODULE_RECORDER`, or None when nothing was written."""
-    try:
-        return frozenset(json.loads(record.read_text()))
-    except (OSError, ValueError):
-        return None
+    modules = _read_record(record).get("modules")
+    return frozenset(modules) if isinstance(modules, list) else None
 
 
 def _limits() -> None:  # runs in the child between fork and exec
@@ -89,9 +103,9 @@ def run_cli(
 ) -> tuple[int | None, str, str, float, float]:
     """(exit status, or None when killed at the time limit; stdout; stderr; seconds; the child's peak RSS in MiB).
 
-    The child is reaped with ``os.wait4`` so that its own peak resident memory is known. With
-    ``record_modules``, the CLI runs through :data:`MODULE_RECORDER`, which writes the imported module names
-    there at exit (read them with :func:`read_modules`).
+    The child is reaped with ``os.wait4`` so that its peak resident memory is known. With ``record_modules``,
+    the CLI runs through :data:`MODULE_RECORDER`, which writes the imported module names there at exit (read
+    them with :func:`read_modules`), and the peak is the child's own VmHWM when it recorded one.
     """
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_WAIT_POLICY": "PASSIVE", "OMP_NUM_THREADS": "1"}
     env.pop("HYBRIDSPLAT_LPIPS_WEIGHTS", None)
@@ -126,6 +140,8 @@ def run_cli(
                 break
             time.sleep(0.01)
         proc.returncode = -1 if code is None else code  # reaped here; keep Popen from waiting again
+        if record_modules is not None and isinstance(hwm := _read_record(record_modules).get("vm_hwm_kb"), int):
+            peak = hwm / 1024
         seconds = time.perf_counter() - start
         out.seek(0)
         err.seek(0)
