@@ -325,7 +325,7 @@ def demo_section(scene: Path, project: Path) -> dict:
     vp = viewpoints(project, merged.origin)
     before = load()
     t = time.perf_counter()
-    budget = 2_000  # the demo's budget (hybridsplat.commands.run.DEMO_MESH_BUDGET)
+    budget = 2_000  # the demo's budget (hybridsplat.commands.run.DEMO_STAGES)
     r = mesh_from_gaussians(merged, MeshOptions(budget=budget), snapshots=load_snapshots(project), viewpoints=vp)
     sec = time.perf_counter() - t
     print(

@@ -11,7 +11,18 @@
     material) until the classify stage exists; MVS Gaussians of trusted points frozen as context; seeds; masked
     training; cleaning; merge. Then the whole-scene baseline (same trainer, mask = whole image, no context, SfM
     init, same cap) and the held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole
-    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load.
+    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load. Options:
+    ``--depth-prior/--normal-prior/--prior-border`` (fusion.train.priors; 0 0 = off), ``--hard-views``,
+    ``--photometric smoothl1_msssim``; per-material geometry of MVS-only, the splat centres, merged with every splat
+    and the merged survey points (fusion.clean.select_survey_points) is printed and written to geometry.json.
+
+``python bench/bench_train.py geometry --scene SCENE --project PROJECT [--splats L=PLY ...] [--points L=PLY ...]``
+    Where the geometric error comes from, per truth material (the LiDAR's ``material`` field): accuracy (mean
+    distance product → truth, by the nearest truth point's material; splat centres opacity-weighted) and
+    completeness at τ = 3 GSD (truth → product) of MVS-only, the MVS points kept / dropped (``needs_splats`` from the
+    truth, or ``--needs classified`` with the pipeline's masks), the ``needs_splats`` MVS points and splats that
+    pass the survey-point rule at each ``--rim`` limit, and merged products; ``--points`` measures written point
+    clouds (e.g. a project's export/merged_points.ply) as they are.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -141,6 +153,150 @@ def splat_geometry(splats, lidar_world: np.ndarray, material: np.ndarray, non_co
     return {"outside_true_region": int(outside.sum()), "per_material": per}
 
 
+@dataclass(frozen=True)
+class MaterialGeometry:
+    """Geometry of one product on one truth material: accuracy = mean distance (m) product -> truth of the product
+    points whose nearest truth point has this material (weighted when the product has weights), and
+    completeness = share of this material's truth points with a product point within tau."""
+
+    points: int
+    accuracy_mean_m: float
+    accuracy_median_m: float
+    completeness: float
+
+
+def product_geometry(
+    points_world: np.ndarray,
+    weights: np.ndarray | None,
+    truth_world: np.ndarray,
+    truth_material: np.ndarray,
+    tau: float,
+    truth_tree=None,
+) -> dict[int, MaterialGeometry]:
+    """Per truth material (and -1 = all): :class:`MaterialGeometry` of a product (points (N, 3) world, float64)."""
+    from scipy.spatial import cKDTree
+
+    tree = truth_tree if truth_tree is not None else cKDTree(truth_world)
+    out: dict[int, MaterialGeometry] = {}
+    if len(points_world):
+        d, idx = tree.query(points_world, k=1, workers=-1)
+        back, _ = cKDTree(points_world).query(truth_world, k=1, workers=-1, distance_upper_bound=tau)
+    else:
+        d, idx, back = np.zeros(0), np.zeros(0, np.int64), np.full(len(truth_world), np.inf)
+    w = np.ones(len(d)) if weights is None else np.asarray(weights, np.float64)
+    mat = truth_material[idx]
+    for m in [-1, *np.unique(truth_material).tolist()]:
+        sel = np.ones(len(d), bool) if m == -1 else mat == m
+        tsel = np.ones(len(truth_world), bool) if m == -1 else truth_material == m
+        acc = float((d[sel] * w[sel]).sum() / max(w[sel].sum(), 1e-30)) if sel.any() else float("nan")
+        med = float(np.median(d[sel])) if sel.any() else float("nan")
+        out[int(m)] = MaterialGeometry(int(sel.sum()), acc, med, float(np.mean(back[tsel] < tau)))
+    return out
+
+
+def print_geometry(products: dict[str, dict[int, MaterialGeometry]], names: dict[int, str], tau: float) -> None:
+    """One table per measure: rows = products, columns = truth materials."""
+    mats = sorted({m for p in products.values() for m in p})
+    head = "".join(f"{names.get(m, 'all'):>12s}" for m in mats)
+    tables = (
+        ("accuracy mean (mm, product -> truth)", "accuracy_mean_m", 1000, "{:12.2f}"),
+        ("accuracy median (mm)", "accuracy_median_m", 1000, "{:12.2f}"),
+        ("points", "points", 1, "{:12d}"),
+        (f"completeness at tau {tau * 1000:.1f} mm", "completeness", 1, "{:12.3f}"),
+    )
+    for title, key, scale, fmt in tables:
+        print(f"  {title}:\n  {'product':24s}{head}")
+        for name, per in products.items():
+            cells = ""
+            for m in mats:
+                v = getattr(per[m], key) if m in per else float("nan")
+                cells += fmt.format(v * scale if key != "points" else v) if v == v else f"{'-':>12s}"
+            print(f"  {name:24s}{cells}")
+
+
+def bench_geometry(args: argparse.Namespace) -> None:
+    """Step 1 of issue 14's geometry: where the error comes from. MVS points kept / dropped, the trained splats'
+    centres (opacity-weighted), the survey-point selection and the merged point products, per truth material."""
+    from scipy.spatial import cKDTree
+
+    from core.io import read_point_cloud
+    from core.io.colmap import read_model
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.clean import SurveyPointOptions, select_survey_points
+
+    scene, project = Path(args.scene), Path(args.project)
+    meta = json.loads((scene / "scene.json").read_text())
+    names = {int(m["id"]): m["name"] for m in meta["materials"]}
+    tau = args.tau_gsd * meta["gsd_m"]
+    cameras, _ = read_model(project / "sparse")
+    fused = read_point_cloud(project / "dense" / "fused.ply")
+    masks, needs, _ = truth_inputs(scene, cameras, fused.world_positions)
+    if args.needs == "classified":  # the pipeline's classification and masks instead of the scene's truth
+        from core.io.images import read_image
+
+        cls = read_point_cloud(project / "classify" / "points.ply")
+        needs = np.asarray(cls.fields["needs_splats"]).astype(bool)
+        masks = {}
+        for view in cameras:
+            path = project / "classify" / "masks" / f"{view.name}.png"
+            if path.is_file():
+                masks[view.name] = read_image(path, grayscale=True) > 127
+    lidar = read_point_cloud(scene / "gt" / "lidar.ply")
+    truth = lidar.world_positions
+    material = np.asarray(lidar.fields["material"]).astype(np.int64)
+    tree = cKDTree(truth)
+    spacing = float(np.median(cKDTree(fused.positions[~needs]).query(fused.positions[~needs], k=2)[0][:, 1]))
+    print(f"scene {scene}, project {project}: {len(fused)} fused points, {int(needs.sum())} need splats "
+          f"({args.needs}); tau {tau * 1000:.2f} mm; trusted MVS spacing {spacing * 1000:.2f} mm; "
+          f"{load()}")  # fmt: skip
+    world = fused.world_positions
+    products = {
+        "MVS-only": product_geometry(world, None, truth, material, tau, tree),
+        "MVS kept (trusted)": product_geometry(world[~needs], None, truth, material, tau, tree),
+        "MVS dropped (needs)": product_geometry(world[needs], None, truth, material, tau, tree),
+    }
+    from dataclasses import replace
+
+    from core.io.gaussian_ply import read_gaussian_ply as _read_gs
+
+    trusted_local = fused.with_origin(cameras.origin).positions[~needs]
+    mvs_gs = _read_gs(project / "export" / "mvs_gaussians.ply")
+    needs_gs = mvs_gs.subset(needs)
+    needs_kept = {}
+    for rim in args.rim:
+        o = replace(SurveyPointOptions(), shape_checks=False, max_rim_spacing=rim if rim > 0 else None)
+        sel = select_survey_points(needs_gs, cameras, masks, trusted_local, spacing, o)
+        needs_kept[rim] = needs_gs.world_means[sel.keep]
+        print(f"MVS needs points, view rules, rim {rim}: {sel.counts}")
+        products[f"MVS needs, views, rim {rim:g}"] = product_geometry(
+            needs_gs.world_means[sel.keep], None, truth, material, tau, tree)  # fmt: skip
+    for spec in args.points:  # point products as written (e.g. a project's export/merged_points.ply)
+        label, _, path = spec.partition("=")
+        cloud = read_point_cloud(path)
+        products[label] = product_geometry(cloud.world_positions, None, truth, material, tau, tree)
+    for spec in args.splats:
+        label, _, path = spec.partition("=")
+        splats = read_gaussian_ply(path)
+        w = splats.opacities.astype(np.float64)
+        products[f"{label} centres (α-w)"] = product_geometry(splats.world_means, w, truth, material, tau, tree)
+        products[f"merged all {label}"] = product_geometry(
+            np.concatenate([world[~needs], splats.world_means]), None, truth, material, tau, tree)  # fmt: skip
+        for rim in args.rim:
+            o = replace(SurveyPointOptions(), max_rim_spacing=rim if rim > 0 else None, min_opacity=args.min_opacity)
+            sel = select_survey_points(splats, cameras, masks, trusted_local, spacing, o)
+            print(f"survey-point selection of {label}, rim {rim}: {sel.counts}")
+            kept = splats.world_means[sel.keep]
+            products[f"{label} pts rim {rim:g}"] = product_geometry(kept, None, truth, material, tau, tree)
+            products[f"merged {label} rim {rim:g}"] = product_geometry(
+                np.concatenate([world[~needs], kept]), None, truth, material, tau, tree)  # fmt: skip
+            products[f"merged+MVSn {label} rim {rim:g}"] = product_geometry(
+                np.concatenate([world[~needs], needs_kept[rim], kept]), None, truth, material, tau, tree)  # fmt: skip
+    print_geometry(products, names, tau)
+    if args.json:
+        Path(args.json).write_text(json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in products.items()},
+                                              indent=1))  # fmt: skip
+
+
 def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_model, out_dir):
     from eval.render_eval import evaluate_gaussians
 
@@ -204,16 +360,25 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     context = mvs.subset(~needs)
     strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
                                reset_every=args.reset_every)  # fmt: skip
+    from fusion.train import HardViewOptions, PriorOptions
+
+    priors = None
+    if args.depth_prior > 0 or args.normal_prior > 0:
+        priors = PriorOptions(args.depth_prior, args.normal_prior, args.prior_border if args.prior_border > 0 else None)
     opts = TrainOptions(iterations=args.iterations, downscale=args.downscale, seed=args.seed, strategy=strategy,
                         sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc, flat=args.flat,
-                        patience=args.patience)  # fmt: skip
+                        patience=args.patience, priors=priors,
+                        hard_views=HardViewOptions() if args.hard_views else None,
+                        photometric=args.photometric)  # fmt: skip
+    print(f"training options: {opts}")
     tr = train_splats(cameras, images, masks, init.gaussians, context, opts)
     print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
           f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
           f"early stop {tr.stopped_early}, refine {tr.refine}; {load()}")  # fmt: skip
+    print(f"priors: {tr.prior_views} views, {tr.prior_pixels} prior pixels; steps per view {tr.view_steps}")
     for c in tr.history:
         print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
-              f"{c.seconds:6.1f} s")  # fmt: skip
+              f"{c.seconds:6.1f} s  prior depth {c.prior_depth:.4f}  normal {c.prior_normal:.4f}")  # fmt: skip
     t1 = time.perf_counter()
     cleaned = clean_splats(tr.splats, cameras, masks, CleanOptions())
     t_clean = time.perf_counter() - t1
@@ -234,11 +399,36 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     merged = merge_hybrid(mvs, cleaned.splats, needs).gaussians
     from scipy.spatial import cKDTree
 
-    for label, pts in (("MVS-only", mvs.world_means), ("merged", merged.world_means)):
-        d, _ = cKDTree(pts).query(lidar.world_positions, k=1, workers=-1)
-        nc = np.isin(lmat, non_collab)
-        print(f"completeness at tau {tau * 1000:.1f} mm, {label}: all {np.mean(d <= tau):.3f}, "
-              f"non-collaborative materials {np.mean(d[nc] <= tau):.3f}")  # fmt: skip
+    from fusion.clean import SurveyPointOptions, select_survey_points
+    from fusion.merge import subset
+
+    trusted = mvs.subset(~needs).with_origin(cameras.origin).means
+    spacing = float(np.median(cKDTree(trusted).query(trusted, k=2)[0][:, 1]))
+    sel = select_survey_points(cleaned.splats, cameras, masks, trusted, spacing, SurveyPointOptions())
+    print(f"survey points from splats: {sel.counts} (trusted MVS spacing {spacing * 1000:.2f} mm)")
+    from dataclasses import replace
+
+    sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing,
+                                   replace(SurveyPointOptions(), shape_checks=False))  # fmt: skip
+    print(f"survey points from needs_splats MVS points: {sel_mvs.counts}")
+    needs_left_out = needs.copy()
+    needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False  # as the merge stage does
+    points = merge_hybrid(mvs, subset(cleaned.splats, sel.keep), needs_left_out).gaussians
+    meta = json.loads((scene / "scene.json").read_text())
+    names = {int(m["id"]): m["name"] for m in meta["materials"]}
+    tree = cKDTree(lidar.world_positions)
+    geo = {
+        "MVS-only": product_geometry(fused.world_positions, None, lidar.world_positions, lmat, tau, tree),
+        "splat centres (α-w)": product_geometry(
+            cleaned.splats.world_means, cleaned.splats.opacities, lidar.world_positions, lmat, tau, tree
+        ),  # fmt: skip
+        "merged, every splat": product_geometry(merged.world_means, None, lidar.world_positions, lmat, tau, tree),
+        "merged points": product_geometry(points.world_means, None, lidar.world_positions, lmat, tau, tree),
+    }
+    print_geometry(geo, names, tau)
+    (out / "geometry.json").write_text(
+        json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in geo.items()}, indent=1)
+    )
     write_gaussian_ply(out / "merged.ply", merged, extra_fields=True)
     write_gaussian_ply(out / "splats.ply", tr.splats, extra_fields=True)
     hybrid_time = t_init + tr.seconds + t_clean
@@ -348,6 +538,11 @@ def main() -> None:
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
     t.add_argument("--flat", action="store_true")
+    t.add_argument("--depth-prior", type=float, default=0.0, help="0 with --normal-prior 0: no priors (default)")
+    t.add_argument("--normal-prior", type=float, default=0.0)
+    t.add_argument("--prior-border", type=float, default=8.0, help="px; <= 0: the whole mask")
+    t.add_argument("--hard-views", action="store_true")
+    t.add_argument("--photometric", choices=("l1_ssim", "smoothl1_msssim"), default="l1_ssim")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
@@ -357,9 +552,20 @@ def main() -> None:
     c.add_argument("--out", default="bench/out/train_score")
     c.add_argument("--ply", nargs="*", default=[], help="NAME=PATH; names merged_from_* are merged with MVS first")
     c.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")
+    g = sub.add_parser("geometry")
+    g.add_argument("--scene", required=True)
+    g.add_argument("--project", required=True)
+    g.add_argument("--splats", nargs="*", default=[], help="LABEL=PATH of trained (cleaned) splats")
+    g.add_argument("--points", nargs="*", default=[], help="LABEL=PATH of point clouds to measure as they are")
+    g.add_argument("--needs", choices=("truth", "classified"), default="truth")
+    g.add_argument("--tau-gsd", type=float, default=3.0)
+    g.add_argument("--json", default="")
+    g.add_argument("--min-opacity", type=float, default=0.5, help="survey-point rule for splats")
+    g.add_argument("--rim", type=float, nargs="*", default=[0.0], help="rim limits in spacings (0: no rim test)")
     args = p.parse_args()
     torch.manual_seed(0)
-    {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score}[args.cmd](args)
+    commands = {"speed": bench_speed, "tabletop": bench_tabletop, "score": bench_score, "geometry": bench_geometry}
+    commands[args.cmd](args)
 
 
 if __name__ == "__main__":

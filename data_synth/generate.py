@@ -45,7 +45,7 @@ def generate_scene(
     overwrite: bool = False,
     **overrides: object,
 ) -> Path:
-    """Generate the scene ``preset`` (tiny, tabletop, aerial) into ``out_dir`` and return its path.
+    """Generate the scene ``preset`` (tiny, tabletop, aerial, demo, textured) into ``out_dir`` and return its path.
 
     ``overrides`` are preset overrides (see :func:`data_synth.presets.apply_overrides`: views, test_views,
     width, height, supersample, max_depth, noise, georef, origin). An existing non-empty ``out_dir`` is

@@ -2,6 +2,10 @@
 
 - ``tiny``: unit-test scene, 10 training + 2 test views at 96×72, seconds to generate.
 - ``tabletop``: artefact scale (~0.5 m of objects on a 1 m table), 72 training views at 640×480 on three rings.
+- ``demo``: ``tabletop`` reduced to the size of the built-in demo (every material; 24 training + 4 test views at
+  320×240 on two rings; a coarser LiDAR scan).
+- ``textured``: ``demo`` with every object textured and no wire cage: only collaborative materials, nothing needs
+  splats (the pipeline must skip training and say why).
 - ``aerial``: UAV scale (200 m terrain, switchgear yard with a 28 m pylon), nadir grid at 40 m + obliques at 60 m.
 """
 
@@ -93,6 +97,34 @@ PRESETS: dict[str, Preset] = {
         noise=RangeNoise(sigma_m=0.02, sigma_rel=0.0001),
         render=RenderSettings(supersample=2, max_depth=3),
         environment=Environment(sun_azimuth_deg=140.0, sun_elevation_deg=55.0, ground_tile=20.0),
+        texture_scale=1.0,
+    ),
+    "demo": Preset(
+        name="demo",
+        layout="tabletop",
+        width=320,
+        height=240,
+        rig=OrbitRig(radius_m=0.85, elevations_deg=(28.0, 50.0), views_per_ring=12, n_test=4,
+                     target=(0.0, 0.0, 0.03), hfov_deg=48.0),
+        lidar=TerrestrialScan(stations=((0.7, 0.0, 0.35), (0.0, 0.7, 0.4), (-0.7, 0.0, 0.35), (0.0, -0.7, 0.4)),
+                              step_deg=0.2, azimuth_half_deg=35.0, elevation_deg=(-45.0, 10.0)),
+        noise=RangeNoise(sigma_m=0.0003, sigma_rel=0.0),
+        render=RenderSettings(supersample=2, max_depth=4),
+        environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
+        texture_scale=1.0,
+    ),
+    "textured": Preset(
+        name="textured",
+        layout="tabletop_textured",
+        width=320,
+        height=240,
+        rig=OrbitRig(radius_m=0.85, elevations_deg=(28.0, 50.0), views_per_ring=12, n_test=4,
+                     target=(0.0, 0.0, 0.03), hfov_deg=48.0),
+        lidar=TerrestrialScan(stations=((0.7, 0.0, 0.35), (0.0, 0.7, 0.4), (-0.7, 0.0, 0.35), (0.0, -0.7, 0.4)),
+                              step_deg=0.2, azimuth_half_deg=35.0, elevation_deg=(-45.0, 10.0)),
+        noise=RangeNoise(sigma_m=0.0003, sigma_rel=0.0),
+        render=RenderSettings(supersample=2, max_depth=4),
+        environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
         texture_scale=1.0,
     ),
 }  # fmt: skip

@@ -60,8 +60,21 @@ def build_tiny(rng: np.random.Generator) -> SceneMesh:
     return b.build()
 
 
-def build_tabletop(rng: np.random.Generator) -> SceneMesh:
-    """A 1 m wooden table with textured objects, polished metal, a mirror ball, glass, a blank panel and a wire cage."""
+# The textured material standing in for each non-collaborative one in ``build_tabletop(collaborative_only=True)``.
+TEXTURED_STAND_INS = {"polished_metal": "bricks", "mirror": "stone_noise", "glass": "text_label",
+                      "textureless_paint": "bricks"}  # fmt: skip
+
+
+def build_tabletop(rng: np.random.Generator, collaborative_only: bool = False) -> SceneMesh:
+    """A 1 m wooden table with textured objects, polished metal, a mirror ball, glass, a blank panel and a wire cage.
+
+    collaborative_only: the same objects, every one textured (:data:`TEXTURED_STAND_INS`), and no wire cage (thin);
+    a scene where MVS suffices and nothing needs splats.
+    """
+
+    def _mid(name: str) -> int:
+        return material(TEXTURED_STAND_INS.get(name, name) if collaborative_only else name).id
+
     b = MeshBuilder()
     b.add(plane((1.0, 1.0)), _mid("wood"))
     x, y = _jitter(rng, -0.16, 0.12, 0.01)
@@ -84,8 +97,9 @@ def build_tabletop(rng: np.random.Generator) -> SceneMesh:
     x, y = _jitter(rng, -0.24, 0.0, 0.01)
     b.add(box((0.012, 0.16, 0.13), (x, y, 0.065), float(rng.uniform(-15, 15))), _mid("textureless_paint"))
     x, y = _jitter(rng, 0.24, -0.20, 0.01)
-    for part in wire_cage(np.array([x, y, 0.0]), 0.09, 0.14, 0.0012):
-        b.add(part, _mid("wire"))
+    if not collaborative_only:
+        for part in wire_cage(np.array([x, y, 0.0]), 0.09, 0.14, 0.0012):
+            b.add(part, _mid("wire"))
     return b.build()
 
 
@@ -162,4 +176,5 @@ LAYOUTS: dict[str, Callable[[np.random.Generator], SceneMesh]] = {
     "tiny": build_tiny,
     "tabletop": build_tabletop,
     "aerial": build_aerial,
+    "tabletop_textured": lambda rng: build_tabletop(rng, collaborative_only=True),
 }

@@ -31,7 +31,7 @@ from eval.c2c import C2CResult, DistanceStats, ThresholdScores, histogram
 from eval.image_metrics import ImageScores, ScoreSummary, summarize
 
 SCHEMA = "hybridsplat.metrics/1"
-PRODUCTS = ("mvs", "splats", "merged", "baseline_gs")
+PRODUCTS = ("mvs", "baseline", "splats", "merged")
 
 
 @dataclass(frozen=True)

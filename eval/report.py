@@ -45,7 +45,7 @@ from eval.metrics_io import read_metrics
 from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
 
 SCHEMA = "hybridsplat.report/1"
-REQUIRED_PRODUCTS = ("mvs", "splats", "merged")
+REQUIRED_PRODUCTS = ("mvs", "baseline", "splats", "merged")
 C2C_KEYS = (
     "count", "mean", "std", "median", "rmse", "p90", "p95", "p99", "max", "outlier_count", "outlier_share",
     "tau", "completeness", "precision", "recall", "fscore",
@@ -168,11 +168,15 @@ def _units(units: Units | str | None, metrics: Mapping[str, Any], manifest: Mapp
 
 
 def build_report(
-    manifest_file: str | PathLike[str], metrics_file: str | PathLike[str], units: Units | str | None = None
+    manifest_file: str | PathLike[str],
+    metrics_file: str | PathLike[str],
+    units: Units | str | None = None,
+    per_material_file: str | PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """The report.json content from a project's manifest and metrics files (either may be missing).
 
     units: the unit the Markdown/HTML print lengths in (recorded as ``units``; report.json stays in metres).
+    per_material_file: scores per ground-truth material (see eval.per_material), shown when the file exists.
     """
     manifest_file, metrics_file = Path(manifest_file), Path(metrics_file)
     root = manifest_file.parent
@@ -211,8 +215,18 @@ def build_report(
         "manifest_found": manifest is not None,
         "units": _units(units, metrics, manifest).value,
         "products": products,
+        "per_material": _per_material(per_material_file),
         "stages": stages,
     }
+
+
+def _per_material(path: str | PathLike[str] | None) -> dict[str, Any] | None:
+    if path is None or not Path(path).is_file():
+        return None
+    data = _read_json(Path(path), "per-material scores")
+    if data is None or not isinstance(data.get("products"), Mapping):
+        raise FormatError("per-material scores have no 'products' table", path)
+    return data
 
 
 # -- formatting -------------------------------------------------------------------------------------
@@ -323,12 +337,40 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
         header = ["product", "method", "fitness", f"inlier RMSE ({u.value})", f"translation at origin ({u.value})",
                   "rotation"]  # fmt: skip
         tables.append(("Registration applied before measuring", header, reg_rows))
+    tables.extend(_per_material_tables(report.get("per_material"), u))
     stage_rows = [
         [name, _num(s["seconds"], 2), _num(s["peak_mb"], 0), _num(s["skipped"]), s["reason"] or ""]
         for name, s in report["stages"].items()
     ]
     tables.append(("Pipeline stages", ["stage", "seconds", "peak MB", "skipped", "reason"], stage_rows))
     return tables
+
+
+Table = tuple[str, list[str], list[list[str]]]
+
+
+def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> list[Table]:
+    """Table 5: per ground-truth material, each product's accuracy, completeness at τ and held-out PSNR."""
+    if not per_material:
+        return []
+    products: Mapping[str, Any] = per_material["products"]
+    kinds: Mapping[str, Any] = per_material.get("materials") or {}
+    names = list(dict.fromkeys(m for table in products.values() for m in table))
+    header = ["material", "kind"]
+    for p in products:
+        header += [f"{p} accuracy ({u.value})", f"{p} completeness", f"{p} PSNR"]
+    rows = []
+    for m in names:
+        info = kinds.get(m) or {}
+        kind = str(info.get("kind", "")) + ("" if info.get("collaborative", True) else " (non-collab.)")
+        row = [m, kind]
+        for table in products.values():
+            r = table.get(m) or {}
+            row += [_len(r.get("accuracy_mean_m"), u), _num(r.get("completeness"), 3), _num(r.get("psnr"), 2)]
+        rows.append(row)
+    tau = _len(per_material.get("tau_m"), u)
+    return [(f"Table 5 — per ground-truth material (completeness at τ = {tau} {u.value}; PSNR on held-out pixels)",
+             header, rows)]  # fmt: skip
 
 
 def to_markdown(report: Mapping[str, Any]) -> str:
@@ -523,6 +565,7 @@ def write_report(
     paths: ReportPaths,
     max_panels: int = DEFAULT_MAX_PANELS,
     units: Units | str | None = None,
+    per_material_file: str | PathLike[str] | None = None,
 ) -> ReportPaths:
     """Build and write the report's JSON, Markdown and HTML files (``paths``) atomically.
 
@@ -531,7 +574,7 @@ def write_report(
     or the manifest, else metres).
     """
     metrics_file = Path(metrics_file)
-    report = build_report(manifest_file, metrics_file, units)
+    report = build_report(manifest_file, metrics_file, units, per_material_file)
     eval_dir = metrics_file.parent
     metrics = read_metrics(metrics_file) if metrics_file.is_file() else None
     strict = to_jsonable(json.loads(json.dumps(report, default=str)))  # NaN/inf -> null: report.json stays JSON

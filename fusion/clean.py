@@ -26,7 +26,7 @@ from core.cameras import Cameras
 from core.errors import ConfigError
 from core.gaussians import GaussianSet
 from fusion.merge import subset
-from fusion.train.init import points_in_masks
+from fusion.train.init import points_in_masks, zbuffer_depth
 from fusion.train.trainer import scene_scale
 
 
@@ -147,3 +147,199 @@ def clean_splats(
         int((reasons == 0).sum()),
     )
     return CleanResult(subset(splats, reasons == 0), counts, reasons)
+
+
+# -- which splats become survey points ----------------------------------------------------------------------------
+class PointReason(IntEnum):
+    """Why a (cleaned) splat's centre is left out of the point product (0 = kept), first reason that applies."""
+
+    KEPT = 0
+    LOW_OPACITY = 1
+    THICK = 2
+    LARGE = 3
+    FEW_VIEWS = 4
+    OFF_MASKS = 5
+    INTERIOR = 6
+
+
+@dataclass(frozen=True)
+class SurveyPointOptions:
+    """Rule for the splats whose centres go into the survey point product (``merged_points.ply/.las``).
+
+    A point product must not contain floaters, so a splat's centre is a point only when its geometry is
+    trustworthy; the 3DGS PLY keeps every cleaned splat for rendering. Defaults chosen on data_synth ``tabletop``
+    (24 views 320×240) and ``tiny``, pipeline masks, 500 steps (``bench/bench_train.py geometry``; a scan of rim 0.5 /
+    0.75 / 1, α 0.2 / 0.5, views 2 / 3, share 0.8 / 0.9 / 1): the rim test is what rejects the virtual images MVS and
+    splats place inside mirrors and glass (kept mirror / glass MVS points 22 / 18 mm off without it, 12 / 5 mm with
+    1 spacing); every setting beat MVS-only on tabletop, and rim 0.5 with 3 views and share 0.9 was among the few that
+    also lowered the mean C2C on ``tiny`` (coarse 96×72 photos, splat centres ~12 mm off) while raising completeness.
+    Lengths relative to ``spacing``, the trusted MVS point spacing (metres) passed to :func:`select_survey_points`.
+    A check is off when its value is None.
+
+    min_opacity: α at least this (a faint splat is a colour correction, not a surface).
+    max_thickness_spacing: smallest σ at most this × spacing (thin along its normal: a surface element).
+    max_extent_spacing: largest σ at most this × spacing (a large splat's centre says little about the surface).
+    min_views: the centre lands inside the mask, in front of the trusted MVS surface, in at least this many views.
+    min_mask_share: of the views where the centre lands in the image unoccluded by the trusted MVS surface, the
+        share where it lands inside the mask (visual-hull consistency: a centre seen outside the region from other
+        views floats in front of or beside the real surface).
+    occlusion_tolerance: relative depth margin of the occlusion test (behind the trusted z-buffer by more than this
+        share of its depth = occluded; the view is not counted).
+    max_rim_spacing: the centre must come within this × spacing (metres at its depth) of a mask edge in some view
+        where it lands inside the mask. A point of a surface lies on the silhouette rim of the views that graze it;
+        what MVS or a splat places *inside* a mirror or glass object (virtual images of reflections, refractions)
+        stays inside every visual hull but far from every rim. None turns the test off.
+    shape_checks: apply the opacity / thickness / extent tests (off for MVS points, whose Gaussians are converted,
+        not trained).
+    """
+
+    min_opacity: float | None = 0.2
+    max_thickness_spacing: float | None = 2.0
+    max_extent_spacing: float | None = 10.0
+    min_views: int = 3
+    min_mask_share: float | None = 0.9
+    occlusion_tolerance: float = 0.02
+    max_rim_spacing: float | None = 0.5
+    shape_checks: bool = True
+
+    def __post_init__(self) -> None:
+        if self.min_views < 0 or not self.occlusion_tolerance >= 0:
+            raise ConfigError("min_views and occlusion_tolerance must be >= 0")
+        if self.min_mask_share is not None and not 0.0 <= self.min_mask_share <= 1.0:
+            raise ConfigError(f"min_mask_share must lie in [0, 1], got {self.min_mask_share}")
+        for name in ("min_opacity", "max_thickness_spacing", "max_extent_spacing", "max_rim_spacing"):
+            v = getattr(self, name)
+            if v is not None and not v > 0:
+                raise ConfigError(f"{name} must be > 0 or None, got {v}")
+
+
+@dataclass(frozen=True)
+class SurveyPointCounts:
+    """How many splats were considered, left out of the point product for each reason, and kept."""
+
+    input: int
+    low_opacity: int
+    thick: int
+    large: int
+    few_views: int
+    off_masks: int
+    interior: int
+    kept: int
+
+
+@dataclass
+class SurveyPointSelection:
+    """keep: (N,) bool per splat; reasons: (N,) uint8 :class:`PointReason`; views_inside / views_outside: (N,)
+    int32 counts of unoccluded views where the centre lands inside / outside the mask."""
+
+    keep: np.ndarray
+    reasons: np.ndarray
+    views_inside: np.ndarray
+    views_outside: np.ndarray
+    counts: SurveyPointCounts
+
+
+def closed_zbuffer(cameras: Cameras, view, points: np.ndarray, radius: int = 1) -> np.ndarray:
+    """(H, W) z-buffer of ``points`` (local frame) in ``view`` with its holes between samples closed: each pixel takes
+    the nearest depth within ``radius`` px (grey erosion of the depth, empty pixels as +inf); inf where none."""
+    depth = zbuffer_depth(cameras, view, points)
+    depth = np.where(depth > 0, depth, np.inf).astype(np.float32)
+    if radius > 0:
+        depth = cv2.erode(depth, np.ones((2 * radius + 1,) * 2, np.uint8), borderType=cv2.BORDER_REPLICATE)
+    return depth
+
+
+@dataclass
+class MaskViews:
+    """Per point (N,): views where it lands inside / outside the mask unoccluded (int32), and its smallest distance
+    to a mask edge over the views where it lands inside (metres at its depth: px × z / f; inf when none)."""
+
+    inside: np.ndarray
+    outside: np.ndarray
+    rim_m: np.ndarray
+
+
+def mask_views(
+    cameras: Cameras, masks: Mapping[str, np.ndarray], points: np.ndarray, trusted: np.ndarray | None,
+    occlusion_tolerance: float = 0.02,
+) -> MaskViews:  # fmt: skip
+    """Per point (N, 3, local frame): the views where it lands inside / outside the view's mask, counting only views
+    where it is in front of the camera, inside the image and not behind the ``trusted`` points' closed z-buffer by
+    more than ``occlusion_tolerance`` of its depth, and its distance to the nearest mask edge (a point of a convex
+    surface lies on the silhouette rim of the views that graze it). Views without a mask entry are not counted."""
+    inside = np.zeros(len(points), np.int32)
+    outside = np.zeros(len(points), np.int32)
+    rim = np.full(len(points), np.inf)
+    for view in cameras:
+        mask = masks.get(view.name)
+        if mask is None:
+            continue
+        uv, z = cameras.project(view, points)
+        col = np.floor(uv[:, 0]).astype(np.int64)
+        row = np.floor(uv[:, 1]).astype(np.int64)
+        h, w = mask.shape
+        ok = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        if trusted is not None and len(trusted):
+            zb = closed_zbuffer(cameras, view, trusted)
+            front = np.zeros(len(points), bool)
+            front[ok] = z[ok] <= zb[row[ok], col[ok]] * (1.0 + occlusion_tolerance)
+            ok &= front
+        hit = np.zeros(len(points), bool)
+        hit[ok] = mask[row[ok], col[ok]]
+        inside += hit
+        outside += ok & ~hit
+        if hit.any():
+            # distance (px) of each mask pixel's centre to the nearest outside pixel's centre, minus half a pixel
+            padded = np.pad(mask.astype(np.uint8), 1)  # the image border is an edge too
+            edge_px = cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1] - 0.5
+            f = float(np.mean(cameras.camera_of(view).focal))
+            rim[hit] = np.minimum(rim[hit], edge_px[row[hit], col[hit]] * z[hit] / f)
+    return MaskViews(inside, outside, rim)
+
+
+def select_survey_points(
+    splats: GaussianSet,
+    cameras: Cameras,
+    masks: Mapping[str, np.ndarray],
+    trusted: np.ndarray | None,
+    spacing: float,
+    options: SurveyPointOptions | None = None,
+) -> SurveyPointSelection:
+    """Which splats' centres are trustworthy survey points (see :class:`SurveyPointOptions`).
+
+    splats: any origin (moved to the cameras' origin for the view tests); masks: image name → (H, W) bool at the
+    camera's size (the training masks); trusted: (M, 3) trusted MVS points in the cameras' local frame (occlusion
+    test; None: no occlusion test); spacing: trusted MVS point spacing, metres (> 0).
+    """
+    opts = options or SurveyPointOptions()
+    if not spacing > 0:
+        raise ConfigError(f"spacing must be a positive distance in metres, got {spacing}")
+    n = len(splats)
+    reasons = np.zeros(n, np.uint8)
+    if n == 0:
+        z = np.zeros(0, np.int32)
+        return SurveyPointSelection(np.zeros(0, bool), reasons, z, z, SurveyPointCounts(0, 0, 0, 0, 0, 0, 0, 0))
+
+    def mark(cond: np.ndarray, reason: PointReason) -> None:
+        reasons[(reasons == 0) & cond] = reason
+
+    sigma = splats.scales.astype(np.float64)
+    if opts.shape_checks and opts.min_opacity is not None:
+        mark(splats.opacities < opts.min_opacity, PointReason.LOW_OPACITY)
+    if opts.shape_checks and opts.max_thickness_spacing is not None:
+        mark(sigma.min(axis=1) > opts.max_thickness_spacing * spacing, PointReason.THICK)
+    if opts.shape_checks and opts.max_extent_spacing is not None:
+        mark(sigma.max(axis=1) > opts.max_extent_spacing * spacing, PointReason.LARGE)
+    local = splats.with_origin(cameras.origin).means
+    mv = mask_views(cameras, masks, local, trusted, opts.occlusion_tolerance)
+    inside, outside = mv.inside, mv.outside
+    mark(inside < opts.min_views, PointReason.FEW_VIEWS)
+    if opts.min_mask_share is not None:
+        share = inside / np.maximum(inside + outside, 1)
+        mark(share < opts.min_mask_share, PointReason.OFF_MASKS)
+    if opts.max_rim_spacing is not None:
+        mark(mv.rim_m > opts.max_rim_spacing * spacing, PointReason.INTERIOR)
+    counts = SurveyPointCounts(
+        n, *(int((reasons == r).sum()) for r in list(PointReason)[1:]), int((reasons == 0).sum())
+    )
+    return SurveyPointSelection(reasons == 0, reasons, inside, outside, counts)

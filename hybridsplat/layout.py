@@ -181,6 +181,11 @@ class ProjectLayout:
         return self.eval_dir / "metrics.json"
 
     @property
+    def per_material_json(self) -> Path:
+        """Accuracy, completeness and held-out PSNR per ground-truth material, per product (data_synth scenes)."""
+        return self.eval_dir / "per_material.json"
+
+    @property
     def eval_masks_dir(self) -> Path:
         """Masks of the held-out views used for the masked image metrics."""
         return self.eval_dir / "masks"
@@ -231,6 +236,7 @@ class ProjectLayout:
             "export/measurements.geojson": self.measurements_geojson,
             "export/picks.json": self.picks_json,
             "eval/metrics.json": self.metrics_json,
+            "eval/per_material.json": self.per_material_json,
             "eval/masks/": self.eval_masks_dir,
             "report/": self.report_dir,
             "logs/": self.logs_dir,

@@ -81,7 +81,8 @@ def test_metrics_round_trip(project):
 
 def test_report_json_schema(project):
     rep = _build(project)
-    assert list(rep["products"])[:3] == ["mvs", "splats", "merged"]
+    assert list(rep["products"])[:4] == ["mvs", "baseline", "splats", "merged"]
+    assert rep["products"]["baseline"]["skipped"] and "no entry" in rep["products"]["baseline"]["reason"]
     for name in ("mvs", "merged"):
         p = rep["products"][name]
         assert p["skipped"] is False

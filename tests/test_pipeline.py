@@ -14,10 +14,14 @@ from hybridsplat.config import InputOptions, ProjectConfig
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.pipeline import STAGE_OPTIONS, load_config, run_pipeline
 from hybridsplat.stages import STAGES
+from hybridsplat.stages.baseline import BaselineStageOptions
 from hybridsplat.stages.train import TrainStageOptions
 
-# tiny trains its splats for a few dozen steps in tests (the default is thousands)
-FAST_STAGES = {"train": TrainStageOptions(iterations=40, snapshot_iterations=(20,))}
+# tiny trains its splats (and the whole-scene baseline) for a few dozen steps in tests (the default is thousands)
+FAST_STAGES = {
+    "train": TrainStageOptions(iterations=40, snapshot_iterations=(20,)),
+    "baseline": BaselineStageOptions(enabled=True, iterations=40),
+}
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +53,8 @@ def test_every_stage_is_recorded_with_outputs(project):
         layout.merged_points_ply,
         layout.merged_points_las,
         layout.metrics_json,
+        layout.per_material_json,
+        layout.baseline_splats,
         layout.report_html,
         layout.log("mvs"),
     ):
@@ -79,6 +85,31 @@ def test_report_schema_and_mvs_accuracy(project):
     for part in ("full", "masked"):
         scores = mvs["images"][part]
         assert all(np.isfinite(scores[k]) for k in ("mse", "psnr", "ssim", "ms_ssim", "delta_e")), part
+
+
+def test_three_products_side_by_side_with_scores_per_material(project):
+    scene, project = project
+    layout = ProjectLayout(project)
+    report = json.loads((layout.report_dir / "report.json").read_text())
+    for name in ("mvs", "baseline", "merged"):
+        product = report["products"][name]
+        assert not product["skipped"], name
+        assert product["c2c"]["mean"] > 0 and product["c2c"]["completeness"] is not None, name
+        assert np.isfinite(product["images"]["full"]["psnr"]) and np.isfinite(product["images"]["masked"]["psnr"])
+    splats = report["products"]["splats"]  # the trained splats alone: geometry only
+    assert splats["c2c"]["count"] > 0 and splats["images"]["full"] is None
+    assert len(read_gaussian_ply(layout.baseline_splats)) > 0
+    # per material: every material of the scene that the LiDAR saw, for every measured product
+    materials = {m["name"] for m in json.loads((scene / "scene.json").read_text())["materials"]}
+    per_material = json.loads(layout.per_material_json.read_text())
+    assert set(per_material["products"]) == {"mvs", "baseline", "splats", "merged"}
+    seen = set(per_material["products"]["mvs"])
+    assert seen and seen <= materials
+    for name in ("mvs", "baseline", "merged"):
+        rows = per_material["products"][name]
+        assert all(0.0 <= r["completeness"] <= 1.0 for r in rows.values())
+        assert any(r["psnr"] is not None for r in rows.values()), name
+    assert "Table 5 — per ground-truth material" in (layout.report_dir / "report.md").read_text()
 
 
 def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(project, capsys):

@@ -32,7 +32,7 @@ def test_cli_rejects_unknown_preset(tmp_path: Path, capsys: pytest.CaptureFixtur
     with pytest.raises(SystemExit) as ex:
         main(["synth", "--preset", "moon", "--out", str(tmp_path / "x")])
     assert ex.value.code == 2
-    assert "tiny, tabletop, aerial" in capsys.readouterr().err
+    assert "tiny, tabletop, aerial, demo, textured" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from test_train_trainer import alpha_masks, blob_set, render_all, ring_cameras
 
 from core.gaussians import GaussianSet
-from core.io import write_point_cloud
+from core.io import read_point_cloud, write_point_cloud
 from core.io.colmap import write_model
 from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
 from core.io.images import write_image
@@ -48,7 +48,10 @@ def make_project(root) -> tuple[ProjectLayout, GaussianSet, np.ndarray]:
 def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     layout, truth, needs = make_project(tmp_path / "p")
     config = ProjectConfig().with_stage_options(
-        "train", TrainStageOptions(iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,))
+        "train",
+        TrainStageOptions(
+            iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,), depth_prior=0.2, normal_prior=0.1
+        ),  # fmt: skip
     )
     ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
     train, clean, merge = TrainStage(), CleanStage(), MergeStage()
@@ -66,6 +69,17 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     assert m["mvs"] == int((~needs).sum()) and m["splats"] == c["kept"]
     assert int((merged.fields["source"] == Source.MVS).sum()) == m["mvs"]
     assert layout.splats_export.is_file()
+    # the point product: the MVS points and only the trustworthy splats, every left-out splat counted with a reason
+    p = m["point_splats"]
+    assert p["input"] == c["kept"]
+    left_out = p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] + p["interior"]
+    assert p["kept"] + left_out == p["input"]
+    points = read_point_cloud(layout.merged_points_ply)
+    q = m["point_needs_mvs"]  # the needs_splats MVS points that pass the same view and rim tests
+    assert q["input"] == int(needs.sum()) and q["low_opacity"] == q["thick"] == q["large"] == 0  # no shape tests
+    assert len(points) == m["points"] == m["mvs"] + p["kept"] + q["kept"]
+    assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
+    assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors asked for are used
 
 
 def test_train_is_skipped_without_classification(tmp_path) -> None:

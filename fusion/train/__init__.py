@@ -15,13 +15,24 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from fusion.train.loss import masked_photometric_loss, ssim_map
+    from fusion.train.priors import PriorOptions
     from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
-    from fusion.train.trainer import StepInfo, TrainOptions, TrainResult, scene_scale, splat_normals, train_splats
+    from fusion.train.trainer import (
+        HardViewOptions,
+        StepInfo,
+        TrainOptions,
+        TrainResult,
+        scene_scale,
+        splat_normals,
+        train_splats,
+    )
 
 #: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
 _EXPORTS: dict[str, str] = {
     "DefaultStrategy": "strategy",
+    "HardViewOptions": "trainer",
     "MCMCStrategy": "strategy",
+    "PriorOptions": "priors",
     "RefineCounts": "strategy",
     "StepInfo": "trainer",
     "TrainOptions": "trainer",
@@ -35,6 +46,8 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "DefaultStrategy",
+    "HardViewOptions",
+    "PriorOptions",
     "MCMCStrategy",
     "RefineCounts",
     "StepInfo",

@@ -31,6 +31,7 @@ from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.render.projection import quat_to_rotmat
 from fusion.train.loss import masked_photometric_loss
+from fusion.train.msssim import smoothl1_msssim_loss
 from fusion.train.params import (
     context_from_set,
     make_optimizer,
@@ -38,9 +39,38 @@ from fusion.train.params import (
     set_from_tensors,
     tensors_from_set,
 )
+from fusion.train.priors import PriorOptions, prior_loss, view_priors
 from fusion.train.render import project_context, render_step
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
 from fusion.train.views import prepare_views
+
+
+@dataclass(frozen=True)
+class HardViewOptions:
+    """Hard-view mining (as in the industrial digital-twin 3DGS study): between ``start`` and ``stop`` (shares of
+    ``iterations``) each step's view is drawn with probability ``(1 − uniform_mix) · L_v^power / Σ L^power +
+    uniform_mix / V``, L_v the view's running loss (exponential average with weight ``ema`` on the newest value;
+    views not yet seen count with the mean), so the views the model fits worst are seen more often while every view
+    keeps a floor. Outside the window, seeded per-epoch permutations as without mining."""
+
+    start: float = 0.3
+    stop: float = 0.8
+    power: float = 1.0
+    uniform_mix: float = 0.3
+    ema: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.start <= self.stop <= 1.0:
+            raise ConfigError(f"need 0 <= start <= stop <= 1, got {self.start}, {self.stop}")
+        if not (self.power >= 0 and 0.0 <= self.uniform_mix <= 1.0 and 0.0 < self.ema <= 1.0):
+            raise ConfigError("need power >= 0, uniform_mix in [0, 1] and ema in (0, 1]")
+
+    def probabilities(self, running: np.ndarray) -> np.ndarray:
+        """(V,) sampling probabilities from the views' running losses (V,) (NaN = not seen yet)."""
+        seen = np.isfinite(running)
+        fill = float(running[seen].mean()) if seen.any() else 1.0
+        loss = np.maximum(np.where(seen, running, fill), 1e-12) ** self.power
+        return (1.0 - self.uniform_mix) * loss / loss.sum() + self.uniform_mix / len(loss)
 
 
 @dataclass(frozen=True)
@@ -53,6 +83,11 @@ class TrainOptions:
     of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
+    hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
+    photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
+    ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
+    priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
+    (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
 
     iterations: int = 2000
@@ -79,6 +114,10 @@ class TrainOptions:
     min_iterations: int = 600
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
+    priors: PriorOptions | None = None
+    hard_views: HardViewOptions | None = None
+    photometric: str = "l1_ssim"
+    smoothl1_beta: float = 0.05
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -90,6 +129,10 @@ class TrainOptions:
             raise ConfigError("sh_degree_interval, eval_every and patience must be >= 1")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
+        if self.photometric not in ("l1_ssim", "smoothl1_msssim") or not self.smoothl1_beta > 0:
+            raise ConfigError(
+                f"photometric must be 'l1_ssim' or 'smoothl1_msssim' (beta > 0), got {self.photometric!r}"
+            )
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
 
@@ -104,6 +147,8 @@ class Checkpoint:
     holdout_psnr: float
     gaussians: int
     seconds: float
+    prior_depth: float = float("nan")  # window mean of the weighted |log z − log z_prior| (NaN: no prior)
+    prior_normal: float = float("nan")  # window mean of the weighted 1 − |n · n_prior|
 
 
 @dataclass
@@ -127,6 +172,9 @@ class TrainResult:
     seconds: float
     scene_scale: float
     resolution: tuple[int, int]
+    view_steps: tuple[int, ...] = ()  # steps spent on each view (views sorted by name)
+    prior_views: int = 0  # views with a depth / normal prior
+    prior_pixels: int = 0  # their pixels with a prior weight > 0
 
     @property
     def final_holdout_psnr(self) -> float:
@@ -213,6 +261,9 @@ def train_splats(
             if cache is not None:
                 used[cache.index] = True
         context_culled = int((~used).sum())
+    priors = None
+    if opts.priors is not None and opts.priors.active and frozen is not None:
+        priors = view_priors(views, frozen.means.numpy(), opts.priors)
 
     lrs = {
         "means": opts.lr_means * scale,
@@ -233,14 +284,25 @@ def train_splats(
     snapshots: dict[int, GaussianSet] = {}
     best, stale, stopped = -math.inf, 0, False
     sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+    prior_sums = [0.0, 0.0, 0]  # depth, normal, steps with a prior term
     order = rng.permutation(len(views))
+    running = np.full(len(views), np.nan)  # per-view running loss (hard-view mining)
+    hard = opts.hard_views
+    mining = (
+        (int(hard.start * opts.iterations), int(hard.stop * opts.iterations)) if hard is not None else (0, 0)
+    )  # fmt: skip
+    view_counts = np.zeros(len(views), np.int64)
     step = 0
     psnr = float("nan")
     while step < opts.iterations:
-        pos = step % len(views)
-        if pos == 0 and step > 0:
-            order = rng.permutation(len(views))
-        vi = int(order[pos])
+        if hard is not None and mining[0] <= step < mining[1]:
+            vi = int(rng.choice(len(views), p=hard.probabilities(running)))
+        else:
+            pos = step % len(views)
+            if pos == 0 and step > 0:
+                order = rng.permutation(len(views))
+            vi = int(order[pos])
+        view_counts[vi] += 1
         view = views[vi]
         degree = min(opts.sh_degree, step // opts.sh_degree_interval)
         for group in optimizer.param_groups:
@@ -248,13 +310,23 @@ def train_splats(
                 group["lr"] = lrs["means"] * decay**step
 
         out = render_step(params, view, caches[vi], degree, background, opts.backend)
-        terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
+        if opts.photometric == "l1_ssim":
+            terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
+        else:
+            terms = smoothl1_msssim_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda, opts.smoothl1_beta)
         loss = terms.loss
         if opts.scale_reg > 0:
             loss = loss + opts.scale_reg * params["log_scales"].exp().mean() / scale
         if opts.flat:
             loss = loss + opts.flat_reg * params["log_scales"].exp().amin(dim=1).mean() / scale
         loss = loss + strategy.regularisation(params)
+        if priors is not None:
+            p_terms = prior_loss(params, view, priors[vi], opts.priors)
+            if p_terms.splats:
+                loss = loss + p_terms.loss
+                prior_sums[0] += float(p_terms.depth)
+                prior_sums[1] += float(p_terms.normal)
+                prior_sums[2] += 1
         loss.backward()
         strategy.after_backward(state, out.means2d, view.width, view.height, step)
         optimizer.step()
@@ -269,15 +341,23 @@ def train_splats(
                 diff = (out.colour.detach().clamp(0, 1) - view.image)[hold]
                 sq_err += float((diff * diff).sum())
                 n_err += int(diff.numel())
-        loss_sum += float(terms.loss.detach())
+        loss_now = float(terms.loss.detach())
+        loss_sum += loss_now
         n_loss += 1
+        if hard is not None:
+            ema = hard.ema
+            running[vi] = loss_now if not np.isfinite(running[vi]) else (1 - ema) * running[vi] + ema * loss_now
         if step in opts.snapshot_iterations:
             snapshots[step] = _with_normals(set_from_tensors(params, centre, origin))
         if step % window == 0 or step == opts.iterations:
             psnr = -10.0 * math.log10(max(sq_err / max(n_err, 1), 1e-10)) if n_err else float("nan")
             n_now = int(params["means"].shape[0])
-            history.append(Checkpoint(step, loss_sum / max(n_loss, 1), psnr, n_now, time.perf_counter() - t0))
+            pd, pn = (
+                (prior_sums[0] / prior_sums[2], prior_sums[1] / prior_sums[2]) if prior_sums[2] else (math.nan,) * 2
+            )
+            history.append(Checkpoint(step, loss_sum / max(n_loss, 1), psnr, n_now, time.perf_counter() - t0, pd, pn))
             sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
+            prior_sums = [0.0, 0.0, 0]
             if psnr > best + opts.min_improvement_db:
                 best, stale = psnr, 0
             else:
@@ -305,4 +385,7 @@ def train_splats(
         seconds=time.perf_counter() - t0,
         scene_scale=scale,
         resolution=(views[0].width, views[0].height),
+        view_steps=tuple(int(c) for c in view_counts),
+        prior_views=sum(p is not None for p in priors) if priors is not None else 0,
+        prior_pixels=sum(p.pixels for p in priors if p is not None) if priors is not None else 0,
     )

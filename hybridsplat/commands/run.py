@@ -8,8 +8,14 @@ import typer
 
 from hybridsplat.commands.common import input_options_from_cli, print_result, stage_options_from_cli
 
-DEMO_MESH_BUDGET = 2_000
-"""Triangles of the demo's mesh (export/mesh.*): small, so the demo stays quick."""
+DEMO_STAGES = {
+    "mesh": {"budget": 2_000},
+    "train": {"iterations": 600},
+    "baseline": {"enabled": True, "iterations": 1_000},
+}
+"""The demo's stage options: a small mesh and CPU-sized training budgets for the hybrid and the whole-scene
+baseline, so that every stage of the demo scene runs in minutes on 2 cores (``bench/bench_pipeline.py`` sweeps
+the budgets)."""
 
 
 def register(app: typer.Typer) -> None:
@@ -52,6 +58,9 @@ def register(app: typer.Typer) -> None:
         train_iterations: int | None = typer.Option(
             None, help="Most splat-training steps (default: the train stage's; it stops early on a plateau)."
         ),
+        baseline: bool = typer.Option(
+            False, "--baseline", help="Also train the whole-scene 3DGS baseline and compare with it in the report."
+        ),
         seed: int = typer.Option(0, help="Seed of every random choice."),
         force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
@@ -72,6 +81,7 @@ def register(app: typer.Typer) -> None:
                 convert={"mode": convert_mode},
                 mesh={"budget": mesh},
                 train={"iterations": train_iterations},
+                baseline={"enabled": True if baseline else None},
                 eval={
                     "lpips_weights": str(lpips_weights.resolve()) if lpips_weights else "",
                     "reference": str(lidar.resolve()) if lidar else "",
@@ -86,7 +96,7 @@ def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo(
         out: Path = typer.Option(Path("demo_project"), "--out", help="Folder for the scene (OUT/scene) and project."),
-        preset: str = typer.Option("tiny", help="data_synth preset of the built-in scene."),
+        preset: str = typer.Option("demo", help="data_synth preset of the built-in scene (demo: a reduced tabletop)."),
         seed: int = typer.Option(0, help="Seed of the scene and the pipeline."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
@@ -107,7 +117,7 @@ def register(app: typer.Typer) -> None:
         config = ProjectConfig(
             input=InputOptions(path=str(scene.resolve())),
             seed=seed,
-            stages=stage_options_from_cli(mesh={"budget": DEMO_MESH_BUDGET}),
+            stages=stage_options_from_cli(**DEMO_STAGES),
         )
         manifest = run_pipeline(project, config, terminal=terminal)
         print_result(terminal, project, manifest)

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the names this package offers, for type checkers and readers
     from hybridsplat.stages.base import Stage, StageContext
+    from hybridsplat.stages.baseline import BaselineStage
     from hybridsplat.stages.classify import ClassifyStage
     from hybridsplat.stages.clean import CleanStage
     from hybridsplat.stages.convert import ConvertStage
@@ -37,6 +38,7 @@ _STAGE_CLASSES: tuple[tuple[str, str, str], ...] = (
     ("clean", "clean", "CleanStage"),
     ("merge", "merge", "MergeStage"),
     ("mesh", "mesh", "MeshStage"),
+    ("baseline", "baseline", "BaselineStage"),
     ("eval", "evaluate", "EvalStage"),
     ("report", "report", "ReportStage"),
 )
@@ -46,6 +48,7 @@ _instances: dict[str, Stage] = {}
 
 __all__ = [
     "STAGES",
+    "BaselineStage",
     "ClassifyStage",
     "CleanStage",
     "ConvertStage",

@@ -66,7 +66,9 @@ class EvalStage(Stage):
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout, spec = ctx.layout, ctx.source.spec
         truth = [self._reference(ctx), ctx.source.holdout.model, ctx.source.holdout.image_dir, spec.test_labels]
-        return [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, *(p for p in truth if p)]
+        products = [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, layout.merged_points_ply,
+                    layout.splats_export, layout.baseline_splats]  # fmt: skip
+        return [*products, *(p for p in truth if p)]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.eval_dir]
@@ -80,10 +82,9 @@ class EvalStage(Stage):
         return None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
-        from core.io.gaussian_ply import read_gaussian_ply
+        from core.io.json_io import write_json_atomic
         from eval.evaluate import ImageInputs, evaluate_product
         from eval.geometry import GeometryOptions
-        from recon.workspace import read_fused
 
         opts: EvalStageOptions = ctx.options(self)
         layout, spec = ctx.layout, ctx.source.spec
@@ -97,13 +98,15 @@ class EvalStage(Stage):
             masks = self._truth_masks(ctx) if held_out.names is None else None
             images = ImageInputs(cameras, views, held_out.photos, masks)
         lpips_model = _lpips_or_none(opts.lpips_weights or None)
-        products = {
-            "mvs": (read_fused(layout.dense), read_gaussian_ply(layout.mvs_gaussians)),
-            "merged": (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply)),
-        }
+        products = self._products(ctx)
         counts: dict[str, Any] = {"lpips": lpips_model is not None, "views": len(images.views) if images else 0}
-        for done, (name, (cloud, gaussians)) in enumerate(products.items()):
+        evaluated = {name: p for name, p in products.items() if not isinstance(p, str)}
+        for done, (name, product) in enumerate(products.items()):
             ctx.progress("products", done, len(products))
+            if isinstance(product, str):
+                evaluate_product(layout.metrics_json, name, skip_reason=product)
+                continue
+            cloud, gaussians = product
             result = evaluate_product(
                 layout.metrics_json,
                 name,
@@ -119,8 +122,61 @@ class EvalStage(Stage):
             if result.images is not None:
                 counts[f"{name}_psnr"] = result.images.full.mean.psnr if result.images.full else None
         ctx.progress("products", len(products), len(products))
-        evaluate_product(layout.metrics_json, "splats", skip_reason="no splats were trained (no training stage yet)")
+        per_material = self._per_material(ctx, evaluated, reference, tau, images)
+        if per_material is not None:
+            write_json_atomic(layout.per_material_json, per_material)
+            counts["per_material"] = len(per_material["materials"])
         return counts
+
+    def _products(self, ctx: StageContext) -> dict[str, tuple[Any, Any] | str]:
+        """name → (cloud, Gaussians) to measure, or the reason it is not measured (recorded as skipped).
+
+        The splats alone are measured for geometry only (their renders without the MVS context mean nothing).
+        """
+        from core.io.gaussian_ply import read_gaussian_ply
+        from fusion.export import gaussians_to_points
+        from recon.workspace import read_fused
+
+        layout = ctx.layout
+        products: dict[str, tuple[Any, Any] | str] = {
+            "mvs": (read_fused(layout.dense), read_gaussian_ply(layout.mvs_gaussians)),
+        }
+        if layout.baseline_splats.is_file():
+            baseline = read_gaussian_ply(layout.baseline_splats)
+            products["baseline"] = (gaussians_to_points(baseline), baseline)
+        else:
+            products["baseline"] = "not trained: the whole-scene baseline is off (run --baseline to compare with it)"
+        if layout.splats_export.is_file():
+            products["splats"] = (gaussians_to_points(read_gaussian_ply(layout.splats_export)), None)
+        else:
+            products["splats"] = "no trained splats: the train stage was skipped or had nothing to train"
+        products["merged"] = (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply))
+        return products
+
+    def _per_material(self, ctx: StageContext, products, reference, tau, images) -> dict[str, Any] | None:
+        """Accuracy, completeness and held-out PSNR per ground-truth material (data_synth scenes), or None."""
+        from core.io import read_point_cloud
+        from eval.per_material import as_table, geometry_per_material, psnr_per_material
+
+        spec = ctx.source.spec
+        if reference is None or spec.description is None or not spec.description.materials or tau is None:
+            return None
+        ref = read_point_cloud(reference)
+        if "material" not in ref.fields:
+            return None
+        names = {m.id: m.name for m in spec.description.materials}
+        kinds = {m.name: {"kind": m.kind, "collaborative": m.collaborative} for m in spec.description.materials}
+        labels_dir = spec.test_labels
+        result: dict[str, Any] = {"tau_m": tau, "materials": kinds, "products": {}}
+        for name, (cloud, gaussians) in products.items():
+            if not hasattr(cloud, "world_positions"):
+                cloud = read_point_cloud(cloud)
+            geometry = geometry_per_material(cloud.world_positions, ref.world_positions, ref.fields["material"], tau)
+            pixels = {}
+            if gaussians is not None and images is not None and labels_dir is not None:
+                pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
+            result["products"][name] = as_table(geometry, pixels, names)
+        return result
 
     def _truth_masks(self, ctx: StageContext) -> Path | None:
         """Masks of the true non-collaborative materials of the held-out views (data_synth), or None."""
@@ -138,12 +194,25 @@ class EvalStage(Stage):
 
     def summary(self, counts: dict[str, Any]) -> str:
         parts = []
-        for name in ("mvs", "merged"):
+        for name in ("mvs", "baseline", "merged"):
             if f"{name}_c2c_mean_m" in counts:
                 parts.append(f"{name} C2C mean {counts[f'{name}_c2c_mean_m']:.3g} m")
             if counts.get(f"{name}_psnr") is not None:
                 parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
         return ", ".join(parts)
+
+
+def _label_pairs(gaussians, images, labels_dir: Path):
+    """(rendered, photo, material labels) of every held-out view that has a label image."""
+    from core.io.images import read_image
+    from eval.render_eval import render_view
+
+    for view in images.views:
+        label_path = labels_dir / f"{Path(view.name).stem}.png"
+        if not label_path.is_file():
+            continue
+        photo = read_image(Path(images.photos) / view.name)
+        yield render_view(gaussians, images.cameras, view), photo, read_image(label_path, grayscale=True)
 
 
 def _lpips_or_none(weights: str | None) -> object | None:

@@ -25,7 +25,7 @@ class ReportStage(Stage):
     title = "report"
 
     def inputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.metrics_json]
+        return [ctx.layout.metrics_json, ctx.layout.per_material_json]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.report_dir]
@@ -52,4 +52,5 @@ def write_project_report(layout, units: str | None = None, max_panels: int | Non
 
     paths = ReportPaths(layout.report_json, layout.report_md, layout.report_html)
     panels = DEFAULT_MAX_PANELS if max_panels is None else max_panels
-    return write_report(layout.manifest, layout.metrics_json, paths, max_panels=panels, units=units)
+    return write_report(layout.manifest, layout.metrics_json, paths, max_panels=panels, units=units,
+                        per_material_file=layout.per_material_json)  # fmt: skip

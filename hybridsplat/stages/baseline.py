@@ -1,0 +1,109 @@
+"""Stage ``baseline``: the whole-scene 3DGS baseline (splats/baseline.ply), the product the hybrid is compared with.
+
+Plain 3D Gaussian Splatting as the reference paper compares against: the same trainer, renderer, resolution and
+Gaussian cap as the ``train`` stage, but with mask = whole image, no frozen MVS context, and one initial Gaussian
+per SfM point. It trains on the same photos (held-out photos excluded). Off unless asked for (``run --baseline``;
+the demo turns it on): a survey does not need it, a comparison does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from core.errors import ConfigError
+from hybridsplat.stages.base import Stage, StageContext, read_project_model
+
+
+@dataclass(frozen=True)
+class BaselineStageOptions:
+    """Options of the ``baseline`` stage.
+
+    enabled: train the baseline at all (off by default: it costs a whole-scene training).
+    iterations: maximum steps (early stop on 5 % held-back pixels, as in ``train``).
+    downscale, max_image_size: as the ``train`` stage's (same defaults, so both train at the same resolution).
+    cap: hard Gaussian budget (the ``train`` stage's hard cap by default: "same Gaussian cap").
+    sh_degree: highest SH degree.
+    """
+
+    enabled: bool = False
+    iterations: int = 2000
+    downscale: int = 1
+    max_image_size: int = 640
+    cap: int = 60_000
+    sh_degree: int = 3
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
+            raise ConfigError("baseline: iterations, downscale and cap must be >= 1, max_image_size >= 0")
+
+
+class BaselineStage(Stage):
+    name = "baseline"
+    Options = BaselineStageOptions
+    title = "whole-scene 3DGS baseline"
+
+    def inputs(self, ctx: StageContext) -> list[Path]:
+        ws = ctx.layout.dense_workspace
+        return [ctx.layout.sparse, ws.sparse, ws.images]
+
+    def outputs(self, ctx: StageContext) -> list[Path]:
+        return [ctx.layout.baseline_splats]
+
+    def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
+        return {"held_out": sorted(ctx.source.holdout_names)}
+
+    def needs(self, ctx: StageContext) -> str | None:
+        if not ctx.options(self).enabled:
+            return "not requested (run --baseline, or [baseline] enabled = true): only needed for comparison"
+        return None
+
+    def run(self, ctx: StageContext) -> dict[str, Any]:
+        from core.io.gaussian_ply import write_gaussian_ply
+        from core.io.images import read_image
+        from fusion.train import DefaultStrategy, TrainOptions, train_splats
+        from fusion.train.init import sfm_seeds
+
+        opts: BaselineStageOptions = ctx.options(self)
+        layout = ctx.layout
+        ws = layout.dense_workspace
+        cameras, _ = read_project_model(ctx, ws.sparse)
+        _, sfm = read_project_model(ctx, layout.sparse)
+        held_out = set(ctx.source.holdout_names)
+        images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name not in held_out}
+        init = sfm_seeds(sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None, cameras.origin)
+        longest = max(max(cameras.camera_of(v).width, cameras.camera_of(v).height) for v in cameras)
+        downscale = max(opts.downscale, -(-longest // opts.max_image_size) if opts.max_image_size else 1)
+        train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
+                                  sh_degree=opts.sh_degree, strategy=DefaultStrategy(cap=opts.cap))  # fmt: skip
+
+        def progress(info) -> None:
+            ctx.progress(
+                f"loss {info.loss:.4f} PSNR {info.holdout_psnr:.2f} dB, {info.gaussians} splats",
+                info.step,
+                info.iterations,
+            )
+
+        result = train_splats(cameras, images, None, init, None, train_opts, progress)
+        write_gaussian_ply(layout.baseline_splats, result.splats)
+        return {
+            "splats": len(result.splats),
+            "initial": result.initial_gaussians,
+            "downscale": downscale,
+            "cap": opts.cap,
+            "iterations": result.iterations,
+            "stopped_early": result.stopped_early,
+            "holdout_psnr_db": result.final_holdout_psnr,
+            "views_used": result.views_used,
+            "resolution": list(result.resolution),
+            "seconds_training": result.seconds,
+            # (step, seconds since the start, PSNR on the held-back pixels) per evaluation window
+            "history": [[c.step, round(c.seconds, 3), round(c.holdout_psnr, 3)] for c in result.history],
+        }
+
+    def summary(self, counts: dict[str, Any]) -> str:
+        return (
+            f"{counts['splats']} splats after {counts['iterations']} steps, "
+            f"PSNR {counts['holdout_psnr_db']:.2f} dB on held-back pixels"
+        )
