@@ -15,12 +15,17 @@ import zipfile
 import zlib
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from core.errors import ConfigError, DataError, FormatError, InputFileError
+
+if TYPE_CHECKING:
+    import torch
+
+# torch is imported inside the functions that compute: finding and checking the weights (find_weights,
+# read_weights) needs numpy only, so a bad weights file is reported before torch is loaded.
 
 ENV_VAR = "HYBRIDSPLAT_LPIPS_WEIGHTS"
 WEIGHTS_NAME = "alexnet_lpips_v0.1.npz"
@@ -65,7 +70,17 @@ def find_weights(path: str | PathLike[str] | None = None) -> Path:
 
 
 def load_weights(path: str | PathLike[str]) -> dict[str, torch.Tensor]:
-    """Read and check the ``.npz`` weights (torch layouts, float32)."""
+    """Read and check the ``.npz`` weights (torch layouts, float32) as torch tensors (see :func:`read_weights`)."""
+    import torch
+
+    return {k: torch.from_numpy(v) for k, v in read_weights(path).items()}
+
+
+def read_weights(path: str | PathLike[str]) -> dict[str, np.ndarray]:
+    """Read and check the ``.npz`` weights without torch: float32 arrays in torch layouts, keyed as in the file.
+
+    Raises :class:`InputFileError` (missing, empty, a folder) or :class:`FormatError` (not an archive, too
+    large, unreadable, NaN/inf, missing or mis-shaped layers)."""
     p = Path(path)
     if p.is_dir():
         raise InputFileError("is a folder, expected an LPIPS weights file (.npz)", p)
@@ -83,14 +98,14 @@ def load_weights(path: str | PathLike[str]) -> dict[str, torch.Tensor]:
         with np.load(p, allow_pickle=False) as data:
             if not hasattr(data, "files"):
                 raise FormatError("expected an .npz archive of named arrays, found a single array", p)
-            arrays = {k: torch.from_numpy(np.asarray(data[k], dtype=np.float32)) for k in data.files}
+            arrays = {k: np.asarray(data[k], dtype=np.float32) for k in data.files}
     except FormatError:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, TypeError) as err:
         text = " ".join(str(err).split())[:120]
         raise FormatError(f"cannot read LPIPS weights ({type(err).__name__}: {text})", p) from err
     for key, value in arrays.items():
-        if not torch.isfinite(value).all():
+        if not np.isfinite(value).all():
             raise FormatError(f"LPIPS weights {key} hold NaN or infinite values", p)
     expected_in = 3
     for (key, *_), ch in zip(_CONVS, _CHANNELS, strict=True):
@@ -113,9 +128,14 @@ def load_weights(path: str | PathLike[str]) -> dict[str, torch.Tensor]:
 class LPIPS:
     """LPIPS v0.1 / AlexNet distance. Build with :meth:`from_path` (or :meth:`default`)."""
 
-    def __init__(self, weights: dict[str, torch.Tensor], device: str | torch.device = "cpu") -> None:
+    def __init__(
+        self, weights: dict[str, torch.Tensor] | dict[str, np.ndarray], device: str | torch.device = "cpu"
+    ) -> None:
+        """``weights``: as :func:`load_weights` (torch tensors) or :func:`read_weights` (numpy arrays) returns."""
+        import torch
+
         self.device = torch.device(device)
-        self.w = {k: v.to(self.device) for k, v in weights.items()}
+        self.w = {k: torch.as_tensor(v).to(self.device) for k, v in weights.items()}
         self.shift = torch.tensor(_SHIFT, device=self.device).view(1, 3, 1, 1)
         self.scale = torch.tensor(_SCALE, device=self.device).view(1, 3, 1, 1)
 
@@ -126,6 +146,8 @@ class LPIPS:
 
     def features(self, x: torch.Tensor) -> list[torch.Tensor]:
         """The five relu outputs for (B, 3, H, W) float32 input in [-1, 1]."""
+        import torch.nn.functional as F
+
         h = (x - self.shift) / self.scale
         out = []
         for key, stride, pad, pool in _CONVS:
@@ -138,6 +160,9 @@ class LPIPS:
     def forward(self, x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) distances for (B, 3, H, W) inputs in [-1, 1]; ``mask`` (B, 1, H, W) in [0, 1] weights the
         spatial means (area-resized to each layer). Differentiable."""
+        import torch
+        import torch.nn.functional as F
+
         total = torch.zeros(x.shape[0], device=x.device, dtype=x.dtype)
         for i, (fx, fy) in enumerate(zip(self.features(x), self.features(y), strict=True)):
             nx = fx / (torch.sqrt((fx * fx).sum(dim=1, keepdim=True)) + 1e-10)
@@ -156,6 +181,8 @@ class LPIPS:
     def distance(self, a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
         """LPIPS between two (H, W, 3) images (uint8 or float in [0, 1]); ``mask`` (H, W) bool restricts the
         spatial averages to the masked region (0 for an empty mask)."""
+        import torch
+
         from eval.image_metrics import to_float_image
 
         x, y = to_float_image(a, "first image"), to_float_image(b, "second image")
@@ -177,5 +204,7 @@ class LPIPS:
 
 
 def _to_tensor(img: np.ndarray, device: torch.device) -> torch.Tensor:
+    import torch
+
     t = torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1), dtype=np.float32))[None]
     return (t * 2.0 - 1.0).to(device)

@@ -24,7 +24,7 @@ from core.io import write_point_cloud
 from core.io.gaussian_ply import write_gaussian_ply
 from core.io.origin import remove_origin, write_origin
 from core.pointcloud import PointCloud
-from fusion.convert import Source
+from fusion.convert_options import Source
 from fusion.merge import subset
 from fusion.splat_format import write_splat
 

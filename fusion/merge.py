@@ -23,11 +23,10 @@ from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
-from fusion.convert import Source
+from fusion.convert_options import Source
 
 CLASS_FIELD = "classification"
 
@@ -141,6 +140,8 @@ def first_within_tolerance(points: np.ndarray, tolerance: float) -> np.ndarray:
 
     Afterwards no two kept points are within the tolerance of each other. ``points``: (N, 3) float64.
     """
+    from scipy.spatial import cKDTree
+
     keep = np.ones(len(points), dtype=bool)
     if len(points) < 2:
         return keep
@@ -154,6 +155,8 @@ def near_any(query: np.ndarray, reference: np.ndarray, tolerance: float) -> np.n
     """Boolean mask (len(query),): True where a reference point lies within ``tolerance`` metres (inclusive)."""
     if len(query) == 0 or len(reference) == 0:
         return np.zeros(len(query), dtype=bool)
+    from scipy.spatial import cKDTree
+
     # cKDTree's bound is strict and compared squared: widen it (≥ 1e-150 so its square stays > 0), then filter.
     bound = max(float(np.nextafter(tolerance, np.inf)) * (1 + 1e-12), 1e-150)
     d, _ = cKDTree(reference).query(query, k=1, distance_upper_bound=bound, workers=-1)

@@ -19,7 +19,7 @@ import numpy as np
 from core.errors import ConfigError, InputFileError, ReconstructionError
 from recon.colmap_log import native_output_to
 from recon.mvs_colmap import colmap_available, run_patch_match
-from recon.mvs_cpu import CpuMvsOptions, estimate_depth, geometric_filter, normals_from_depth
+from recon.mvs_cpu_options import CpuMvsOptions
 from recon.view_selection import select_views
 from recon.workspace import DenseWorkspace, read_array, setup_dense_workspace, write_array
 
@@ -177,6 +177,8 @@ def compute_depth_maps_cpu(
     """Run the CPU MVS on an undistorted workspace: photometric maps, then geometric (filtered) maps + normals."""
     import pycolmap
     import torch
+
+    from recon.mvs_cpu import estimate_depth, geometric_filter, normals_from_depth  # torch: only when it runs
 
     if options.num_threads:
         torch.set_num_threads(int(options.num_threads))

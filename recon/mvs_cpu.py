@@ -35,30 +35,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from recon.mvs_cpu_options import CpuMvsOptions  # re-exported: the options live apart, without torch
+
 _INVALID_COST = 2.0
 # neighbour offsets (dy, dx) whose hypotheses each pixel tries in a propagation round (near and far)
 _PROPAGATION = ((0, 1), (0, -1), (1, 0), (-1, 0), (0, 4), (0, -4), (4, 0), (-4, 0))
-
-
-@dataclass(frozen=True)
-class CpuMvsOptions:
-    """Options of the CPU MVS (defaults tuned on synthetic scenes at 320–800 px)."""
-
-    num_sources: int = 5  # source views per reference (view selection order)
-    best_k: int = 2  # robust aggregation: mean of the k best source costs
-    window_radius: int = 3  # NCC window (2r+1)², pixels at the finest level
-    coarse_size: int = 160  # longer side of the coarsest level, pixels
-    num_planes: int = 64  # planes of the coarse sweep (uniform in inverse depth)
-    refine_steps: int = 1  # perturbations ±k·step, k = 1..refine_steps, per refinement round
-    median_radius: int = 2  # median filter of the coarse sweep result, pixels
-    refine_rounds: int = 3  # PatchMatch-style rounds per level (propagation + perturbation, step halves each round)
-    max_cost: float = 0.6  # 1 − NCC above this is invalid (NCC < 0.4)
-    min_texture_std: float = 0.012  # intensity std (0–1 scale) in the window below this is textureless
-    geom_max_reproj_px: float = 1.0
-    geom_max_rel_depth: float = 0.01
-    geom_min_consistent: int = 2
-    normal_radius: int = 2  # plane-fit window radius for normals, pixels
-    batch_hypotheses: int = 8  # hypotheses evaluated at once (bounds memory: ~batch × sources × H × W × 40 B)
 
 
 # -- sampling helpers ------------------------------------------------------------------------------

@@ -5,15 +5,39 @@
   backward) and ``gsplat`` (CUDA), ``auto`` picks gsplat on CUDA else cpu.
 - :func:`render_gaussian_set` — a :class:`core.GaussianSet` at a COLMAP camera/view, large-coordinate safe.
 - :func:`render_brute_force` — the float64 per-pixel oracle used by the tests.
+
+The names are imported lazily (module-level ``__getattr__``): ``import fusion.render`` or a torch-free
+submodule does not load torch; the first use of a name imports its submodule.
 """
 
-from fusion.render.api import render, resolve_backend
-from fusion.render.brute_force import render_brute_force
-from fusion.render.gsplat_backend import gsplat_available
-from fusion.render.projection import Projection, project_gaussians
-from fusion.render.scene import render_gaussian_set
-from fusion.render.sh import sh_to_colour
-from fusion.render.types import Backend, RenderedImage, RenderResult
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from fusion.render.api import render, resolve_backend
+    from fusion.render.brute_force import render_brute_force
+    from fusion.render.gsplat_backend import gsplat_available
+    from fusion.render.projection import Projection, project_gaussians
+    from fusion.render.scene import render_gaussian_set
+    from fusion.render.sh import sh_to_colour
+    from fusion.render.types import Backend, RenderedImage, RenderResult
+
+#: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
+_EXPORTS: dict[str, str] = {
+    "Backend": "types",
+    "Projection": "projection",
+    "RenderResult": "types",
+    "RenderedImage": "types",
+    "gsplat_available": "gsplat_backend",
+    "project_gaussians": "projection",
+    "render": "api",
+    "render_brute_force": "brute_force",
+    "render_gaussian_set": "scene",
+    "resolve_backend": "api",
+    "sh_to_colour": "sh",
+}
 
 __all__ = [
     "Backend",
@@ -28,3 +52,15 @@ __all__ = [
     "resolve_backend",
     "sh_to_colour",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

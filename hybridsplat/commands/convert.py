@@ -12,7 +12,7 @@ from core.io import read_point_cloud
 from core.io.atomic import check_output_file, output_transaction
 from core.io.colmap_vis import read_vis
 from core.pointcloud import PointCloud
-from fusion.convert import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, convert_points
+from fusion.convert_options import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions
 from fusion.export import ExportOptions, ExportReport, export_gaussians
 
 
@@ -74,6 +74,8 @@ def convert(
     exp = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
     check_output_file(out)
     points = load_cloud(cloud, visibility)
+    from fusion.convert import convert_points  # numba and scipy: once the input has been read and checked
+
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConversionWarning)
         result = convert_points(points, mode, options)

@@ -42,6 +42,13 @@ def _check_outputs(json_path: Path | None, folder: Path | None) -> None:
         check_output_dir(folder)
 
 
+def _lpips_model(weights: dict[str, Any]) -> Any:
+    """The torch LPIPS network from weights checked by :func:`eval.lpips.read_weights` (imports torch)."""
+    from eval.lpips import LPIPS
+
+    return LPIPS(weights)
+
+
 def _print_image_table(result: ImageEval, title: str) -> None:
     from eval.image_metrics import IMAGE_METRIC_NAMES
 
@@ -204,13 +211,16 @@ def images(
 
     Every metric on the whole image and inside the mask (when a mask exists), per view and as mean ± std.
     Colours are compared in [0, 1]; ΔE is the mean CIEDE2000 difference."""
-    from eval.lpips import LPIPS
-    from eval.render_eval import evaluate_folders
+    from eval.lpips import find_weights, read_weights
+    from eval.render_eval import evaluate_pairs, folder_pairs
 
     _check_outputs(json_path, panels)
-    model = None if no_lpips else LPIPS.from_path(lpips_weights)
+    # every input is read and checked (weights, then images and masks) before torch is loaded for LPIPS
+    weights = None if no_lpips else read_weights(find_weights(lpips_weights))
+    pairs = folder_pairs(renders, photos, masks)
+    model = None if weights is None else _lpips_model(weights)
     with output_transaction():  # panels and JSON appear together or not at all
-        result = evaluate_folders(renders, photos, masks, model, panels, name=renders.name or "images")
+        result = evaluate_pairs(pairs, model, panels, name=renders.name or "images")
         if json_path is not None:
             _write_json(json_path, result.as_dict())
     _print_image_table(result, f"{renders} vs {photos}")
@@ -243,7 +253,7 @@ def render(
     Same metrics as `eval images` (whole image and masked, per view, mean ± std)."""
     from core.io.colmap import read_model
     from core.io.gaussian_ply import read_gaussian_ply
-    from eval.lpips import LPIPS
+    from eval.lpips import find_weights, read_weights
     from eval.render_eval import evaluate_gaussians
 
     _check_outputs(json_path, panels)
@@ -256,7 +266,8 @@ def render(
         chosen = [v for v in cameras if (photos / v.name).is_file()]
     if not chosen:
         raise ConfigError(f"no image of the model {model} has a photo in {photos}", photos)
-    lpips_model = None if no_lpips else LPIPS.from_path(lpips_weights)
+    weights = None if no_lpips else read_weights(find_weights(lpips_weights))
+    lpips_model = None if weights is None else _lpips_model(weights)  # torch from here on
     with output_transaction():  # panels and JSON appear together or not at all
         result = evaluate_gaussians(gs, cameras, chosen, photos, masks, lpips_model, panels, name=gaussians.stem)
         if json_path is not None:

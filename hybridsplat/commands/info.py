@@ -8,7 +8,6 @@ import numpy as np
 import typer
 
 from core.io import read_point_cloud
-from core.io.colmap import read_model
 from core.io.gaussian_ply import read_gaussian_ply
 from core.io.ply import scan_ply_header
 
@@ -23,6 +22,8 @@ def info(
 ) -> None:
     """Print what a file holds: point count, origin, bounds, fields; Gaussians' SH degree; cameras and images."""
     if path.is_dir():
+        from core.io.colmap import read_model  # pycolmap
+
         cameras, points = read_model(path)
         typer.echo(f"COLMAP model {path}: {len(cameras.cameras)} cameras, {len(cameras)} images, {len(points)} points")
         for cam in cameras.cameras.values():

@@ -12,7 +12,7 @@ from core.gaussians import GaussianSet
 from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
 from core.io.ply import scan_ply_header
-from fusion.convert import ConversionWarning, ConvertMode, convert_points
+from fusion.convert_options import ConversionWarning, ConvertMode
 from fusion.export import export_gaussians, export_points
 from fusion.merge import MergeOptions, Prefer, merge_gaussians
 from hybridsplat.commands.convert import export_options, load_cloud, print_export
@@ -33,7 +33,10 @@ def load_gaussians(path: Path, mode: ConvertMode) -> GaussianSet:
         return read_gaussian_ply(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConversionWarning)
-        gs = convert_points(load_cloud(path), mode).gaussians
+        cloud = load_cloud(path)
+        from fusion.convert import convert_points  # numba and scipy: once the input has been read and checked
+
+        gs = convert_points(cloud, mode).gaussians
     for w in caught:
         print(f"hybridsplat: warning: {path}: {w.message}", file=sys.stderr)
     return gs

@@ -41,7 +41,6 @@ class CleanStage(Stage):
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
-        from fusion.clean import CleanOptions, clean_splats
         from hybridsplat.stages.train import read_masks
 
         o: CleanStageOptions = ctx.options(self)
@@ -51,6 +50,8 @@ class CleanStage(Stage):
 
         cameras, _ = read_project_model(ctx, ctx.layout.dense_workspace.sparse)
         splats = read_gaussian_ply(ctx.layout.trained_splats)
+        from fusion.clean import CleanOptions, clean_splats  # torch: after the inputs are read
+
         options = CleanOptions(o.mask_dilation_px, opt(o.min_opacity), opt(o.max_scale_scene),
                                opt(o.max_scale_spacing), opt(o.cluster_eps_spacing), o.min_cluster_size)  # fmt: skip
         result = clean_splats(splats, cameras, read_masks(ctx, cameras), options)

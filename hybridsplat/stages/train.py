@@ -141,8 +141,6 @@ class TrainStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
         from core.io.images import read_image
-        from fusion.train import DefaultStrategy, HardViewOptions, TrainOptions, train_splats
-        from fusion.train.init import InitOptions, seed_splats
 
         opts: TrainStageOptions = ctx.options(self)
         layout = ctx.layout
@@ -156,6 +154,10 @@ class TrainStage(Stage):
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
         mvs = read_gaussian_ply(layout.mvs_gaussians).with_origin(cameras.origin)
         needs = needs_splats_per_gaussian(ctx, mvs)
+        # torch from here on: the inputs above have been read and checked
+        from fusion.train import DefaultStrategy, HardViewOptions, TrainOptions, train_splats
+        from fusion.train.init import InitOptions, seed_splats
+
         sfm_local = sfm.world_positions - cameras.origin if len(sfm) else None
         seeds = seed_splats(cameras, masks, images, mvs.means, np.clip(mvs.base_colors * 255, 0, 255), needs,
                             sfm_local, sfm.colors if len(sfm) else None,

@@ -768,9 +768,9 @@ def _output_cases() -> list[FuzzCase]:
     ]
 
 
-#: The subset that runs with the normal tests: one subprocess per file family of the issue, none that
-#: imports torch (those take 15–25 s each on the shared 2-core machine); the others run under `make fuzz`
-#: and, in-process, in tests/test_cli_errors.py.
+#: The subset that runs with the normal tests: one subprocess per file family of the issue; the others run
+#: under `make fuzz` and, in-process, in tests/test_cli_errors.py. Bad input to the commands that compute
+#: with torch (eval, render, train, mvs, view) is refused before torch is imported: tests/test_cli_no_torch.py.
 FAST = frozenset(
     {
         "ply-xyz-as-lists",

@@ -1,0 +1,90 @@
+"""The options and codes of the point-to-Gaussian conversion (:mod:`fusion.convert`), without its kernels.
+
+Kept apart from :mod:`fusion.convert` (numba kernels, scipy KD-trees) so that the command line, the pipeline's
+configuration and the export/merge code can name a mode, a source code or the options, and check them, without
+loading numba; :mod:`fusion.convert` re-exports every name here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+
+import numpy as np
+
+from core.errors import ConfigError
+
+
+class Source(IntEnum):
+    """Codes of the ``source`` field (uint8) carried by Gaussians and exported point clouds."""
+
+    UNKNOWN = 0
+    MVS = 1  # converted from the photogrammetric (MVS) cloud
+    SPLAT = 2  # trained Gaussian splat
+
+
+class ConvertMode(str, Enum):
+    """Conversion modes (see the module docstring)."""
+
+    PAPER = "paper"
+    ADAPTIVE = "adaptive"
+
+
+DEFAULT_MODE = ConvertMode.ADAPTIVE  # the toolkit's one default (pipeline and ``hybridsplat convert``)
+
+
+class ConversionWarning(UserWarning):
+    """A clamp or fallback changed values during conversion (the message gives the count)."""
+
+
+@dataclass(frozen=True)
+class ConvertOptions:
+    """Options of :func:`points_to_gaussians`. Lengths in metres, opacities as stored logits.
+
+    Defaults: ``opacity_logit_min`` = −5 (α ≈ 0.0067, above the 1/255 export cut, so no point is lost) and
+    ``opacity_logit_max`` = 10 (α ≈ 0.99995) leave the paper's log(1/d) untouched for any d between 45 µm and
+    148 m; ``min_spacing`` = 1e-5 m and ``max_spacing`` = 1e3 m bound the log-scales; ``fallback_spacing`` is used
+    for a cloud of a single point. Adaptive: ``tangent_scale`` = 0.4 and ``view_saturation`` = 1 gave the best
+    PSNR on data_synth scenes (``bench/bench_convert_quality.py``: 0.3 and 0.6 were worse, so was a saturation of
+    2 views); ``thickness_ratio`` = 0.1 makes flat surfels (isotropic discs of the same size lose ~0.9 dB).
+    Execution: ``neighbor_backend`` ``"grid"`` (numba, ``numba.get_num_threads()`` threads, default
+    ``NUMBA_NUM_THREADS``) or ``"kdtree"`` (scipy, ``workers`` threads, queried in chunks of ``chunk_size`` points).
+    """
+
+    opacity_logit_min: float = -5.0
+    opacity_logit_max: float = 10.0
+    min_spacing: float = 1e-5
+    max_spacing: float = 1e3
+    fallback_spacing: float = 0.01
+    # adaptive mode
+    k_neighbors: int = 8
+    tangent_scale: float = 0.4
+    thickness_ratio: float = 0.1
+    max_opacity: float = 0.98
+    view_saturation: float = 1.0
+    outlier_spacing_factor: float = 3.0
+    # execution
+    chunk_size: int = 1_000_000
+    workers: int = -1
+    neighbor_backend: str = "grid"
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("opacity_logit_min < opacity_logit_max", self.opacity_logit_min < self.opacity_logit_max),
+            ("0 < min_spacing < max_spacing", 0 < self.min_spacing < self.max_spacing),
+            ("fallback_spacing > 0", self.fallback_spacing > 0),
+            ("1 <= k_neighbors <= 64", 1 <= self.k_neighbors <= 64),
+            ("tangent_scale > 0", self.tangent_scale > 0),
+            ("0 < thickness_ratio <= 1", 0 < self.thickness_ratio <= 1),
+            ("0 < max_opacity < 1", 0 < self.max_opacity < 1),
+            ("view_saturation > 0", self.view_saturation > 0),
+            ("outlier_spacing_factor > 0", self.outlier_spacing_factor > 0),
+            ("chunk_size >= 1", self.chunk_size >= 1),
+            ("neighbor_backend in ('grid', 'kdtree')", self.neighbor_backend in ("grid", "kdtree")),
+        ]
+        for name, value in self.__dict__.items():
+            if isinstance(value, float) and not np.isfinite(value):
+                raise ConfigError(f"convert option {name} must be finite, got {value}")
+        for rule, ok in checks:
+            if not ok:
+                raise ConfigError(f"convert options must satisfy {rule}; got {self}")
