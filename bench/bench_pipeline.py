@@ -71,20 +71,20 @@ class Plan:
 
 QUICK = Plan(
     scenes=("demo", "textured"),
-    train_iterations=500,
-    baseline_iterations=1000,
-    train_sweep=(150,),
-    baseline_sweep=(300,),
+    train_iterations=600,
+    baseline_iterations=2000,
+    train_sweep=(150, 300),
+    baseline_sweep=(500, 1000),
     mvs_sizes=(),
     convert_modes=(),
     scaling=((12, 160, 120),),
 )
 FULL = Plan(
     scenes=("demo", "aerial", "textured"),
-    train_iterations=1000,
-    baseline_iterations=2000,
-    train_sweep=(150, 300, 600),
-    baseline_sweep=(250, 500, 1000),
+    train_iterations=600,
+    baseline_iterations=4000,
+    train_sweep=(150, 300, 1200),
+    baseline_sweep=(500, 1000, 2000),
     mvs_sizes=(160,),
     convert_modes=("paper",),
     scaling=((12, 160, 120), (40, 400, 300)),
