@@ -304,15 +304,26 @@ def plot_pareto(scene: str, points: list[Point], out: Path) -> list[str]:
                               ("completeness", "completeness at τ", False)):  # fmt: skip
         fig, ax = plt.subplots(figsize=(6, 4))
         for product, colour in (("mvs", "tab:blue"), ("baseline", "tab:orange"), ("merged", "tab:green")):
-            pts = [p for p in points if p.product == product and getattr(p, key) is not None]
+            pts, labels = [], {}
+            for p in points:  # a product a variant did not change repeats the base run's point: plot it once
+                if p.product != product or getattr(p, key) is None:
+                    continue
+                spot = (round(p.seconds, 3), getattr(p, key))
+                if spot not in labels:
+                    pts.append(p)
+                labels.setdefault(spot, []).append(p.variant)
             if not pts:
                 continue
             ax.scatter([p.seconds for p in pts], [getattr(p, key) for p in pts], color=colour,
                        label=PRODUCT_LABELS[product])  # fmt: skip
             for p in pts:
-                ax.annotate(p.variant, (p.seconds, getattr(p, key)), fontsize=6, alpha=0.7)
+                spot = (round(p.seconds, 3), getattr(p, key))
+                name = "base" if "base" in labels[spot] else ", ".join(labels[spot])
+                ax.annotate(name, (p.seconds, getattr(p, key)), fontsize=6, alpha=0.7)
             front = pareto(pts, key, lower)
             ax.plot([p.seconds for p in front], [getattr(p, key) for p in front], color=colour, alpha=0.6)
+        if key == "c2c_mean":  # whole-scene 3DGS floaters put its mean an order of magnitude above the others
+            ax.set_yscale("log")
         ax.set_xlabel("time from the SfM model (s)")
         ax.set_ylabel(label)
         ax.set_title(f"{scene}: {label} against run time")
