@@ -113,21 +113,9 @@ PRESETS: dict[str, Preset] = {
         environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
         texture_scale=1.0,
     ),
-    "textured": Preset(
-        name="textured",
-        layout="tabletop_textured",
-        width=320,
-        height=240,
-        rig=OrbitRig(radius_m=0.85, elevations_deg=(28.0, 50.0), views_per_ring=12, n_test=4,
-                     target=(0.0, 0.0, 0.03), hfov_deg=48.0),
-        lidar=TerrestrialScan(stations=((0.7, 0.0, 0.35), (0.0, 0.7, 0.4), (-0.7, 0.0, 0.35), (0.0, -0.7, 0.4)),
-                              step_deg=0.2, azimuth_half_deg=35.0, elevation_deg=(-45.0, 10.0)),
-        noise=RangeNoise(sigma_m=0.0003, sigma_rel=0.0),
-        render=RenderSettings(supersample=2, max_depth=4),
-        environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
-        texture_scale=1.0,
-    ),
 }  # fmt: skip
+# the demo scene with every object textured: only the layout differs
+PRESETS["textured"] = replace(PRESETS["demo"], name="textured", layout="tabletop_textured")
 
 OVERRIDES = ("views", "test_views", "width", "height", "supersample", "max_depth", "noise", "georef", "origin")
 

@@ -64,6 +64,7 @@ class BaselineStage(Stage):
         from core.io.images import read_image
         from fusion.train import DefaultStrategy, TrainOptions, train_splats
         from fusion.train.init import sfm_seeds
+        from hybridsplat.stages.train import training_downscale
 
         opts: BaselineStageOptions = ctx.options(self)
         layout = ctx.layout
@@ -73,8 +74,7 @@ class BaselineStage(Stage):
         held_out = set(ctx.source.holdout_names)
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name not in held_out}
         init = sfm_seeds(sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None, cameras.origin)
-        longest = max(max(cameras.camera_of(v).width, cameras.camera_of(v).height) for v in cameras)
-        downscale = max(opts.downscale, -(-longest // opts.max_image_size) if opts.max_image_size else 1)
+        downscale = training_downscale(cameras, opts.downscale, opts.max_image_size)
         train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
                                   sh_degree=opts.sh_degree, strategy=DefaultStrategy(cap=opts.cap))  # fmt: skip
 

@@ -77,6 +77,13 @@ class TrainStageOptions:
             raise ConfigError(f"splats_per_mask_pixel must be > 0, got {self.splats_per_mask_pixel}")
 
 
+def training_downscale(cameras, downscale: int, max_image_size: int) -> int:
+    """The integer photo downscale for training: at least ``downscale``, and enough that the longer side of every
+    camera is at most ``max_image_size`` pixels (0 = no limit)."""
+    longest = max(max(cameras.camera_of(v).width, cameras.camera_of(v).height) for v in cameras)
+    return max(downscale, -(-longest // max_image_size) if max_image_size else 1)
+
+
 def read_masks(ctx: StageContext, cameras) -> dict[str, np.ndarray]:
     """Masks (bool, at each camera's size; resized nearest when classify wrote another size) by image name."""
     import cv2
@@ -162,8 +169,7 @@ class TrainStage(Stage):
         seeds = seed_splats(cameras, masks, images, mvs.means, np.clip(mvs.base_colors * 255, 0, 255), needs,
                             sfm_local, sfm.colors if len(sfm) else None,
                             InitOptions(rays_per_view=opts.rays_per_view, seed=ctx.config.seed))  # fmt: skip
-        longest = max(max(cameras.camera_of(v).width, cameras.camera_of(v).height) for v in cameras)
-        downscale = max(opts.downscale, -(-longest // opts.max_image_size) if opts.max_image_size else 1)
+        downscale = training_downscale(cameras, opts.downscale, opts.max_image_size)
         mask_pixels = sum(int(m.sum()) for m in masks.values()) / downscale**2
         cap = min(opts.cap, max(1000, round(opts.splats_per_mask_pixel * mask_pixels)))
         train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
