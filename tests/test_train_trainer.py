@@ -231,3 +231,30 @@ def test_smoothl1_msssim_option_trains_and_bad_names_are_config_errors() -> None
     assert after > before + 0.5, (before, after)
     with pytest.raises(ConfigError):
         TrainOptions(photometric="l2")
+
+
+def test_densification_stops_at_refine_until_share_of_the_run() -> None:
+    """Gaussians added late are never fitted: with refine_until 0.5 the count is frozen over the second half (with
+    1.0 it still grows there), and early stopping cannot end a run before densification has ended."""
+    cams = ring_cameras(6)
+    truth = blob_set(60, 3)
+    photos = render_all(truth, cams)
+    grow = DefaultStrategy(refine_start=12, refine_every=12, grow_grad2d=1e-12, cap=10_000, budget_ramp=0.01)
+
+    def history(**kw):
+        opts = TrainOptions(iterations=60, sh_degree=0, seed=2, strategy=grow, eval_every=6, **kw)
+        return [
+            (c.step, c.gaussians) for c in train_splats(cams, photos, None, perturbed(truth, 4), options=opts).history
+        ]
+
+    half = history(refine_until=0.5)
+    whole = history(refine_until=1.0)
+    assert [n for s, n in half if s >= 30] == [half[-1][1]] * 6 and half[-1][1] > half[0][1]
+    assert dict(whole)[48] > dict(whole)[30]  # still growing in the second half
+    stopped = history(refine_until=0.5, patience=1, min_improvement_db=1e9, min_iterations=0)
+    assert stopped[-1][0] == 30  # no window can improve by 1e9 dB: stops as soon as densification has ended
+
+
+def test_refine_until_must_be_a_share() -> None:
+    with pytest.raises(ConfigError, match="refine_until"):
+        TrainOptions(refine_until=0.0)

@@ -9,8 +9,8 @@ densification strategy's bookkeeping and refinement (:mod:`fusion.train.strategy
 
 Early stop: a seeded ``holdout_fraction`` of each view's mask pixels never enters the loss; the PSNR on them is
 accumulated over whole epochs, and training stops when it has not improved by ``min_improvement_db`` for
-``patience`` evaluation windows. The whole-scene 3DGS baseline is the same trainer with ``masks=None``, no context
-and SfM points as ``init``.
+``patience`` evaluation windows (never before ``min_iterations`` nor while the strategy still densifies). The
+whole-scene 3DGS baseline is the same trainer with ``masks=None``, no context and SfM points as ``init``.
 
 Frames: everything is trained in the cameras' local frame shifted by the mean camera centre (float64 shift, then
 float32); results come back as :class:`core.GaussianSet` in the cameras' local frame and origin.
@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -82,6 +82,9 @@ class TrainOptions:
     scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
     of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping (see module).
+    refine_until: share of ``iterations`` after which the strategy no longer densifies (its ``refine_stop`` is
+    lowered to it; 3DGS: 15 000 of 30 000 steps). Gaussians added late are never fitted: a split at the last step
+    replaces each Gaussian by two unfitted halves. Early stopping waits for the end of densification too.
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
     hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
     photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
@@ -112,6 +115,7 @@ class TrainOptions:
     patience: int = 3
     min_improvement_db: float = 0.05
     min_iterations: int = 600
+    refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
     priors: PriorOptions | None = None
@@ -127,6 +131,8 @@ class TrainOptions:
             raise ConfigError(f"sh_degree must be 0..3, got {self.sh_degree}")
         if self.sh_degree_interval < 1 or self.eval_every < 1 or self.patience < 1:
             raise ConfigError("sh_degree_interval, eval_every and patience must be >= 1")
+        if not 0.0 < self.refine_until <= 1.0:
+            raise ConfigError(f"refine_until must lie in (0, 1], got {self.refine_until}")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
         if self.photometric not in ("l1_ssim", "smoothl1_msssim") or not self.smoothl1_beta > 0:
@@ -275,6 +281,10 @@ def train_splats(
     }
     optimizer = make_optimizer(params, lrs)
     strategy = opts.strategy
+    last_refine = int(opts.refine_until * opts.iterations)
+    if strategy.refine_stop > last_refine:
+        strategy = replace(strategy, refine_stop=max(strategy.refine_start, last_refine))
+    densifying_until = strategy.refine_stop if strategy.refine_start < strategy.refine_stop else 0
     state = strategy.initial_state(len(init))
     background = torch.tensor(opts.background, dtype=torch.float32)
     decay = opts.lr_means_final ** (1.0 / max(1, opts.iterations))
@@ -362,7 +372,7 @@ def train_splats(
                 best, stale = psnr, 0
             else:
                 stale += 1
-            if stale >= opts.patience and step >= opts.min_iterations and step < opts.iterations:
+            if stale >= opts.patience and step >= max(opts.min_iterations, densifying_until) and step < opts.iterations:
                 stopped = True
                 break
         if progress is not None:

@@ -25,6 +25,7 @@ class BaselineStageOptions:
     downscale, max_image_size: as the ``train`` stage's (same defaults, so both train at the same resolution).
     cap: hard Gaussian budget (the ``train`` stage's hard cap by default: "same Gaussian cap").
     sh_degree: highest SH degree.
+    refine_start / refine_until: densification window, as the ``train`` stage's (same defaults).
     """
 
     enabled: bool = False
@@ -33,10 +34,14 @@ class BaselineStageOptions:
     max_image_size: int = 640
     cap: int = 60_000
     sh_degree: int = 3
+    refine_start: int = 500
+    refine_until: float = 0.5
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
             raise ConfigError("baseline: iterations, downscale and cap must be >= 1, max_image_size >= 0")
+        if self.refine_start < 0 or not 0.0 < self.refine_until <= 1.0:
+            raise ConfigError("baseline: need refine_start >= 0 and 0 < refine_until <= 1")
 
 
 class BaselineStage(Stage):
@@ -76,7 +81,8 @@ class BaselineStage(Stage):
         init = sfm_seeds(sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None, cameras.origin)
         downscale = training_downscale(cameras, opts.downscale, opts.max_image_size)
         train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
-                                  sh_degree=opts.sh_degree, strategy=DefaultStrategy(cap=opts.cap))  # fmt: skip
+                                  sh_degree=opts.sh_degree, refine_until=opts.refine_until,
+                                  strategy=DefaultStrategy(cap=opts.cap, refine_start=opts.refine_start))  # fmt: skip
 
         def progress(info) -> None:
             ctx.progress(

@@ -38,6 +38,8 @@ class TrainStageOptions:
         length from the mask edge inwards at the training resolution (negative: the whole mask);
         prior_edge_scale: image-gradient scale of the edge-aware weight (negative: off); prior_hull_share: the prior
         is kept where its surface point lands inside this share of the other views' masks (negative: off).
+    refine_start / refine_until: densification (clone, split, prune; fusion.train.DefaultStrategy) runs from step
+        ``refine_start`` until the share ``refine_until`` of ``iterations`` (never in the last half by default).
     hard_views: hard-view mining mid-training (fusion.train.HardViewOptions defaults); off by default.
     photometric: ``l1_ssim`` (3DGS) or ``smoothl1_msssim`` (fusion.train.msssim).
     """
@@ -56,6 +58,8 @@ class TrainStageOptions:
     prior_border_px: float = 8.0
     prior_edge_scale: float = 0.1
     prior_hull_share: float = 0.8
+    refine_start: int = 500
+    refine_until: float = 0.5
     hard_views: bool = False
     photometric: str = "l1_ssim"
 
@@ -73,6 +77,9 @@ class TrainStageOptions:
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
             raise ConfigError("iterations, downscale and cap must be >= 1, max_image_size >= 0")
+        if self.refine_start < 0 or not 0.0 < self.refine_until <= 1.0:
+            raise ConfigError(f"need refine_start >= 0 and 0 < refine_until <= 1, got {self.refine_start}, "
+                              f"{self.refine_until}")  # fmt: skip
         if not self.splats_per_mask_pixel > 0:
             raise ConfigError(f"splats_per_mask_pixel must be > 0, got {self.splats_per_mask_pixel}")
 
@@ -176,8 +183,8 @@ class TrainStage(Stage):
                                   sh_degree=opts.sh_degree, flat=opts.flat,
                                   snapshot_iterations=opts.snapshot_iterations, priors=opts.prior_options(),
                                   hard_views=HardViewOptions() if opts.hard_views else None,
-                                  photometric=opts.photometric,
-                                  strategy=DefaultStrategy(cap=cap))  # fmt: skip
+                                  photometric=opts.photometric, refine_until=opts.refine_until,
+                                  strategy=DefaultStrategy(cap=cap, refine_start=opts.refine_start))  # fmt: skip
 
         def progress(info) -> None:
             ctx.progress(
