@@ -92,6 +92,7 @@ class MeshResult:
 
     mesh: TriangleMesh
     untrimmed: TriangleMesh
+    untrimmed_is_cap: np.ndarray  # (T,) bool: the untrimmed mesh's caps on the Poisson cube (fusion.mesh.closing)
     trimmed: TriangleMesh
     points: OrientedPoints
     point_stats: OrientedPointStats
@@ -213,6 +214,7 @@ def mesh_from_gaussians(
     return MeshResult(
         mesh=final,
         untrimmed=result.mesh,
+        untrimmed_is_cap=result.is_cap,
         trimmed=trimmed,
         points=points,
         point_stats=point_stats,

@@ -127,6 +127,21 @@ class TriangleMesh:
         v = self.vertices[self.triangles]
         return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
 
+    def sample_surface(self, n: int, seed: int = 0) -> np.ndarray:
+        """(n, 3) float64 points uniform over the surface (local frame): triangles drawn by area, then uniform
+        barycentric coordinates. :class:`DataError` for a mesh without area."""
+        areas = self.triangle_areas()
+        total = float(areas.sum())
+        if not total > 0:
+            raise DataError(f"cannot sample a mesh without area ({self.num_triangles} triangles)")
+        rng = np.random.default_rng(seed)
+        tri = rng.choice(len(areas), size=int(n), p=areas / total)
+        a, b = rng.random(int(n)), rng.random(int(n))
+        flip = a + b > 1
+        a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+        t = self.vertices[self.triangles[tri]]
+        return t[:, 0] + a[:, None] * (t[:, 1] - t[:, 0]) + b[:, None] * (t[:, 2] - t[:, 0])
+
     def compact(self) -> TriangleMesh:
         """The mesh without vertices that no triangle uses (indices renumbered, colours follow)."""
         used = np.zeros(len(self.vertices), dtype=bool)
