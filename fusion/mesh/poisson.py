@@ -42,7 +42,9 @@ class PoissonOptions:
     scale: Poisson bounding cube / sample bounding cube (open3d's default 1.1). linear_fit: open3d's option.
     point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). close: cap the untrimmed mesh on the
     faces of the reconstruction cube where the surface runs into it, so that it is watertight (default True; the caps
-    never survive trimming). density_quantile: vertices below
+    never survive trimming). footprint_support: a vertex within the footprint (``OrientedPoints.footprint``) of any
+    point is supported too, whatever ``support_factor`` says (default False).
+    density_quantile: vertices below
     this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
     vertices farther than this many median point spacings from every point are trimmed (default 2; None: off).
     min_component_fraction: pieces with fewer triangles than this share of the trimmed mesh are dropped (default
@@ -59,6 +61,7 @@ class PoissonOptions:
     linear_fit: bool = False
     point_weight: float = 2.0
     close: bool = True
+    footprint_support: bool = False
     density_quantile: float = 0.0
     support_factor: float | None = 2.0
     min_component_fraction: float = 0.01
@@ -88,8 +91,9 @@ class PoissonResult:
     """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours; closed with caps when
     ``PoissonOptions.close``), its per-vertex densities (V,) float64 (0 at added cube corners), the depth used, the
     distance (V,) float64 metres from each vertex to the nearest oriented point, the median point spacing (metres),
-    a (T,) bool mask of the cap triangles, the closing's stats (None without ``close``), and the reconstruction
-    cube's corners lo, hi (3,) float64 in the mesh's local frame."""
+    a (T,) bool mask of the cap triangles, the closing's stats (None without ``close``), a (V,) bool mask of the
+    vertices within the footprint of some point (all False without ``footprint_support``), and the
+    reconstruction cube's corners lo, hi (3,) float64 in the mesh's local frame."""
 
     mesh: TriangleMesh
     densities: np.ndarray
@@ -98,6 +102,7 @@ class PoissonResult:
     point_spacing: float
     is_cap: np.ndarray
     closing: ClosingStats | None
+    footprint_supported: np.ndarray
     cube_lo: np.ndarray
     cube_hi: np.ndarray
 
@@ -198,7 +203,27 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
         out, is_cap, closing = close_at_cube(out, lo, hi, snap_tolerance=min(1e-5, 0.01 / 2**depth) * side)
         densities = np.concatenate([densities, np.zeros(len(out.vertices) - len(densities))])
     support, _ = cKDTree(points.positions).query(out.vertices, k=1)
-    return PoissonResult(out, densities, int(depth), support, spacing, is_cap, closing, lo, hi)
+    in_footprint = np.zeros(len(out.vertices), dtype=bool)
+    if options.footprint_support:
+        in_footprint = within_footprints(out.vertices, points.positions, points.footprint)
+    return PoissonResult(out, densities, int(depth), support, spacing, is_cap, closing, in_footprint, lo, hi)
+
+
+def within_footprints(vertices: np.ndarray, centres: np.ndarray, radii: np.ndarray, chunk: int = 50_000) -> np.ndarray:
+    """(V,) bool: vertex v lies within radius r_j of some centre c_j (|v − c_j| <= r_j). vertices (V, 3), centres
+    (N, 3) float64 metres in one frame, radii (N,) metres (<= 0: none); exact (a ball query per centre)."""
+    out = np.zeros(len(vertices), dtype=bool)
+    has = np.flatnonzero(radii > 0)
+    if len(has) == 0 or len(vertices) == 0:
+        return out
+    tree = cKDTree(vertices)
+    for start in range(0, len(has), chunk):
+        rows = has[start : start + chunk]
+        hits = tree.query_ball_point(centres[rows], r=radii[rows], return_sorted=False)
+        flat = [h for h in hits if h]
+        if flat:
+            out[np.concatenate(flat).astype(np.int64)] = True
+    return out
 
 
 def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> tuple[TriangleMesh, TrimStats]:
@@ -220,7 +245,7 @@ def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> t
     removed_low = int((keep_tri & low[mesh.triangles].any(axis=1)).sum())
     keep_tri &= ~low[mesh.triangles].any(axis=1)
     max_support = options.support_factor * result.point_spacing if options.support_factor else np.inf
-    far = result.support_distance > max_support
+    far = (result.support_distance > max_support) & ~result.footprint_supported
     keep_support = ~far[mesh.triangles].any(axis=1)
     removed_far = int((keep_tri & ~keep_support).sum())
     keep_tri &= keep_support
