@@ -12,7 +12,8 @@ Sections (all printed in one run, JSON with --json):
 2. Budgets 1 k / 10 k / 100 k with the default decimator: count within 1 %, degenerate triangles, edge-manifold,
    boundary edges; untrimmed watertight?, trimmed edge-manifold and its boundary edges.
 3. Mesh to ground truth (the scene's gt/mesh.ply, exact): accuracy = distance of points sampled uniformly on our
-   mesh to the GT surface (mean, std; per material of the nearest GT triangle), completeness = share of GT surface
+   mesh to the GT surface (mean, std, median, and precision = the share within τ; per material of the nearest GT
+   triangle), completeness = share of GT surface
    samples within τ of our mesh, over the GT surface that at least two training views see (visibility from the
    scene's true depth maps: what any photogrammetry could reconstruct), overall and per material. MVS-only mesh
    always; the hybrid mesh (all merged Gaussians + training snapshots of splat regions) when the project has splats.
@@ -175,9 +176,13 @@ def mesh_vs_truth(mesh: TriangleMesh, gt: GroundTruth, tau: float, n: int = 200_
             "acc_n": int(len(a)),
             "acc_mean_mm": float(a.mean() * 1e3) if len(a) else float("nan"),
             "acc_std_mm": float(a.std() * 1e3) if len(a) else float("nan"),
+            "acc_median_mm": float(np.median(a) * 1e3) if len(a) else float("nan"),
+            "precision": float((a < tau).mean()) if len(a) else float("nan"),
             "gt_n": int(len(c)),
             "completeness": float((c < tau).mean()) if len(c) else float("nan"),
         }
+        p, r = rows[name]["precision"], rows[name]["completeness"]
+        rows[name]["f_score"] = 2 * p * r / (p + r) if p + r > 0 else 0.0
     return rows
 
 
@@ -287,16 +292,21 @@ def truth_section(merged, snapshots, vp, gt: GroundTruth, tau: float, budget: in
         rows = mesh_vs_truth(r.mesh, gt, tau)
         results[name] = {"summary": r.summary(), "seconds": sec, "materials": rows}
         print(f"-- {name}: {r.mesh.num_triangles} triangles, {sec:.1f} s")
-        print(
-            f"{'material':>20} {'kind':>12} {'acc mean mm':>11} {'acc std mm':>10} {'acc n':>7} "
-            f"{'compl.':>7} {'GT n':>7}"
-        )
-        for mat, row in rows.items():
-            print(
-                f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
-                f"{row['acc_n']:>7} {row['completeness']:>7.3f} {row['gt_n']:>7}"
-            )
+        print_truth_rows(rows)
     return results
+
+
+def print_truth_rows(rows: dict[str, dict[str, float]]) -> None:
+    print(
+        f"{'material':>20} {'kind':>12} {'acc mean mm':>11} {'acc std mm':>10} {'acc med mm':>10} {'prec.':>6} "
+        f"{'acc n':>7} {'compl.':>7} {'F':>6} {'GT n':>7}"
+    )
+    for mat, row in rows.items():
+        print(
+            f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
+            f"{row['acc_median_mm']:>10.2f} {row['precision']:>6.3f} {row['acc_n']:>7} {row['completeness']:>7.3f} "
+            f"{row['f_score']:>6.3f} {row['gt_n']:>7}"
+        )
 
 
 def points_vs_truth(points: np.ndarray, origin: np.ndarray, gt: GroundTruth, tau: float) -> dict[str, dict]:
@@ -369,11 +379,7 @@ def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float
         f"-- TSDF of depth rendered from the MVS Gaussians at {len(cams)} cameras: {raw.num_triangles} raw, "
         f"{mesh.num_triangles} triangles, {sec:.1f} s ({load()})"
     )
-    for mat, row in rows.items():
-        print(
-            f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
-            f"{row['acc_n']:>7} {row['completeness']:>7.3f} {row['gt_n']:>7}"
-        )
+    print_truth_rows(rows)
     return {"seconds": sec, "triangles_raw": raw.num_triangles, "materials": rows}
 
 

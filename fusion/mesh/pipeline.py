@@ -118,6 +118,7 @@ class MeshResult:
             "triangles_untrimmed": self.quality_untrimmed.triangles,
             "untrimmed_watertight": self.quality_untrimmed.watertight,
             "untrimmed_cap_triangles": self.closing.cap_triangles if self.closing else 0,
+            "untrimmed_non_manifold_edges": self.quality_untrimmed.non_manifold_edges,
             "triangles_trimmed": self.quality_trimmed.triangles,
             "trimmed_edge_manifold": self.quality_trimmed.edge_manifold,
             "trimmed_boundary_edges": self.quality_trimmed.boundary_edges,

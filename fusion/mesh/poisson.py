@@ -4,7 +4,8 @@ The untrimmed Poisson surface is the zero set of an implicit function over the w
 around closed samplings, but it bulges over regions no point supports, and around open scenes (a ground plane) it
 runs into the reconstruction cube and is cut open there (open3d's PoissonRecon uses Neumann boundary conditions; no
 option of open3d changes that). With ``close`` (default) the cut is closed by caps on the cube's faces
-(:mod:`fusion.mesh.closing`): the untrimmed mesh is then the watertight boundary of the solid {inside} ∩ cube.
+(:mod:`fusion.mesh.closing`): the untrimmed mesh is then the watertight boundary of the solid {inside} ∩ cube (after
+the non-manifold edges PoissonRecon emits are repaired without opening it, :mod:`fusion.mesh.manifold`).
 Trimming removes the caps, then two kinds of vertices, and the triangles that use them: those whose Poisson density
 (the kernel density of the samples at the vertex, open3d's second return value) is below the ``density_quantile`` of
 all vertex densities (the usual low-density trim), and those farther than ``support_factor`` × the median point
@@ -30,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
 from fusion.mesh.closing import ClosingStats, close_at_cube, poisson_cube
+from fusion.mesh.manifold import ManifoldStats, make_edge_manifold
 from fusion.mesh.types import OrientedPoints, TriangleMesh
 
 
@@ -42,7 +44,9 @@ class PoissonOptions:
     scale: Poisson bounding cube / sample bounding cube (open3d's default 1.1). linear_fit: open3d's option.
     point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). close: cap the untrimmed mesh on the
     faces of the reconstruction cube where the surface runs into it, so that it is watertight (default True; the caps
-    never survive trimming). footprint_support: a vertex within the footprint (``OrientedPoints.footprint``) of any
+    never survive trimming). manifold: remove the pillows and flat tetrahedra PoissonRecon emits and split its other
+    non-manifold edges (:mod:`fusion.mesh.manifold`), so that the untrimmed mesh is edge-manifold (default True).
+    footprint_support: a vertex within the footprint (``OrientedPoints.footprint``) of any
     point is supported too, whatever ``support_factor`` says (default False).
     density_quantile: vertices below
     this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
@@ -61,6 +65,7 @@ class PoissonOptions:
     linear_fit: bool = False
     point_weight: float = 2.0
     close: bool = True
+    manifold: bool = True
     footprint_support: bool = False
     density_quantile: float = 0.0
     support_factor: float | None = 2.0
@@ -91,7 +96,8 @@ class PoissonResult:
     """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours; closed with caps when
     ``PoissonOptions.close``), its per-vertex densities (V,) float64 (0 at added cube corners), the depth used, the
     distance (V,) float64 metres from each vertex to the nearest oriented point, the median point spacing (metres),
-    a (T,) bool mask of the cap triangles, the closing's stats (None without ``close``), a (V,) bool mask of the
+    a (T,) bool mask of the cap triangles, the closing's stats (None without ``close``), the manifold repair's stats
+    (None without ``manifold``), a (V,) bool mask of the
     vertices within the footprint of some point (all False without ``footprint_support``), and the
     reconstruction cube's corners lo, hi (3,) float64 in the mesh's local frame."""
 
@@ -102,6 +108,7 @@ class PoissonResult:
     point_spacing: float
     is_cap: np.ndarray
     closing: ClosingStats | None
+    manifold: ManifoldStats | None
     footprint_supported: np.ndarray
     cube_lo: np.ndarray
     cube_hi: np.ndarray
@@ -193,6 +200,10 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     colors = np.clip(np.asarray(mesh.vertex_colors, dtype=np.float64), 0.0, 1.0) if mesh.has_vertex_colors() else None
     out = TriangleMesh(verts, tris, points.origin.copy(), colors)
     densities = np.asarray(dens, dtype=np.float64)
+    manifold = None
+    if options.manifold:
+        out, sources, manifold = make_edge_manifold(out)
+        densities = densities[sources].mean(axis=1)
     lo, hi = poisson_cube(points.positions, options.scale)
     is_cap = np.zeros(len(tris), dtype=bool)
     closing = None
@@ -206,7 +217,7 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     in_footprint = np.zeros(len(out.vertices), dtype=bool)
     if options.footprint_support:
         in_footprint = within_footprints(out.vertices, points.positions, points.footprint)
-    return PoissonResult(out, densities, int(depth), support, spacing, is_cap, closing, in_footprint, lo, hi)
+    return PoissonResult(out, densities, int(depth), support, spacing, is_cap, closing, manifold, in_footprint, lo, hi)
 
 
 def within_footprints(vertices: np.ndarray, centres: np.ndarray, radii: np.ndarray, chunk: int = 50_000) -> np.ndarray:
