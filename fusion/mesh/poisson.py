@@ -96,7 +96,9 @@ class PoissonResult:
     """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours; closed with caps when
     ``PoissonOptions.close``), its per-vertex densities (V,) float64 (0 at added cube corners), the depth used, the
     distance (V,) float64 metres from each vertex to the nearest oriented point, the median point spacing (metres),
-    a (T,) bool mask of the cap triangles, the closing's stats (None without ``close``), the manifold repair's stats
+    a (T,) bool mask of the cap triangles, the (S, 3) int64 triangles open3d returned (indices into ``mesh.vertices``:
+    before the manifold repair, whose pillows and flat tetrahedra can be thin real surface, and without caps; what
+    trimming starts from), the closing's stats (None without ``close``), the manifold repair's stats
     (None without ``manifold``), a (V,) bool mask of the
     vertices within the footprint of some point (all False without ``footprint_support``), and the
     reconstruction cube's corners lo, hi (3,) float64 in the mesh's local frame."""
@@ -107,6 +109,7 @@ class PoissonResult:
     support_distance: np.ndarray
     point_spacing: float
     is_cap: np.ndarray
+    surface_triangles: np.ndarray
     closing: ClosingStats | None
     manifold: ManifoldStats | None
     footprint_supported: np.ndarray
@@ -116,8 +119,9 @@ class PoissonResult:
 
 @dataclass
 class TrimStats:
-    """Triangles before, removed as caps (the closing's, see :mod:`fusion.mesh.closing`), by the density cut, by the
-    support cut, on non-manifold edges, as small pieces, after; pieces kept / dropped; the density threshold and the
+    """Triangles open3d returned (what trimming starts from), the closed mesh's caps left out (see
+    :mod:`fusion.mesh.closing`), triangles removed by the density cut, by the support cut, on non-manifold edges, as
+    small pieces, after; pieces kept / dropped; the density threshold and the
     support distance (metres) used."""
 
     triangles_in: int
@@ -200,6 +204,7 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     colors = np.clip(np.asarray(mesh.vertex_colors, dtype=np.float64), 0.0, 1.0) if mesh.has_vertex_colors() else None
     out = TriangleMesh(verts, tris, points.origin.copy(), colors)
     densities = np.asarray(dens, dtype=np.float64)
+    surface_triangles = tris.copy()  # repair and closing only append vertices: these indices stay valid
     manifold = None
     if options.manifold:
         out, sources, manifold = make_edge_manifold(out)
@@ -217,7 +222,9 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     in_footprint = np.zeros(len(out.vertices), dtype=bool)
     if options.footprint_support:
         in_footprint = within_footprints(out.vertices, points.positions, points.footprint)
-    return PoissonResult(out, densities, int(depth), support, spacing, is_cap, closing, manifold, in_footprint, lo, hi)
+    return PoissonResult(
+        out, densities, int(depth), support, spacing, is_cap, surface_triangles, closing, manifold, in_footprint, lo, hi
+    )
 
 
 def within_footprints(vertices: np.ndarray, centres: np.ndarray, radii: np.ndarray, chunk: int = 50_000) -> np.ndarray:
@@ -238,12 +245,12 @@ def within_footprints(vertices: np.ndarray, centres: np.ndarray, radii: np.ndarr
 
 
 def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> tuple[TriangleMesh, TrimStats]:
-    """Cap removal, density and support trimming, non-manifold edge repair, then small-piece removal (module
-    docstring); unused vertices are removed."""
+    """Density and support trimming of open3d's surface (``result.surface_triangles``: no caps, pillows kept),
+    non-manifold edge repair, then small-piece removal (module docstring); unused vertices are removed."""
     options = options or PoissonOptions()
-    mesh = result.mesh
+    mesh = TriangleMesh(result.mesh.vertices, result.surface_triangles, result.mesh.origin, result.mesh.vertex_colors)
     t0 = mesh.num_triangles
-    keep_tri = ~result.is_cap
+    keep_tri = np.ones(mesh.num_triangles, dtype=bool)
     removed_caps = int(result.is_cap.sum())
     # the quantile over the surface's own vertices (cap corners carry no density)
     surface_vertices = np.unique(mesh.triangles[keep_tri])
