@@ -12,11 +12,15 @@ Sections (all printed in one run, JSON with --json):
 2. Budgets 1 k / 10 k / 100 k with the default decimator: count within 1 %, degenerate triangles, edge-manifold,
    boundary edges; untrimmed watertight?, trimmed edge-manifold and its boundary edges.
 3. Mesh to ground truth (the scene's gt/mesh.ply, exact): accuracy = distance of points sampled uniformly on our
-   mesh to the GT surface (mean, std; per material of the nearest GT triangle), completeness = share of GT surface
+   mesh to the GT surface (mean, std, median, and precision = the share within τ; per material of the nearest GT
+   triangle), completeness = share of GT surface
    samples within τ of our mesh, over the GT surface that at least two training views see (visibility from the
    scene's true depth maps: what any photogrammetry could reconstruct), overall and per material. MVS-only mesh
    always; the hybrid mesh (all merged Gaussians + training snapshots of splat regions) when the project has splats.
 4. Time of the whole mesh chain (default options, the demo's 2 k budget) on the demo scene, with the machine's load.
+5. Where coverage is lost, per material: completeness at τ (and accuracy) of the oriented points, of the untrimmed
+   Poisson surface (caps left out), of the trimmed one and of the decimated mesh, MVS-only and hybrid; and, for the
+   hybrid, of its three kinds of points alone (MVS surfels, trained splats, snapshot union).
 
 Timings on a shared machine are noisy: the load average is printed next to each; re-run before quoting.
 """
@@ -172,9 +176,13 @@ def mesh_vs_truth(mesh: TriangleMesh, gt: GroundTruth, tau: float, n: int = 200_
             "acc_n": int(len(a)),
             "acc_mean_mm": float(a.mean() * 1e3) if len(a) else float("nan"),
             "acc_std_mm": float(a.std() * 1e3) if len(a) else float("nan"),
+            "acc_median_mm": float(np.median(a) * 1e3) if len(a) else float("nan"),
+            "precision": float((a < tau).mean()) if len(a) else float("nan"),
             "gt_n": int(len(c)),
             "completeness": float((c < tau).mean()) if len(c) else float("nan"),
         }
+        p, r = rows[name]["precision"], rows[name]["completeness"]
+        rows[name]["f_score"] = 2 * p * r / (p + r) if p + r > 0 else 0.0
     return rows
 
 
@@ -284,16 +292,75 @@ def truth_section(merged, snapshots, vp, gt: GroundTruth, tau: float, budget: in
         rows = mesh_vs_truth(r.mesh, gt, tau)
         results[name] = {"summary": r.summary(), "seconds": sec, "materials": rows}
         print(f"-- {name}: {r.mesh.num_triangles} triangles, {sec:.1f} s")
-        print(
-            f"{'material':>20} {'kind':>12} {'acc mean mm':>11} {'acc std mm':>10} {'acc n':>7} "
-            f"{'compl.':>7} {'GT n':>7}"
-        )
-        for mat, row in rows.items():
-            print(
-                f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
-                f"{row['acc_n']:>7} {row['completeness']:>7.3f} {row['gt_n']:>7}"
-            )
+        print_truth_rows(rows)
     return results
+
+
+def print_truth_rows(rows: dict[str, dict[str, float]]) -> None:
+    print(
+        f"{'material':>20} {'kind':>12} {'acc mean mm':>11} {'acc std mm':>10} {'acc med mm':>10} {'prec.':>6} "
+        f"{'acc n':>7} {'compl.':>7} {'F':>6} {'GT n':>7}"
+    )
+    for mat, row in rows.items():
+        print(
+            f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
+            f"{row['acc_median_mm']:>10.2f} {row['precision']:>6.3f} {row['acc_n']:>7} {row['completeness']:>7.3f} "
+            f"{row['f_score']:>6.3f} {row['gt_n']:>7}"
+        )
+
+
+def points_vs_truth(points: np.ndarray, origin: np.ndarray, gt: GroundTruth, tau: float) -> dict[str, dict]:
+    """Completeness at τ of a point set (visible GT samples with a point within τ) and the points' accuracy."""
+    from scipy.spatial import cKDTree
+
+    local = points + origin - gt.origin
+    rows: dict[str, dict] = {}
+    if len(local) == 0:
+        return {"all": {"completeness": 0.0, "acc_mean_mm": float("nan"), "n": 0}}
+    comp_d, _ = cKDTree(local).query(gt.samples, k=1)
+    acc_d, acc_m = gt.closest(local)
+    for name, m in [("all", None)] + [(gt.legend[m]["name"], m) for m in sorted(set(gt.sample_material))]:
+        c = comp_d if m is None else comp_d[gt.sample_material == m]
+        a = acc_d if m is None else acc_d[acc_m == m]
+        rows[name] = {
+            "completeness": float((c < tau).mean()) if len(c) else float("nan"),
+            "acc_mean_mm": float(a.mean() * 1e3) if len(a) else float("nan"),
+            "n": int(len(a)),
+        }
+    return rows
+
+
+def coverage_section(merged, snapshots, vp, gt: GroundTruth, tau: float, budget: int) -> dict:
+    print(f"\n== 5. where coverage is lost: completeness at τ = {tau * 1e3:.1f} mm per step ({load()})")
+    out: dict[str, dict] = {}
+    kinds = [("mvs-only", MeshOptions(budget=budget, source=MeshSource.MVS), ())]
+    if (merged.fields["source"] == Source.SPLAT).any():
+        kinds.append(("hybrid", MeshOptions(budget=budget), tuple(snapshots)))
+    for name, opts, snaps in kinds:
+        r = mesh_from_gaussians(merged, opts, snapshots=snaps, viewpoints=vp)
+        surface = TriangleMesh(r.untrimmed.vertices, r.untrimmed.triangles[~r.untrimmed_is_cap], r.untrimmed.origin)
+        steps = {"points": points_vs_truth(r.points.positions, r.points.origin, gt, tau)}
+        if name == "hybrid":
+            for label, code in (("  MVS points", Source.MVS), ("  splat points", Source.SPLAT)):
+                keep = r.points.source == code
+                if code == Source.SPLAT:
+                    keep &= r.points.gaussian_index >= 0
+                steps[label] = points_vs_truth(r.points.positions[keep], r.points.origin, gt, tau)
+            snap = r.points.gaussian_index < 0
+            steps["  snapshot points"] = points_vs_truth(r.points.positions[snap], r.points.origin, gt, tau)
+        steps["untrimmed"] = mesh_vs_truth(surface.compact(), gt, tau)
+        steps["trimmed"] = mesh_vs_truth(r.trimmed, gt, tau)
+        steps["decimated"] = mesh_vs_truth(r.mesh, gt, tau)
+        materials = list(steps["trimmed"])
+        print(f"-- {name}: {len(r.points)} points; trim {r.trim_stats}")
+        print(f"{'step':>18} " + " ".join(f"{m[:12]:>12}" for m in materials))
+        for step, rows in steps.items():
+            print(
+                f"{step:>18} "
+                + " ".join(f"{rows[m]['completeness']:>12.3f}" if m in rows else f"{'':>12}" for m in materials)
+            )
+        out[name] = steps
+    return out
 
 
 def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float, budget: int) -> dict:
@@ -312,11 +379,7 @@ def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float
         f"-- TSDF of depth rendered from the MVS Gaussians at {len(cams)} cameras: {raw.num_triangles} raw, "
         f"{mesh.num_triangles} triangles, {sec:.1f} s ({load()})"
     )
-    for mat, row in rows.items():
-        print(
-            f"{mat:>20} {row['kind']:>12} {row['acc_mean_mm']:>11.2f} {row['acc_std_mm']:>10.2f} "
-            f"{row['acc_n']:>7} {row['completeness']:>7.3f} {row['gt_n']:>7}"
-        )
+    print_truth_rows(rows)
     return {"seconds": sec, "triangles_raw": raw.num_triangles, "materials": rows}
 
 
@@ -360,9 +423,9 @@ def main() -> None:
     args = ap.parse_args()
 
     report: dict[str, object] = {}
-    if {1, 2, 3} & set(args.sections):
+    if {1, 2, 3, 5} & set(args.sections):
         if args.scene is None or args.project is None:
-            raise SystemExit("sections 1-3 need --scene and --project")
+            raise SystemExit("sections 1-3 and 5 need --scene and --project")
         merged = load_merged(args.project)
         vp = viewpoints(args.project, merged.origin)
         snaps = load_snapshots(args.project)
@@ -392,6 +455,9 @@ def main() -> None:
         if args.tsdf:
             report["tsdf"] = tsdf_section(args.project, merged, gt, tau, args.truth_budget)
         report["tau_m"] = tau
+    if 5 in args.sections:
+        gt = gt if 3 in args.sections else GroundTruth(args.scene, args.gt_samples)
+        report["coverage"] = coverage_section(merged, snaps, vp, gt, args.tau_gsd * gt.gsd, args.truth_budget)
     if 4 in args.sections and args.demo_scene and args.demo_project:
         report["demo"] = demo_section(args.demo_scene, args.demo_project)
     if args.json:

@@ -100,9 +100,11 @@ def test_hybrid_mesh_closes_the_glass_hole_the_mvs_mesh_leaves(scene):
         assert r.quality_trimmed.edge_manifold
         samples = mesh_surface_samples(r.mesh.vertices, r.mesh.triangles, 10_000)
         assert sphere_distance(samples, R).mean() < 0.003  # a tenth of the point spacing
-    # closed sampling: Poisson's implicit surface is closed before trimming (open sampling may run into the
-    # reconstruction cube: the MVS-only surface is not promised to be watertight)
+    # closed sampling: Poisson's implicit surface is closed before trimming, without caps; the MVS-only sampling is
+    # open (the glass cap missing) and may run into the reconstruction cube: closed there by caps
     assert hybrid.quality_untrimmed.watertight and hybrid.quality_untrimmed.pieces == 1
+    assert not hybrid.untrimmed_is_cap.any()
+    assert mvs_only.quality_untrimmed.watertight and mvs_only.closing.closed
     assert mvs_only.quality_trimmed.boundary_edges > 0  # the hole is reported as boundary
     # vertex colours come from the Gaussians' SH DC (all surfels are (0.8, 0.4, 0.2))
     assert np.abs(hybrid.mesh.vertex_colors - [0.8, 0.4, 0.2]).max() < 1e-5

@@ -130,6 +130,8 @@ def test_large_splats_get_more_points_inside_their_ellipse():
     assert np.allclose(mine[:, 2], 0.0, atol=1e-12)  # in the splat's plane
     assert np.linalg.norm(mine[:, :2], axis=1).max() <= 1.5 * 0.04 + 1e-12
     assert np.allclose(out.positions[out.gaussian_index == 3][0], [5.0, 0, 0])  # first point is the mean
+    # each point's footprint: its Gaussian's sampled ellipse, 1.5 σ (the long in-surface σ)
+    assert np.allclose(out.footprint, np.where(out.gaussian_index == 3, 1.5 * 0.04, 1.5 * 0.01))
 
 
 def test_bad_input():

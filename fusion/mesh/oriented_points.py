@@ -206,7 +206,9 @@ def oriented_points_from_gaussians(
     v[first] = 0.0
     pos = centres[owner] + axis_a[owner] * (u * sig[owner, 1])[:, None] + axis_b[owner] * (v * sig[owner, 2])[:, None]
     gi = idx[owner]
-    points = OrientedPoints(pos, normal[owner], gaussians.base_colors[gi], source[gi], gi, gaussians.origin.copy())
+    reach = options.footprint_sigmas * sig[owner, 2]  # the ellipse's long semi-axis
+    colors = gaussians.base_colors[gi]
+    points = OrientedPoints(pos, normal[owner], colors, source[gi], gi, gaussians.origin.copy(), reach)
     stats = OrientedPointStats(n0, dropped_faint, dropped_iso, estimated, int(trusted.sum()), len(points), spacing)
     return points, stats
 

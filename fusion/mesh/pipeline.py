@@ -3,7 +3,8 @@
 1. oriented points from the merged Gaussians (:mod:`fusion.mesh.oriented_points`), optionally only the MVS ones;
 2. plus, for transparent / reflective regions, the points of the union of training snapshots with opacity 1
    (:mod:`fusion.mesh.transparent`);
-3. screened Poisson, density trimming, small-piece removal (:mod:`fusion.mesh.poisson`);
+3. screened Poisson, closed at its reconstruction cube (:mod:`fusion.mesh.closing`), cap removal, support and
+   density trimming, small-piece removal (:mod:`fusion.mesh.poisson`);
 4. decimation to the budget within 1 % (:mod:`fusion.mesh.decimate`);
 5. vertex colours from the merged Gaussians' SH DC (:mod:`fusion.mesh.colors`).
 
@@ -23,6 +24,7 @@ import numpy as np
 from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.convert import Source
+from fusion.mesh.closing import ClosingStats
 from fusion.mesh.colors import vertex_colors_from_gaussians
 from fusion.mesh.decimate import DecimateOptions, DecimationStats, decimate
 from fusion.mesh.oriented_points import OrientedPointOptions, OrientedPointStats, oriented_points_from_gaussians
@@ -90,6 +92,7 @@ class MeshResult:
 
     mesh: TriangleMesh
     untrimmed: TriangleMesh
+    untrimmed_is_cap: np.ndarray  # (T,) bool: the untrimmed mesh's caps on the Poisson cube (fusion.mesh.closing)
     trimmed: TriangleMesh
     points: OrientedPoints
     point_stats: OrientedPointStats
@@ -97,6 +100,7 @@ class MeshResult:
     snapshot_points: int
     splat_points_dropped_near_mvs: int
     poisson_depth: int
+    closing: ClosingStats | None
     trim_stats: TrimStats
     decimation: DecimationStats | None
     quality_untrimmed: MeshQuality
@@ -113,6 +117,8 @@ class MeshResult:
             "poisson_depth": self.poisson_depth,
             "triangles_untrimmed": self.quality_untrimmed.triangles,
             "untrimmed_watertight": self.quality_untrimmed.watertight,
+            "untrimmed_cap_triangles": self.closing.cap_triangles if self.closing else 0,
+            "untrimmed_non_manifold_edges": self.quality_untrimmed.non_manifold_edges,
             "triangles_trimmed": self.quality_trimmed.triangles,
             "trimmed_edge_manifold": self.quality_trimmed.edge_manifold,
             "trimmed_boundary_edges": self.quality_trimmed.boundary_edges,
@@ -209,6 +215,7 @@ def mesh_from_gaussians(
     return MeshResult(
         mesh=final,
         untrimmed=result.mesh,
+        untrimmed_is_cap=result.is_cap,
         trimmed=trimmed,
         points=points,
         point_stats=point_stats,
@@ -216,6 +223,7 @@ def mesh_from_gaussians(
         snapshot_points=n_snap,
         splat_points_dropped_near_mvs=dropped_near_mvs,
         poisson_depth=result.depth,
+        closing=result.closing,
         trim_stats=trim_stats,
         decimation=dec,
         quality_untrimmed=mesh_quality(result.mesh),

@@ -2,15 +2,19 @@
 
 The untrimmed Poisson surface is the zero set of an implicit function over the whole octree: closed (watertight)
 around closed samplings, but it bulges over regions no point supports, and around open scenes (a ground plane) it
-runs into the reconstruction cube and is open there. Trimming removes two kinds of vertices, and the triangles
-that use them: those whose Poisson density (the kernel density of the samples at the vertex, open3d's second return
-value) is below the ``density_quantile`` of all vertex densities (the usual low-density trim), and those farther than
-``support_factor`` × the median point spacing from every oriented point (surface that no sample supports: Poisson's
-bridges over holes; a quantile alone cannot tell a hole from a well-sampled closed surface, where it would cut the
-lowest few percent regardless). Edges shared by more than two triangles (PoissonRecon's iso-surface extraction
-emits a few at fine depths) are repaired with open3d's ``remove_non_manifold_edges`` (drops the smallest of the
-triangles on such an edge until two are left), so the trimmed mesh is edge-manifold. Pieces that are left with
-fewer triangles than ``min_component_fraction`` of the whole are then dropped (floaters, extrapolated blobs).
+runs into the reconstruction cube and is cut open there (open3d's PoissonRecon uses Neumann boundary conditions; no
+option of open3d changes that). With ``close`` (default) the cut is closed by caps on the cube's faces
+(:mod:`fusion.mesh.closing`): the untrimmed mesh is then the watertight boundary of the solid {inside} ∩ cube (after
+the non-manifold edges PoissonRecon emits are repaired without opening it, :mod:`fusion.mesh.manifold`).
+Trimming removes the caps, then two kinds of vertices, and the triangles that use them: those whose Poisson density
+(the kernel density of the samples at the vertex, open3d's second return value) is below the ``density_quantile`` of
+all vertex densities (the usual low-density trim), and those farther than ``support_factor`` × the median point
+spacing from every oriented point (surface that no sample supports: Poisson's bridges over holes; a quantile alone
+cannot tell a hole from a well-sampled closed surface, where it would cut the lowest few percent regardless). Edges
+shared by more than two triangles (PoissonRecon's iso-surface extraction emits a few at fine depths) are repaired
+with open3d's ``remove_non_manifold_edges`` (drops the smallest of the triangles on such an edge until two are
+left), so the trimmed mesh is edge-manifold. Pieces that are left with fewer triangles than
+``min_component_fraction`` of the whole are then dropped (floaters, extrapolated blobs).
 
 Depth: the octree depth follows the sampling (``depth`` None): the finest cell is ``cell_factor`` × the median
 nearest-neighbour distance of the points, so depth = ceil(log2(1.1 · extent / cell)), clamped to
@@ -26,6 +30,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
+from fusion.mesh.closing import ClosingStats, close_at_cube, poisson_cube
+from fusion.mesh.manifold import ManifoldStats, make_edge_manifold
 from fusion.mesh.types import OrientedPoints, TriangleMesh
 
 
@@ -36,7 +42,13 @@ class PoissonOptions:
     depth: octree depth (None: from the sampling, see the module docstring). cell_factor: finest cell in units of
     the median point spacing (default 1.5). min_depth / max_depth: clamp of the automatic depth (5 / 10).
     scale: Poisson bounding cube / sample bounding cube (open3d's default 1.1). linear_fit: open3d's option.
-    point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). density_quantile: vertices below
+    point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). close: cap the untrimmed mesh on the
+    faces of the reconstruction cube where the surface runs into it, so that it is watertight (default True; the caps
+    never survive trimming). manifold: remove the pillows and flat tetrahedra PoissonRecon emits and split its other
+    non-manifold edges (:mod:`fusion.mesh.manifold`), so that the untrimmed mesh is edge-manifold (default True).
+    footprint_support: a vertex within the footprint (``OrientedPoints.footprint``) of any
+    point is supported too, whatever ``support_factor`` says (default False).
+    density_quantile: vertices below
     this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
     vertices farther than this many median point spacings from every point are trimmed (default 2; None: off).
     min_component_fraction: pieces with fewer triangles than this share of the trimmed mesh are dropped (default
@@ -52,6 +64,9 @@ class PoissonOptions:
     scale: float = 1.1
     linear_fit: bool = False
     point_weight: float = 2.0
+    close: bool = True
+    manifold: bool = True
+    footprint_support: bool = False
     density_quantile: float = 0.0
     support_factor: float | None = 2.0
     min_component_fraction: float = 0.01
@@ -78,23 +93,39 @@ class PoissonOptions:
 
 @dataclass
 class PoissonResult:
-    """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours), its per-vertex densities
-    (V,) float64, the depth used, the distance (V,) float64 metres from each vertex to the nearest oriented point, and
-    the median point spacing (metres)."""
+    """The untrimmed mesh (vertex colours interpolated by open3d from the points' colours; closed with caps when
+    ``PoissonOptions.close``), its per-vertex densities (V,) float64 (0 at added cube corners), the depth used, the
+    distance (V,) float64 metres from each vertex to the nearest oriented point, the median point spacing (metres),
+    a (T,) bool mask of the cap triangles, the (S, 3) int64 triangles open3d returned (indices into ``mesh.vertices``:
+    before the manifold repair, whose pillows and flat tetrahedra can be thin real surface, and without caps; what
+    trimming starts from), the closing's stats (None without ``close``), the manifold repair's stats
+    (None without ``manifold``), a (V,) bool mask of the
+    vertices within the footprint of some point (all False without ``footprint_support``), and the
+    reconstruction cube's corners lo, hi (3,) float64 in the mesh's local frame."""
 
     mesh: TriangleMesh
     densities: np.ndarray
     depth: int
     support_distance: np.ndarray
     point_spacing: float
+    is_cap: np.ndarray
+    surface_triangles: np.ndarray
+    closing: ClosingStats | None
+    manifold: ManifoldStats | None
+    footprint_supported: np.ndarray
+    cube_lo: np.ndarray
+    cube_hi: np.ndarray
 
 
 @dataclass
 class TrimStats:
-    """Triangles before, removed by the density cut, by the support cut, as small pieces, after; pieces kept /
-    dropped; the density threshold and the support distance (metres) used."""
+    """Triangles open3d returned (what trimming starts from), the closed mesh's caps left out (see
+    :mod:`fusion.mesh.closing`), triangles removed by the density cut, by the support cut, on non-manifold edges, as
+    small pieces, after; pieces kept / dropped; the density threshold and the
+    support distance (metres) used."""
 
     triangles_in: int
+    removed_caps: int
     removed_low_density: int
     removed_unsupported: int
     removed_non_manifold: int
@@ -172,21 +203,67 @@ def poisson_reconstruct(points: OrientedPoints, options: PoissonOptions | None =
     verts = np.asarray(mesh.vertices, dtype=np.float64) + centre
     colors = np.clip(np.asarray(mesh.vertex_colors, dtype=np.float64), 0.0, 1.0) if mesh.has_vertex_colors() else None
     out = TriangleMesh(verts, tris, points.origin.copy(), colors)
-    support, _ = cKDTree(points.positions).query(verts, k=1)
-    return PoissonResult(out, np.asarray(dens, dtype=np.float64), int(depth), support, spacing)
+    densities = np.asarray(dens, dtype=np.float64)
+    surface_triangles = tris.copy()  # repair and closing only append vertices: these indices stay valid
+    manifold = None
+    if options.manifold:
+        out, sources, manifold = make_edge_manifold(out)
+        densities = densities[sources].mean(axis=1)
+    lo, hi = poisson_cube(points.positions, options.scale)
+    is_cap = np.zeros(len(tris), dtype=bool)
+    closing = None
+    if options.close:
+        # open3d's vertices are float32 round-off (~1e-7 of the cube) off the cube: snap within a hundredth of the
+        # finest cell, far below any vertex spacing
+        side = float(hi[0] - lo[0])
+        out, is_cap, closing = close_at_cube(out, lo, hi, snap_tolerance=min(1e-5, 0.01 / 2**depth) * side)
+        densities = np.concatenate([densities, np.zeros(len(out.vertices) - len(densities))])
+    support, _ = cKDTree(points.positions).query(out.vertices, k=1)
+    in_footprint = np.zeros(len(out.vertices), dtype=bool)
+    if options.footprint_support:
+        in_footprint = within_footprints(out.vertices, points.positions, points.footprint)
+    return PoissonResult(
+        out, densities, int(depth), support, spacing, is_cap, surface_triangles, closing, manifold, in_footprint, lo, hi
+    )
+
+
+def within_footprints(vertices: np.ndarray, centres: np.ndarray, radii: np.ndarray, chunk: int = 50_000) -> np.ndarray:
+    """(V,) bool: vertex v lies within radius r_j of some centre c_j (|v − c_j| <= r_j). vertices (V, 3), centres
+    (N, 3) float64 metres in one frame, radii (N,) metres (<= 0: none); exact (a ball query per centre)."""
+    out = np.zeros(len(vertices), dtype=bool)
+    has = np.flatnonzero(radii > 0)
+    if len(has) == 0 or len(vertices) == 0:
+        return out
+    tree = cKDTree(vertices)
+    for start in range(0, len(has), chunk):
+        rows = has[start : start + chunk]
+        hits = tree.query_ball_point(centres[rows], r=radii[rows], return_sorted=False)
+        flat = [h for h in hits if h]
+        if flat:
+            out[np.concatenate(flat).astype(np.int64)] = True
+    return out
 
 
 def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> tuple[TriangleMesh, TrimStats]:
-    """Density trimming then small-piece removal (module docstring); unused vertices are removed."""
+    """Density and support trimming of open3d's surface (``result.surface_triangles``: no caps, pillows kept),
+    non-manifold edge repair, then small-piece removal (module docstring); unused vertices are removed."""
     options = options or PoissonOptions()
-    mesh = result.mesh
+    mesh = TriangleMesh(result.mesh.vertices, result.surface_triangles, result.mesh.origin, result.mesh.vertex_colors)
     t0 = mesh.num_triangles
-    threshold = float(np.quantile(result.densities, options.density_quantile)) if options.density_quantile else -np.inf
+    keep_tri = np.ones(mesh.num_triangles, dtype=bool)
+    removed_caps = int(result.is_cap.sum())
+    # the quantile over the surface's own vertices (cap corners carry no density)
+    surface_vertices = np.unique(mesh.triangles[keep_tri])
+    threshold = (
+        float(np.quantile(result.densities[surface_vertices], options.density_quantile))
+        if options.density_quantile
+        else -np.inf
+    )
     low = result.densities < threshold
-    keep_tri = ~low[mesh.triangles].any(axis=1)
-    removed_low = int(t0 - keep_tri.sum())
+    removed_low = int((keep_tri & low[mesh.triangles].any(axis=1)).sum())
+    keep_tri &= ~low[mesh.triangles].any(axis=1)
     max_support = options.support_factor * result.point_spacing if options.support_factor else np.inf
-    far = result.support_distance > max_support
+    far = (result.support_distance > max_support) & ~result.footprint_supported
     keep_support = ~far[mesh.triangles].any(axis=1)
     removed_far = int((keep_tri & ~keep_support).sum())
     keep_tri &= keep_support
@@ -204,6 +281,7 @@ def trim_mesh(result: PoissonResult, options: PoissonOptions | None = None) -> t
     out = TriangleMesh(trimmed.vertices, trimmed.triangles[keep], trimmed.origin, trimmed.vertex_colors).compact()
     stats = TrimStats(
         triangles_in=t0,
+        removed_caps=removed_caps,
         removed_low_density=removed_low,
         removed_unsupported=removed_far,
         removed_non_manifold=removed_nm,

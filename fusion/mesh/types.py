@@ -28,6 +28,8 @@ class OrientedPoints:
     source: (N,) uint8, :class:`fusion.convert.Source` code of that Gaussian (1 MVS, 2 splat, 0 unknown).
     gaussian_index: (N,) int64, index of that Gaussian in the set the points were drawn from (-1: none).
     origin: (3,) float64 world coordinates of the local origin.
+    footprint: (N,) float64 metres, radius of the surface the point's Gaussian covers (its sampled ellipse's long
+        semi-axis; 0: unknown, the default), used by support trimming (:func:`fusion.mesh.poisson.trim_mesh`).
     """
 
     positions: np.ndarray
@@ -36,6 +38,7 @@ class OrientedPoints:
     source: np.ndarray
     gaussian_index: np.ndarray
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    footprint: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.positions = np.ascontiguousarray(np.asarray(self.positions, dtype=np.float64).reshape(-1, 3))
@@ -45,7 +48,10 @@ class OrientedPoints:
         self.source = np.asarray(self.source, dtype=np.uint8).reshape(-1)
         self.gaussian_index = np.asarray(self.gaussian_index, dtype=np.int64).reshape(-1)
         self.origin = np.asarray(self.origin, dtype=np.float64).reshape(3)
-        for name in ("normals", "colors", "source", "gaussian_index"):
+        if self.footprint is None:
+            self.footprint = np.zeros(n)
+        self.footprint = np.asarray(self.footprint, dtype=np.float64).reshape(-1)
+        for name in ("normals", "colors", "source", "gaussian_index", "footprint"):
             if len(getattr(self, name)) != n:
                 raise DataError(f"oriented points: {name} has {len(getattr(self, name))} rows for {n} points")
 
@@ -60,6 +66,7 @@ class OrientedPoints:
             self.source[index],
             self.gaussian_index[index],
             self.origin.copy(),
+            self.footprint[index],
         )
 
     def with_origin(self, origin: np.ndarray) -> OrientedPoints:
@@ -84,6 +91,7 @@ class OrientedPoints:
             np.concatenate([p.source for p in moved]),
             np.concatenate([p.gaussian_index for p in moved]),
             origin,
+            np.concatenate([p.footprint for p in moved]),
         )
 
 
@@ -126,6 +134,21 @@ class TriangleMesh:
         """(T,) float64 areas in square metres."""
         v = self.vertices[self.triangles]
         return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+    def sample_surface(self, n: int, seed: int = 0) -> np.ndarray:
+        """(n, 3) float64 points uniform over the surface (local frame): triangles drawn by area, then uniform
+        barycentric coordinates. :class:`DataError` for a mesh without area."""
+        areas = self.triangle_areas()
+        total = float(areas.sum())
+        if not total > 0:
+            raise DataError(f"cannot sample a mesh without area ({self.num_triangles} triangles)")
+        rng = np.random.default_rng(seed)
+        tri = rng.choice(len(areas), size=int(n), p=areas / total)
+        a, b = rng.random(int(n)), rng.random(int(n))
+        flip = a + b > 1
+        a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+        t = self.vertices[self.triangles[tri]]
+        return t[:, 0] + a[:, None] * (t[:, 1] - t[:, 0]) + b[:, None] * (t[:, 2] - t[:, 0])
 
     def compact(self) -> TriangleMesh:
         """The mesh without vertices that no triangle uses (indices renumbered, colours follow)."""

@@ -67,7 +67,7 @@ class EvalStage(Stage):
         layout, spec = ctx.layout, ctx.source.spec
         truth = [self._reference(ctx), ctx.source.holdout.model, ctx.source.holdout.image_dir, spec.test_labels]
         products = [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, layout.merged_points_ply,
-                    layout.splats_export, layout.baseline_splats]  # fmt: skip
+                    layout.splats_export, layout.baseline_splats, layout.mesh_path("ply")]  # fmt: skip
         return [*products, *(p for p in truth if p)]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
@@ -176,6 +176,10 @@ class EvalStage(Stage):
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
+        mesh_points = _mesh_points(ctx.layout.mesh_path("ply"), tau)
+        if mesh_points is not None:  # the mesh stage's product: geometry only, from points sampled on its surface
+            geometry = geometry_per_material(mesh_points, ref.world_positions, ref.fields["material"], tau)
+            result["products"]["mesh"] = as_table(geometry, {}, names)
         return result
 
     def _truth_masks(self, ctx: StageContext) -> Path | None:
@@ -200,6 +204,18 @@ class EvalStage(Stage):
             if counts.get(f"{name}_psnr") is not None:
                 parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
         return ", ".join(parts)
+
+
+def _mesh_points(path: Path, tau: float, max_points: int = 2_000_000) -> np.ndarray | None:
+    """(N, 3) float64 world points uniform on the project's mesh, about τ/3 apart (at most ``max_points``; seeded),
+    or None without a mesh."""
+    from fusion.mesh import read_mesh
+
+    if not path.is_file():
+        return None
+    mesh = read_mesh(path)
+    n = int(min(max_points, max(10_000, mesh.triangle_areas().sum() / (tau / 3) ** 2)))
+    return mesh.sample_surface(n, seed=0) + mesh.origin
 
 
 def _label_pairs(gaussians, images, labels_dir: Path):
