@@ -59,6 +59,9 @@ class MaskOptions:
 
     footprint: float = 1.5
     hole_footprint: float = 2.5
+    hole_gsd: float = 0.0
+    trusted_only: bool = False
+    grow_area: int = 0
     max_radius_px: int = 12
     occlusion_tolerance: float = 0.02
     close_px: int = 3
@@ -75,6 +78,8 @@ class MaskOptions:
     def __post_init__(self) -> None:
         if not (self.footprint > 0 and self.max_radius_px >= 1 and self.close_px >= 0 and self.dilate_px >= 0):
             raise ConfigError("footprint must be > 0, max_radius_px >= 1, close_px and dilate_px >= 0")
+        if not (self.hole_gsd >= 0 and np.isfinite(self.hole_gsd)):
+            raise ConfigError(f"hole_gsd must be >= 0, got {self.hole_gsd}")
         if not (self.dilate_spacings >= 0 and np.isfinite(self.dilate_spacings)):
             raise ConfigError(f"dilate_spacings must be >= 0, got {self.dilate_spacings}")
         if self.hole_area not in HOLE_AREAS:
@@ -201,6 +206,46 @@ def _below_envelope(
     return rr >= env[None, :] if rows_up else rr <= env[None, :]
 
 
+def _grow_area(photo: np.ndarray, covered: np.ndarray, area: np.ndarray, iterations: int) -> np.ndarray:
+    """(H, W) bool: the pixels that look like the reconstructed scene (OpenCV's GrabCut: colour models of the
+    pixels covered by points (certain scene), the rest of ``area`` (probably scene) and the pixels outside it
+    (probably not scene), with a smoothness term), ``iterations`` rounds. Unreconstructed surface beyond the
+    cloud's outline (the far part of a table, terrain seen at a grazing angle) is scene; sky and backdrop are not."""
+    h, w = covered.shape
+    img = photo
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.shape[:2] != (h, w):
+        img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    img = np.ascontiguousarray(img[..., :3], dtype=np.uint8)
+    gc = np.full((h, w), cv2.GC_PR_BGD, dtype=np.uint8)
+    gc[area] = cv2.GC_PR_FGD
+    gc[covered] = cv2.GC_FGD
+    if not (gc == cv2.GC_PR_BGD).any() or not (gc == cv2.GC_FGD).any():
+        return np.zeros((h, w), dtype=bool)
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)
+    cv2.grabCut(img, gc, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    return (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+
+
+def ground_sample_distance(cameras: Cameras, positions: np.ndarray, names: list[str] | None = None) -> float:
+    """The block's ground sample distance (metres per pixel): over the views (those named in ``names``), the median
+    of (median depth of the points (N, 3) float64 inside the view's frustum) / focal length in pixels, as data_synth
+    defines a scene's GSD from its depth maps. 0 when no view sees a point."""
+    pts = np.asarray(positions, dtype=np.float64)
+    per_view = []
+    for view in cameras:
+        if names is not None and view.name not in names:
+            continue
+        cam = cameras.camera_of(view)
+        uv, z = cameras.project(view, pts)
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] < cam.height)
+        if inside.any():
+            per_view.append(float(np.median(z[inside])) / cam.focal[0])
+    return float(np.median(per_view)) if per_view else 0.0
+
+
 def photo_mask(
     cameras: Cameras,
     view: View,
@@ -210,6 +255,7 @@ def photo_mask(
     options: MaskOptions = MaskOptions(),
     user_mask: np.ndarray | None = None,
     seen: SeenInView | None = None,
+    gsd: float | None = None,
 ) -> PhotoMask:
     """The mask of one view from the classified cloud (positions (N, 3) float64 in the cameras' frame,
     needs_splats (N,) bool, spacing metres). seen: what tells which points this photo sees (for
@@ -219,24 +265,35 @@ def photo_mask(
     cam = cameras.camera_of(view)
     h, w = cam.height, cam.width
     uv, z = cameras.project(view, positions)
-    inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < w) & (uv[:, 1] < h)
+    # Points projecting just outside the photo still cover its border pixels with their footprints: they are drawn
+    # on a canvas padded by the largest footprint, then cropped (else the border reads as a hole).
+    pad = int(options.max_radius_px)
+    inside = (z > 0) & (uv[:, 0] >= -pad) & (uv[:, 1] >= -pad) & (uv[:, 0] < w + pad) & (uv[:, 1] < h + pad)
     idx = np.flatnonzero(inside)
     col, row, zz = uv[idx, 0], uv[idx, 1], z[idx]
     fx = cam.focal[0]
+
+    def draw(sel: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+        canvas = splat_footprints((h + 2 * pad, w + 2 * pad), col[sel] + pad, row[sel] + pad, radius_px[sel], pad)
+        return canvas[pad : pad + h, pad : pad + w]
+
     radius = options.footprint * spacing * fx / zz
     bad = np.asarray(needs_splats, dtype=bool)[idx]
     # z-buffer of the collaborative points (their nearest depth per pixel, spread over a 3×3 neighbourhood).
     good = ~bad
-    zbuf = np.full((h, w), np.inf)
-    np.minimum.at(zbuf, (row[good].astype(np.int64), col[good].astype(np.int64)), zz[good])
+    zbuf = np.full((h + 2 * pad, w + 2 * pad), np.inf)
+    ci, ri = (col + pad).astype(np.int64), (row + pad).astype(np.int64)
+    np.minimum.at(zbuf, (ri[good], ci[good]), zz[good])
     zbuf = ndimage.minimum_filter(zbuf, size=3)
-    ci, ri = col.astype(np.int64), row.astype(np.int64)
     front = bad & (zz <= zbuf[ri, ci] * (1.0 + options.occlusion_tolerance))
-    from_points = splat_footprints((h, w), col[front], row[front], radius[front], options.max_radius_px)
+    from_points = draw(front, radius)
     holes = np.zeros((h, w), dtype=bool)
     if options.holes and len(idx):
         hole_radius = radius * (options.hole_footprint / options.footprint)
-        covered = splat_footprints((h, w), col, row, hole_radius, options.max_radius_px)
+        if options.hole_gsd > 0:
+            g = gsd if gsd is not None and gsd > 0 else float(np.median(zz)) / fx
+            hole_radius = options.hole_gsd * g * fx / zz
+        covered = draw(np.ones(len(idx), dtype=bool), hole_radius)
         area = np.zeros((h, w), dtype=bool)
         if options.hole_area in ("below", "hull_below"):
             up = np.asarray(options.up, dtype=np.float64)
@@ -248,9 +305,13 @@ def photo_mask(
             area |= hull_img.astype(bool)
         if options.hole_area == "enclosed":
             area = ndimage.binary_fill_holes(covered)
+        if options.grow_area > 0 and seen is not None and seen.photo is not None:
+            area |= _grow_area(np.asarray(seen.photo(view.name)), covered, area, options.grow_area)
+        explains = good if options.trusted_only else np.ones(len(idx), dtype=bool)
         if options.explained_by == "seen" and seen is not None:
-            ok = seen.explains(view, idx, col, row, (w, h), options.colour_tolerance)
-            covered = splat_footprints((h, w), col[ok], row[ok], hole_radius[ok], options.max_radius_px)
+            explains = explains & seen.explains(view, idx, col, row, (w, h), options.colour_tolerance)
+        if not explains.all():
+            covered = draw(explains, hole_radius)
         holes = area & ~covered
         if options.min_hole_px > 1 and holes.any():
             lab, n = ndimage.label(holes)
@@ -300,10 +361,11 @@ def region_masks(
     flags = np.asarray(needs_splats, dtype=bool)
     if len(flags) != len(pts):
         raise DataError(f"{len(flags)} needs-splats flags for {len(pts)} points")
+    gsd = ground_sample_distance(cameras, pts, names) if options.hole_gsd > 0 else None
     out = []
     for view in cameras:
         if names is not None and view.name not in names:
             continue
         user = None if user_masks is None else user_masks.get(view.name)
-        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user, seen))
+        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user, seen, gsd))
     return out

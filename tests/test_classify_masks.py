@@ -138,3 +138,20 @@ def test_dilation_in_spacings():
     b = photo_mask(cams, view, pts, bad, 0.01, MaskOptions(dilate_px=0, close_px=0, holes=False)).mask
     rows_a, rows_b = np.nonzero(a)[0], np.nonzero(b)[0]
     assert rows_b.min() == rows_a.min() - 3 and rows_b.max() == rows_a.max() + 3
+
+
+def test_ground_sample_distance_and_hole_radius_in_gsd():
+    """Camera 1 m above the plane, f = 100 px: GSD = 1 cm. A grid of 4 cm spacing leaves 4 px between points: with
+    holes explained within 3 GSD (3 px) the grid covers everything; within 1 GSD the gaps between points are holes."""
+    from classify.masks import ground_sample_distance
+
+    cams, view = _rig()
+    pts = _grid(spacing=0.04, half=0.8)
+    assert abs(ground_sample_distance(cams, pts) - 0.01) < 1e-12
+    flags = np.zeros(len(pts), bool)
+    base = dict(close_px=0, dilate_px=0, dilate_spacings=0, min_hole_px=1)
+    wide = region_masks(cams, pts, flags, 0.04, MaskOptions(hole_gsd=3.0, **base))[0]
+    narrow = region_masks(cams, pts, flags, 0.04, MaskOptions(hole_gsd=1.0, **base))[0]
+    assert wide.empty
+    # 1 px disks (5 px each) on a 4 × 4 px lattice leave 11 of 16 pixels uncovered.
+    assert 0.6 < narrow.holes_px < 0.75
