@@ -24,8 +24,9 @@ A mask pixel is set (255 in the PNG) where
   (probably scene) and the pixels outside it (probably not). The far part of a table or terrain seen at a
   grazing angle, which MVS did not reconstruct, lies above the cloud's outline but looks like the table or the
   terrain; sky and backdrop do not. On tabletop_s1 / aerial_s1 (seed 1, never used for training), with the
-  default model's classes, this area growth raised the covered share of the truly-needs pixels from 0.71 / 0.76
-  to 0.93 / 0.92 (``bench/bench_classify.py``, docs/classify.md);
+  previous default model's classes and the 3-GSD radius, this growth raised the covered share of the
+  truly-needs pixels from 0.71 / 0.76 to 0.92 / 0.90 at 10 % / 6 % of the rest (2.5 GSD: 0.93 / 0.915 at
+  12 % / 8 %; ``bench/bench_classify.py``, docs/classify.md);
 - a user mask (the pipeline's ``--splat-masks``) is set.
 
 The union is closed (fills gaps between footprints) and dilated (a safety margin for training). Held-out
