@@ -112,7 +112,9 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
     tree = cKDTree(data.cloud.positions)
     tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
     empty = 0
+    coverage = []
     for pm in masks:
+        coverage.append(pm.coverage)
         view = cams.by_name(pm.name)
         depth = scene.depth("train", pm.name)
         dist = distance_to_cloud(cams, view, depth, tree)
@@ -134,6 +136,8 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
         "coverage_of_rest_scene": tot["rest_scene_hit"] / max(tot["rest_scene"], 1),
         "coverage_of_rest_incl_background": tot["rest_all_hit"] / max(tot["rest_all"], 1),
         "truly_needs_share": tot["need"] / max(tot["need"] + tot["rest_all"], 1),
+        "mean_mask_coverage": float(np.mean(coverage)) if coverage else 0.0,
+        "training_needed": empty < len(masks),
     }
 
 
@@ -166,10 +170,13 @@ def part_score(args) -> dict:
         experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL, ForestOptions())
         experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL, ForestOptions())
     mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
+    main_model = None
     for label, (datas, groups, forest) in experiments.items():
         if args.only and not any(o in label for o in args.only):
             continue
         model, report = fit(datas, groups, classes, forest, by_scene=not args.block_folds)
+        if label.startswith("all features ("):
+            main_model = model
         res = {"held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"]}
         res["smooth_passes"] = model.info["smooth_passes"]
         for n, d in test_sets.items():
@@ -190,6 +197,22 @@ def part_score(args) -> dict:
             kinds = ", ".join(f"{k} {v.get('recall', v.get('kept_collaborative')):.2f}" for k, v in per_kind)
             print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f}); {kinds}")
         out["results"][label] = res
+    if main_model is not None and not args.no_masks:
+        # Scenes scored for their masks only (e.g. the textured preset: no non-collaborative material).
+        for n in args.mask_scenes:
+            d = load(root, n, classes)
+            pred = predict(
+                main_model, d.table.select(main_model.feature_names), threshold=float(main_model.info["threshold"])
+            )
+            m = mask_scores(d, pred.needs_splats, classes, mask_options)
+            m["points_flagged"] = int(pred.needs_splats.sum())
+            m["points"] = len(pred.needs_splats)
+            out["results"].setdefault("masks only", {})[n] = m
+            print(f"  masks {n}: {m['points_flagged']} of {m['points']} points flagged; truly-needs share "
+                  f"{m['truly_needs_share']:.3f}; masks cover {m['coverage_of_needs']:.3f} of it and "
+                  f"{m['coverage_of_rest_incl_background']:.3f} of the rest; mean mask coverage "
+                  f"{m['mean_mask_coverage']:.3f}; {m['empty_masks']} empty of {m['views']}; training needed: "
+                  f"{m['training_needed']}")  # fmt: skip
     return out
 
 
@@ -316,6 +339,7 @@ def main() -> None:
     ap.add_argument("--data", default="/work/data_classify")
     ap.add_argument("--train", nargs="+", default=[f"{p}_s{s}" for p, s, _ in TRAINING_SCENES])
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
+    ap.add_argument("--mask-scenes", nargs="*", default=[], help="scenes scored for their masks only (textured_s1)")
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
     ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
     ap.add_argument("--dilate-spacings", type=float, default=MaskOptions().dilate_spacings, help="(spacings)")

@@ -29,7 +29,9 @@ MODEL_VERSION = 1
 class ForestOptions:
     """Random-forest hyper-parameters (scikit-learn names). Defaults keep a model under 5 MB.
 
-    n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 10. class_weight: "balanced"
+    n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 5 (10 before the height features;
+    5 gave the better leave-one-scene-out F1 on the default model's training scenes, 0.861 against 0.850).
+    class_weight: "balanced"
     (classes weighted by inverse frequency; None = unweighted). max_samples_per_class: points per class drawn
     (seeded) for training, bounding time and size (50 000). n_jobs: threads (-1: all). seed: every random choice.
     smooth_passes: passes of averaging the class probabilities over each point's finest neighbourhood before
@@ -41,7 +43,7 @@ class ForestOptions:
 
     n_estimators: int = 32
     max_depth: int | None = 14
-    min_samples_leaf: int = 10
+    min_samples_leaf: int = 5
     class_weight: str | None = "balanced"
     max_samples_per_class: int = 50_000
     n_jobs: int = -1

@@ -1,10 +1,10 @@
 """Train the default classifier shipped as classify/models/default.skops, reproducibly.
 
 Training data: data_synth scenes of both presets (``tabletop``, ``aerial``) and several seeds (TRAINING_SCENES),
-each generated with its own size overrides (seed 7: 24 views at 320×240; seeds 8–10: 16 requested views (the
-rigs make 18–20) at 288×216, so the model sees two sampling densities), 2 held-out views,
+each generated with its own size overrides (seed 7, and aerial seed 11: 24 views at 320×240; seeds 8–10: 16
+requested views (the rigs make 18–20) at 288×216, so the model sees two sampling densities), 2 held-out views,
 reconstructed with ``hybridsplat sfm`` (the scene's known cameras) and ``hybridsplat mvs --threads 1`` (CPU
-MVS). Labels: the scenes' truth (τ = 3 GSD). Forest: 32 trees, depth ≤ 14, leaves ≥ 10 points, balanced
+MVS). Labels: the scenes' truth (τ = 3 GSD). Forest: 32 trees, depth ≤ 14, leaves ≥ 5 points, balanced
 class weights, seed 0, probabilities smoothed once over the finest neighbourhood; the needs-splats threshold is
 chosen on leave-one-scene-out predictions (each scene predicted by a forest that never saw it).
 Scoring (``bench/bench_classify.py``) uses seed 1, never a training seed.
@@ -42,6 +42,7 @@ TRAINING_SCENES: tuple[tuple[str, int, tuple[str, ...]], ...] = (
     ("aerial", 9, SMALL),
     ("tabletop", 9, SMALL),
     ("aerial", 10, SMALL),
+    ("aerial", 11, FULL),
 )
 """(preset, seed, ``hybridsplat synth`` size arguments) of every training scene."""
 

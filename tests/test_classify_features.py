@@ -291,3 +291,24 @@ def test_features_follow_the_points_whatever_their_order():
     # Morton order keeps neighbours close in memory: consecutive points are near in space.
     step = np.linalg.norm(np.diff(pts[order], axis=0), axis=1)
     assert np.median(step) < 0.2 * np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1))
+
+
+def test_height_above_ground_brute_force():
+    """Against a brute-force loop: the lowest z of the points whose column (floor of x / cell, y / cell, from the
+    cloud's minimum) is one of the 3 × 3 around the point's own; a box on a floor is 'cell' units high."""
+    from classify.features.geometric import height_above_ground
+
+    rng = np.random.default_rng(3)
+    pts = np.c_[rng.uniform(0, 5, (400, 2)), rng.normal(0, 0.3, 400)]
+    cell = 0.7
+    h = height_above_ground(pts, cell)
+    ij = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / cell).astype(int)
+    ref = np.array([(p[2] - pts[np.all(np.abs(ij - ij[i]) <= 1, axis=1), 2].min()) / cell for i, p in enumerate(pts)])
+    assert np.allclose(h, ref) and (h >= 0).all() and np.isclose(h.min(), 0.0)
+    floor = np.c_[rng.uniform(0, 4, (500, 2)), np.zeros(500)]
+    box = np.c_[rng.uniform(1.8, 2.2, (50, 2)), np.full(50, 2.0)]
+    hb = height_above_ground(np.r_[floor, box], 1.0)
+    assert np.allclose(hb[:500], 0.0) and np.allclose(hb[500:], 2.0)
+    # Only the coarser scales carry it.
+    assert "height_s1" in feature_specs(3) and "height_s0" not in feature_specs(3)
+    assert resolve_names(("height",), 3, ()) == ("height_s1", "height_s2")

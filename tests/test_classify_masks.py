@@ -138,3 +138,48 @@ def test_dilation_in_spacings():
     b = photo_mask(cams, view, pts, bad, 0.01, MaskOptions(dilate_px=0, close_px=0, holes=False)).mask
     rows_a, rows_b = np.nonzero(a)[0], np.nonzero(b)[0]
     assert rows_b.min() == rows_a.min() - 3 and rows_b.max() == rows_a.max() + 3
+
+
+def test_ground_sample_distance_and_hole_radius_in_gsd():
+    """Camera 1 m above the plane, f = 100 px: GSD = 1 cm. A grid of 4 cm spacing leaves 4 px between points: with
+    holes explained within 3 GSD (3 px) the grid covers everything; within 1 GSD the gaps between points are holes."""
+    from classify.masks import ground_sample_distance
+
+    cams, view = _rig()
+    pts = _grid(spacing=0.04, half=0.8)
+    assert abs(ground_sample_distance(cams, pts) - 0.01) < 1e-12
+    flags = np.zeros(len(pts), bool)
+    base = dict(close_px=0, dilate_px=0, dilate_spacings=0, min_hole_px=1)
+    wide = region_masks(cams, pts, flags, 0.04, MaskOptions(hole_gsd=3.0, **base))[0]
+    narrow = region_masks(cams, pts, flags, 0.04, MaskOptions(hole_gsd=1.0, **base))[0]
+    assert wide.empty
+    # 1 px disks (5 px each) on a 4 × 4 px lattice leave 11 of 16 pixels uncovered.
+    assert 0.6 < narrow.holes_px < 0.75
+
+
+def test_area_grows_over_unreconstructed_surface_that_looks_like_the_scene():
+    """An upright camera looks at a brown wall (image rows 20-59) under a grey sky (rows 0-19); MVS reconstructed
+    only the wall's lower part (rows 40-59). Without growth the unreconstructed upper part lies above the cloud's
+    envelope (read as sky); GrabCut's colour models put it back into the valid area, so it becomes a hole, and the
+    sky stays out."""
+    from classify.masks import SeenInView
+
+    cam = Camera.pinhole(100.0, 100.0, 40.0, 30.0, 80, 60)
+    r = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # camera at y = -1 looking along +y, z up
+    view = View.from_matrix(1, "a.png", 1, np.c_[r, -r @ np.array([0.0, -1.0, 0.0])])
+    cams = Cameras({1: cam}, {1: view})
+    g = np.arange(-0.6, 0.6 + 1e-9, 0.01)
+    x, z = np.meshgrid(g, np.arange(-0.4, -0.1 + 1e-9, 0.01), indexing="ij")
+    wall = np.c_[x.ravel(), np.zeros(x.size), z.ravel()]  # z = -0.1 is image row 40
+    rng = np.random.default_rng(0)
+    photo = np.empty((60, 80, 3), np.uint8)
+    photo[:20] = (150, 150, 160) + rng.integers(-8, 8, (20, 80, 3))
+    photo[20:] = (140, 90, 40) + rng.integers(-8, 8, (40, 80, 3))
+    colors = np.tile(np.array([140, 90, 40], np.uint8), (len(wall), 1))
+    seen = SeenInView(None, colors, lambda name: photo)
+    flags = np.zeros(len(wall), bool)
+    base = dict(close_px=0, dilate_px=0, dilate_spacings=0)
+    grown = photo_mask(cams, view, wall, flags, 0.01, MaskOptions(**base), seen=seen)
+    plain = photo_mask(cams, view, wall, flags, 0.01, MaskOptions(grow_area=0, **base), seen=seen)
+    assert grown.mask[22:37, 5:75].all() and not grown.mask[:19].any() and not grown.mask[42:].any()
+    assert not plain.mask[:37].any()

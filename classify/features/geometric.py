@@ -284,6 +284,46 @@ def eigen_features(eig: Eigen, cell: float, k: int) -> dict[str, np.ndarray]:
     return out
 
 
+def ground_below(points: np.ndarray, cell: float, origin: np.ndarray | None = None) -> np.ndarray:
+    """(M,) float64: the lowest z among ``points`` (M, 3) float64 metres in the 3 × 3 vertical columns of side
+    ``cell`` metres around each point's own column ("up" = +z). Columns are floor((x, y) − origin) / cell), origin
+    (3,) defaulting to the points' minimum: pass the full cloud's minimum when ``points`` are the centroids of its
+    voxels of side ``cell`` (:func:`voxel_downsample`), so that a centroid's column is its voxel's, and that of
+    every point in the voxel.
+
+    Columns are keyed sparsely (sorted int64 keys and binary search, O(M log M)): a dense grid over a survey's
+    extent at a fine cell size would not fit in memory."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) == 0:
+        return np.zeros(0)
+    o = pts.min(axis=0) if origin is None else np.asarray(origin, dtype=np.float64)
+    ij = np.floor((pts[:, :2] - o[:2]) / cell).astype(np.int64) + 1
+    ij -= ij.min(axis=0) - 1
+    stride = int(ij[:, 1].max()) + 2
+    key = ij[:, 0] * stride + ij[:, 1]
+    cols, inverse = np.unique(key, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    low = np.full(len(cols), np.inf)
+    np.minimum.at(low, inverse, pts[:, 2])
+    around = low.copy()
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            if di == 0 and dj == 0:
+                continue
+            other = cols + di * stride + dj
+            pos = np.minimum(np.searchsorted(cols, other), len(cols) - 1)
+            hit = cols[pos] == other
+            around[hit] = np.minimum(around[hit], low[pos[hit]])
+    return around[inverse]
+
+
+def height_above_ground(points: np.ndarray, cell: float) -> np.ndarray:
+    """(M,) float64: (z − :func:`ground_below`) / ``cell`` for points (M, 3) float64 metres: the height above the
+    lowest point of the surrounding 3 × 3 columns, in cells (0 for the lowest)."""
+    pts = np.asarray(points, dtype=np.float64)
+    return (pts[:, 2] - ground_below(pts, cell)) / cell
+
+
 def normal_deviation(mvs_normals: np.ndarray | None, plane_normals: np.ndarray) -> np.ndarray:
     """1 − |n_mvs · n_plane| per point (N,) float64; 0 where there is no MVS normal (None or zero vectors)."""
     if mvs_normals is None:
@@ -340,6 +380,12 @@ def geometric_features(
         if s == 0 and per_point is None:
             finest = neigh
         values = eigen_features(eig, cell, min(options.k, len(level)))
+        if s >= 1:
+            # The point's own z above the ground of its level's columns (each point lies in its voxel's column).
+            ground = ground_below(level, cell, origin=pts.min(axis=0))
+            feats[f"height_s{s}"] = ((pts[:, 2] - (ground if per_point is None else ground[per_point])) / cell).astype(
+                np.float32
+            )
         values["normal_deviation"] = normal_deviation(
             mvs_normals, eig.normal if per_point is None else eig.normal[per_point]
         )

@@ -49,6 +49,17 @@ GEOMETRIC_BASE: tuple[FeatureSpec, ...] = (
     FeatureSpec("normal_deviation", "1", _G, "1 - |n_mvs . n_pca|: MVS normal against the local plane (0 if none)"),
 )
 
+# Geometric features of the coarser scales only (s >= 1, whose level is the voxel-downsampled cloud).
+COARSE_BASE: tuple[FeatureSpec, ...] = (
+    FeatureSpec(
+        "height",
+        "1",
+        _G,
+        "(z - lowest z of the level in the 3 x 3 columns of cell v around) / v: height above the local ground in "
+        "cells (up = +z)",
+    ),
+)
+
 RADIOMETRIC: tuple[FeatureSpec, ...] = (
     FeatureSpec("red", "1", _R, "red channel / 255"),
     FeatureSpec("green", "1", _R, "green channel / 255"),
@@ -81,7 +92,7 @@ def feature_specs(n_scales: int) -> dict[str, FeatureSpec]:
     """Every known feature for ``n_scales`` geometric scales, by name, in a stable order."""
     out: dict[str, FeatureSpec] = {}
     for s in range(n_scales):
-        for spec in GEOMETRIC_BASE:
+        for spec in GEOMETRIC_BASE + (COARSE_BASE if s >= 1 else ()):
             name = geometric_name(spec.name, s)
             out[name] = FeatureSpec(name, spec.unit, spec.group, f"{spec.meaning} (scale {s})")
     for spec in RADIOMETRIC + MULTIVIEW:
@@ -99,12 +110,12 @@ def resolve_names(selected: tuple[str, ...] | None, n_scales: int, groups: tuple
     if selected is None:
         return tuple(n for n, s in specs.items() if s.group in groups)
     picked: list[str] = []
-    bases = {s.name for s in GEOMETRIC_BASE}
+    bases = {s.name for s in GEOMETRIC_BASE + COARSE_BASE}
     for name in selected:
         if name in specs:
             new = [name]
         elif name in bases:
-            new = [geometric_name(name, s) for s in range(n_scales)]
+            new = [n for n in (geometric_name(name, s) for s in range(n_scales)) if n in specs]
         elif name in {g.value for g in FeatureGroup}:
             new = [n for n, s in specs.items() if s.group.value == name]
         else:

@@ -24,6 +24,12 @@ def register(app: typer.Typer) -> None:
         explained_by: str | None = typer.Option(
             None, help="Points that explain pixels: seen (fused by the photo or of its colour, default) | all."
         ),
+        hole_gsd: float | None = typer.Option(
+            None, help="Radius (ground sample distances) within which a point explains pixels (default 2.5)."
+        ),
+        grow_area: int | None = typer.Option(
+            None, help="GrabCut iterations growing the hole area by what looks like the scene (default 3; 0 off)."
+        ),
         force: bool = typer.Option(False, "--force", help="Rerun even when up to date."),
     ) -> None:
         """Region masks per registered photo: non-collaborative points, MVS holes and user masks, united."""
@@ -37,5 +43,7 @@ def register(app: typer.Typer) -> None:
             "holes": holes,
             "hole_area": hole_area,
             "explained_by": explained_by,
+            "hole_gsd": hole_gsd,
+            "grow_area": grow_area,
         }
         run_project_stage(project, "masks", overrides, force=force)

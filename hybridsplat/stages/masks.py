@@ -20,14 +20,17 @@ from hybridsplat.stages.base import Stage, StageContext
 class MasksStageOptions:
     """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
 
-    footprint: point radius in spacings (1.5). hole_footprint: radius within which a point explains pixels when
-    looking for holes (2.5). close_px / dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the
-    dilation in point spacings at the photo's median depth when larger (3).
+    footprint: point radius in spacings (1.5). hole_gsd: radius within which a point explains pixels when looking
+    for holes, in ground sample distances (2.5; 0 = ``hole_footprint`` point spacings, 2.5). close_px /
+    dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the dilation in point spacings at the
+    photo's median depth when larger (3).
     holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
     explained_by: seen | all (seen): which points explain pixels when looking for holes.
+    grow_area: GrabCut iterations growing the valid area by what looks like the reconstructed scene (3; 0 = off).
     """
 
     footprint: float = 1.5
+    hole_gsd: float = 2.5
     hole_footprint: float = 2.5
     close_px: int = 3
     dilate_px: int = 2
@@ -35,10 +38,12 @@ class MasksStageOptions:
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"
+    grow_area: int = 3
 
     def mask_options(self) -> MaskOptions:
         return MaskOptions(
             footprint=self.footprint,
+            hole_gsd=self.hole_gsd,
             hole_footprint=self.hole_footprint,
             close_px=self.close_px,
             dilate_px=self.dilate_px,
@@ -46,6 +51,7 @@ class MasksStageOptions:
             holes=self.holes,
             hole_area=self.hole_area,
             explained_by=self.explained_by,
+            grow_area=self.grow_area,
         )
 
     def __post_init__(self) -> None:
