@@ -5,7 +5,8 @@ Written by hand because no maintained package rasterises differentiable Gaussian
 this module does the per-pixel work:
 
 1. binning: Gaussians sorted by depth once, then a counting sort by 16×16 tile keeps each tile's list in depth
-   order (no per-tile sort);
+   order (no per-tile sort); a Gaussian is listed only in the tiles that hold a pixel centre inside its 3σ ellipse
+   (per tile row, the ellipse's exact x-range over the row band), not in every tile of its 3σ box;
 2. forward: one thread per tile at a time (tiles sorted by list length, longest first, handed out in small chunks
    to Python threads running GIL-free kernels on both cores; a thread that the OS runs more takes more chunks,
    which keeps the wall time down on a shared machine);
@@ -13,7 +14,10 @@ this module does the per-pixel work:
    16 pixels at once, branch-free so that LLVM vectorises them (hence the polynomial exp, the bitwise masks,
    the compile-time unit size, counters in the float type and ``error_model="numpy"``: each of those alone
    blocked vectorisation or halved its width, 1.5-10x slower); front-to-back compositing with early termination
-   per pixel, per unit and per tile;
+   per pixel, per unit and per tile; a box that spans both column halves visits, per row pair, only the halves
+   the ellipse reaches there (the lists and units left out are exactly those where no pixel passes the 3σ test, so
+   images and gradients are bitwise those of the box; ``ELLIPSE_TILES`` / ``ELLIPSE_UNITS`` switch it off for
+   the tests and the bench);
 3. backward: the same traversal front to back, with what is still to be composited behind each Gaussian taken
    from the saved forward result (no division by transmittance), gradients accumulated per intersection (each
    tile writes only its own list entries, so no atomics), then summed per Gaussian through the transposed index
@@ -73,8 +77,60 @@ def _tile_rect(mx, my, ex, ey, tile_size, tiles_x, tiles_y):  # pragma: no cover
     return tx0, tx1, ty0, ty1
 
 
+#: Q = dᵀ Σ⁻¹ d bound of the tile test: the kernels draw a pixel only where Q ≤ -2 POWER_MIN (3σ, Q ≤ 9); 1 % and
+#: 0.05 more so that the float32 rounding of Q in the kernels (≲ 1e-7 × the terms, ≲ 0.1 on these images) can never
+#: draw a pixel in a tile the test left out.
+_Q_CULL = -2.0 * POWER_MIN * 1.01 + 0.05
+
+
+@njit(inline="always", cache=True)
+def _ellipse_span(dy0, dy1, a, b, c, q):  # pragma: no cover - numba
+    """[lo, hi]: the dx range of the ellipse a dx² + 2b dx dy + c dy² ≤ q over the band dy ∈ [dy0, dy1] (offsets
+    from the centre; float64); lo > hi when the band misses it. A degenerate conic gives (-inf, inf) (no culling).
+
+    The right boundary x(dy) = (−b dy + √(q a − det dy²)) / a is concave, with its maximum (the ellipse's rightmost
+    point) at dy = −b x_max / c; its maximum over the band is there or at the nearer band edge (left: mirrored).
+    """
+    det = a * c - b * b
+    if not (det > 0.0 and a > 0.0 and c > 0.0):
+        return -math.inf, math.inf
+    ymax = math.sqrt(q * a / det)
+    lo_y = max(dy0, -ymax)
+    hi_y = min(dy1, ymax)
+    if lo_y > hi_y:
+        return 1.0, -1.0
+    xmax = math.sqrt(q * c / det)
+    d_r = min(max(-b * xmax / c, lo_y), hi_y)
+    d_l = min(max(b * xmax / c, lo_y), hi_y)
+    hi = (-b * d_r + math.sqrt(max(q * a - det * d_r * d_r, 0.0))) / a
+    lo = (-b * d_l - math.sqrt(max(q * a - det * d_l * d_l, 0.0))) / a
+    return lo, hi
+
+
+@njit(inline="always", cache=True)
+def _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height):  # pragma: no cover - numba
+    """Tiles [tx0, tx1] of tile row ty that Gaussian g (sorted position p) is listed in: its box's tiles, narrowed
+    with ``use_conics`` to those holding a pixel centre of the row band inside the 3σ ellipse."""
+    tx0, tx1 = rects[p, 0], rects[p, 1]
+    if use_conics:
+        mx, my = means2d[g, 0], means2d[g, 1]
+        y_top = ty * tile_size + 0.5
+        y_bottom = min((ty + 1) * tile_size, height) - 0.5
+        lo, hi = _ellipse_span(y_top - my, y_bottom - my, conics[g, 0], conics[g, 1], conics[g, 2], _Q_CULL)
+        if lo > hi or mx + lo > width - 0.5:
+            return 0, -1
+        # tile tx holds pixel centres x in [tx·ts + 0.5, tx·ts + ts − 0.5]
+        if math.isfinite(lo):
+            tx0 = max(tx0, int(math.ceil((mx + lo - tile_size + 0.5) / tile_size)))
+        if math.isfinite(hi):
+            tx1 = min(tx1, int(math.floor((mx + hi - 0.5) / tile_size)))
+    return tx0, tx1
+
+
 @njit(cache=True)
-def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # pragma: no cover - numba
+def _bin_kernel(
+    means2d, extents, conics, use_conics, sorted_ids, tile_size, tiles_x, tiles_y, width, height
+):  # pragma: no cover - numba
     n_tiles = tiles_x * tiles_y
     n_sorted = sorted_ids.shape[0]
     offsets = np.zeros(n_tiles + 1, np.int64)
@@ -89,10 +145,13 @@ def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # p
         rects[p, 1] = tx1
         rects[p, 2] = ty0
         rects[p, 3] = ty1
+        count = 0
         for ty in range(ty0, ty1 + 1):
-            for tx in range(tx0, tx1 + 1):
+            a0, a1 = _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height)
+            for tx in range(a0, a1 + 1):
                 offsets[ty * tiles_x + tx + 1] += 1
-        g_offsets[p + 1] = g_offsets[p] + max(0, tx1 - tx0 + 1) * max(0, ty1 - ty0 + 1)
+            count += max(0, a1 - a0 + 1)
+        g_offsets[p + 1] = g_offsets[p] + count
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     ids = np.empty(offsets[n_tiles], np.int32)
@@ -102,7 +161,8 @@ def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # p
         g = sorted_ids[p]
         m = g_offsets[p]
         for ty in range(rects[p, 2], rects[p, 3] + 1):
-            for tx in range(rects[p, 0], rects[p, 1] + 1):
+            a0, a1 = _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height)
+            for tx in range(a0, a1 + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
                 slot_of[cursor[t]] = m
@@ -158,28 +218,45 @@ def bin_gaussians(
     width: int,
     height: int,
     tile_size: int = TILE_SIZE,
+    conics: np.ndarray | None = None,
 ) -> TileBins:
-    """Tile lists for visible Gaussians: means2d and extents (N, 2) px, depths (N,), visible (N,) bool."""
+    """Tile lists for visible Gaussians: means2d and extents (N, 2) px, depths (N,), visible (N,) bool.
+
+    A Gaussian is listed in every tile its 3σ box (mean ± extent) touches; with ``conics`` (N, 3) (a, b, c) only in
+    those that hold a pixel centre inside its 3σ ellipse (a slightly larger one, see ``_Q_CULL``): the kernels draw
+    nothing elsewhere, so the image and gradients are the same with fewer list entries.
+    """
     with timed("bin"):
-        return _bin(means2d, extents, depths, visible, width, height, tile_size)
+        return _bin(means2d, extents, depths, visible, width, height, tile_size, conics)
 
 
-def _bin(means2d, extents, depths, visible, width, height, tile_size) -> TileBins:
+def _bin(means2d, extents, depths, visible, width, height, tile_size, conics=None) -> TileBins:
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
     vis = np.flatnonzero(visible)
     sorted_ids = vis[depth_order(depths[vis])].astype(np.int64)
+    use_conics = conics is not None
     offsets, ids, g_offsets, slot_of = _bin_kernel(
         np.ascontiguousarray(means2d, np.float64),
         np.ascontiguousarray(extents, np.float64),
+        np.ascontiguousarray(conics if use_conics else np.zeros((1, 3)), np.float64),
+        use_conics,
         sorted_ids,
         tile_size,
         tiles_x,
         tiles_y,
+        width,
+        height,
     )
     by_length = np.argsort(-np.diff(offsets), kind="stable")
     return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size, sorted_ids, g_offsets, slot_of)
 
+
+#: Tile lists from the 3σ ellipse (True, the default) or the 3σ box (False: the tests compare the two).
+ELLIPSE_TILES = [True]
+#: Units (2 rows × 8 columns) a Gaussian visits: those its 3σ ellipse reaches (True) or its box's (False).
+ELLIPSE_UNITS = [True]
+LANES = [True]  # experiment
 
 _TS = TILE_SIZE
 _POWER_MIN = np.float32(POWER_MIN)
@@ -222,6 +299,20 @@ def _box_halves(mx, ex, x0):  # pragma: no cover - numba
     return h0, h1
 
 
+@njit(inline="always", cache=True)
+def _pair_halves(mx, my, a, b, c, x0, y, h0, h1):  # pragma: no cover - numba
+    """Halves [q0, q1) within [h0, h1) of the tile's columns (tile at x0) holding a pixel centre of rows y, y + 1
+    inside the 3σ ellipse (conic a, b, c at mx, my; the margin of ``_Q_CULL``); q0 >= q1 when there is none."""
+    lo, hi = _ellipse_span(y + 0.5 - my, y + 1.5 - my, np.float64(a), np.float64(b), np.float64(c), _Q_CULL)
+    if lo > hi:
+        return 0, 0
+    cl = max(0, int(math.ceil(mx + lo - x0 - 0.5))) if math.isfinite(lo) else 0
+    ch = min(_TS - 1, int(math.floor(mx + hi - x0 - 0.5))) if math.isfinite(hi) else _TS - 1
+    if ch < cl:
+        return 0, 0
+    return max(h0, cl // _HALF), min(h1, ch // _HALF + 1)
+
+
 @njit(cache=True)
 def _row_span(m, e, y0, y1):  # pragma: no cover - numba
     """Rows r in [y0, y1) whose centres r + 0.5 lie within [m - e, m + e], as tile-local indices."""
@@ -243,6 +334,7 @@ def _forward_kernel(
     width,
     height,
     tiles_x,
+    cull,
     j0,
     j1,
     out,
@@ -305,8 +397,12 @@ def _forward_kernel(
             kk = np.int32(k - start + 1)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            both = cull & (h1 - h0 == 2)
             for p in range(r0 // 2, (r1 + 1) // 2):
-                for h in range(h0, h1):
+                q0, q1 = h0, h1
+                if both and alive[0, p] > 0 and alive[1, p] > 0:  # (a dead unit is skipped anyway)
+                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                for h in range(q0, q1):
                     if alive[h, p] == 0:
                         continue
                     stops = zero
@@ -357,6 +453,7 @@ def _backward_kernel(
     width,
     height,
     tiles_x,
+    cull,
     j0,
     j1,
     out,
@@ -431,8 +528,12 @@ def _backward_kernel(
             g_f1 = zero
             g_f2 = zero
             g_f3 = zero
+            both = cull & (h1 - h0 == 2)
             for p in range(r0 // 2, (r1 + 1) // 2):
-                for h in range(h0, h1):
+                q0, q1 = h0, h1
+                if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
+                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                for h in range(q0, q1):
                     if kk >= unit_used[h, p]:
                         continue
                     for i in range(16):
@@ -498,6 +599,181 @@ def _backward_kernel(
                 g_isect[slot_of[k], f] = zero
 
 
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
+def _backward_kernel_lanes(
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    cull,
+    j0,
+    j1,
+    out,
+    n_used,
+    grad_out,
+    slot_of,
+    g_isect,
+):  # pragma: no cover - numba
+    """Tiles order[j0:j1]; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of their list entries k:
+    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3). Same unit layout as the forward kernel."""
+    ts = _TS
+    dt = means2d.dtype
+    n_tiles = offsets.shape[0] - 1
+    T = np.empty((2, _PAIRS, 16), dt)
+    rest = np.empty((5, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
+    go = np.empty((5, 2, _PAIRS, 16), dt)
+    used = np.empty((2, _PAIRS, 16), np.int32)
+    unit_used = np.empty((2, _PAIRS), np.int32)  # list entries the slowest pixel of each unit composited
+    xu = np.empty((2, 16), dt)
+    yu = np.empty((_PAIRS, 16), dt)
+    lanes = np.empty((10, 16), dt)  # per-lane sums of one list entry over its units, reduced once per entry
+    for j in range(j0, min(j1, n_tiles)):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        for i in range(16):
+            for h in range(2):
+                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+            for p in range(_PAIRS):
+                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        zero = xu[0, 0] - xu[0, 0]
+        T[:] = 1.0
+        rest[:] = 0.0
+        go[:] = 0.0
+        used[:] = 0
+        unit_used[:] = 0
+        max_used = 0
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
+                u = n_used[y0 + r, x0 + c]
+                used[h, p, i] = u
+                unit_used[h, p] = max(unit_used[h, p], u)
+                max_used = max(max_used, u)
+                for f in range(5):
+                    rest[f, h, p, i] = out[y0 + r, x0 + c, f]
+                    go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
+        start = offsets[t]
+        for k in range(start, start + max_used):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            kk = np.int32(k - start)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            lanes[:] = 0.0
+            both = cull & (h1 - h0 == 2)
+            for p in range(r0 // 2, (r1 + 1) // 2):
+                q0, q1 = h0, h1
+                if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
+                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                for h in range(q0, q1):
+                    if kk >= unit_used[h, p]:
+                        continue
+                    for i in range(16):
+                        dx = xu[h, i] - mx
+                        dy = yu[p, i] - my
+                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                        gauss = _exp_neg(power)
+                        raw = op * gauss
+                        alpha = min(_ALPHA_MAX, raw)
+                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
+                        tp = T[h, p, i]
+                        w = alpha * tp if ok else zero
+                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
+                        r_0 = rest[0, h, p, i] - w * f0
+                        r_1 = rest[1, h, p, i] - w * f1
+                        r_2 = rest[2, h, p, i] - w * f2
+                        r_3 = rest[3, h, p, i] - w * f3
+                        r_4 = rest[4, h, p, i] - w
+                        rest[0, h, p, i] = r_0
+                        rest[1, h, p, i] = r_1
+                        rest[2, h, p, i] = r_2
+                        rest[3, h, p, i] = r_3
+                        rest[4, h, p, i] = r_4
+                        go0 = go[0, h, p, i]
+                        go1 = go[1, h, p, i]
+                        go2 = go[2, h, p, i]
+                        go3 = go[3, h, p, i]
+                        go4 = go[4, h, p, i]
+                        lanes[6, i] += w * go0
+                        lanes[7, i] += w * go1
+                        lanes[8, i] += w * go2
+                        lanes[9, i] += w * go3
+                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
+                        g_alpha = (
+                            go0 * (f0 * tp - r_0 * inv)
+                            + go1 * (f1 * tp - r_1 * inv)
+                            + go2 * (f2 * tp - r_2 * inv)
+                            + go3 * (f3 * tp - r_3 * inv)
+                            + go4 * (tp - r_4 * inv)
+                        )
+                        T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
+                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
+                        lanes[5, i] += g_alpha * gauss
+                        g_pow = g_alpha * alpha
+                        # the conic is constant per entry: sum g_pow·(dx, dy, dx², dx·dy, dy²), combine once
+                        gx = g_pow * dx
+                        gy = g_pow * dy
+                        lanes[0, i] += gx
+                        lanes[1, i] += gy
+                        lanes[2, i] += gx * dx
+                        lanes[3, i] += gx * dy
+                        lanes[4, i] += gy * dy
+            sx = zero
+            sy = zero
+            sxx = zero
+            sxy = zero
+            syy = zero
+            g_op = zero
+            g_f0 = zero
+            g_f1 = zero
+            g_f2 = zero
+            g_f3 = zero
+            for i in range(16):
+                sx += lanes[0, i]
+                sy += lanes[1, i]
+                sxx += lanes[2, i]
+                sxy += lanes[3, i]
+                syy += lanes[4, i]
+                g_op += lanes[5, i]
+                g_f0 += lanes[6, i]
+                g_f1 += lanes[7, i]
+                g_f2 += lanes[8, i]
+                g_f3 += lanes[9, i]
+            m = slot_of[k]
+            g_isect[m, 0] = a * sx + b * sy
+            g_isect[m, 1] = cc * sy + b * sx
+            g_isect[m, 2] = np.float32(-0.5) * sxx
+            g_isect[m, 3] = -sxy
+            g_isect[m, 4] = np.float32(-0.5) * syy
+            g_isect[m, 5] = g_op
+            g_isect[m, 6] = g_f0
+            g_isect[m, 7] = g_f1
+            g_isect[m, 8] = g_f2
+            g_isect[m, 9] = g_f3
+        for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
+            for f in range(10):
+                g_isect[slot_of[k], f] = zero
+
+
 @njit(nogil=True, cache=True)
 def _sum_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
     """Per-Gaussian sums (float64, in list-entry order) of g_isect rows (Gaussian-major), Gaussians split over
@@ -531,7 +807,7 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
-        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
+        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x, ELLIPSE_UNITS[0])
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
         run_chunks(_forward_kernel, args, (out, n_used), len(bins.order), "raster fwd")
@@ -545,7 +821,8 @@ class _RasterizeCPU(torch.autograd.Function):
         ids = args[6]
         g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
         tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, g_isect)
-        run_chunks(_backward_kernel, args, tail, len(ctx.bins.order), "raster bwd")
+        kernel = _backward_kernel_lanes if LANES[0] else _backward_kernel
+        run_chunks(kernel, args, tail, len(ctx.bins.order), "raster bwd")
         n, dt = args[0].shape[0], args[0].dtype
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins
@@ -575,5 +852,6 @@ def rasterize_cpu(
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
     if features.shape[1] != 4:
         raise ValueError(f"the cpu rasteriser composites exactly 4 features per Gaussian, got {features.shape[1]}")
-    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
+    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size,
+                         conics=_np(conics) if ELLIPSE_TILES[0] else None)  # fmt: skip
     return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height)
