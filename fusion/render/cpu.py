@@ -84,46 +84,48 @@ _Q_CULL = -2.0 * POWER_MIN * 1.01 + 0.05
 
 
 @njit(inline="always", cache=True)
-def _ellipse_span(dy0, dy1, a, b, c, q):  # pragma: no cover - numba
-    """[lo, hi]: the dx range of the ellipse a dx² + 2b dx dy + c dy² ≤ q over the band dy ∈ [dy0, dy1] (offsets
-    from the centre; float64); lo > hi when the band misses it. A degenerate conic gives (-inf, inf) (no culling).
-
-    The right boundary x(dy) = (−b dy + √(q a − det dy²)) / a is concave, with its maximum (the ellipse's rightmost
-    point) at dy = −b x_max / c; its maximum over the band is there or at the nearer band edge (left: mirrored).
-    """
+def _ellipse_setup(a, b, c, q):  # pragma: no cover - numba
+    """Per-Gaussian constants of :func:`_ellipse_band` for the ellipse a dx² + 2b dx dy + c dy² ≤ q (float64):
+    (det, q·a, 1 / a, y half-height, dy of the rightmost point); det ≤ 0 marks a degenerate conic (no culling)."""
     det = a * c - b * b
     if not (det > 0.0 and a > 0.0 and c > 0.0):
+        return -1.0, 0.0, 0.0, 0.0, 0.0
+    xmax = math.sqrt(q * c / det)
+    return det, q * a, 1.0 / a, math.sqrt(q * a / det), -b * xmax / c
+
+
+@njit(inline="always", cache=True)
+def _ellipse_band(dy0, dy1, b, det, qa, inv_a, ymax, dy_right):  # pragma: no cover - numba
+    """[lo, hi]: the dx range of the ellipse (constants from :func:`_ellipse_setup`) over the band dy ∈ [dy0, dy1]
+    (offsets from the centre); lo > hi when the band misses it; (-inf, inf) for a degenerate conic.
+
+    The right boundary x(dy) = (−b dy + √(q a − det dy²)) / a is concave with its maximum (the rightmost point of
+    the ellipse) at ``dy_right``; its maximum over the band is there or at the nearer band edge. The left boundary
+    is the mirror image (minimum at −dy_right).
+    """
+    if det <= 0.0:
         return -math.inf, math.inf
-    ymax = math.sqrt(q * a / det)
     lo_y = max(dy0, -ymax)
     hi_y = min(dy1, ymax)
     if lo_y > hi_y:
         return 1.0, -1.0
-    xmax = math.sqrt(q * c / det)
-    d_r = min(max(-b * xmax / c, lo_y), hi_y)
-    d_l = min(max(b * xmax / c, lo_y), hi_y)
-    hi = (-b * d_r + math.sqrt(max(q * a - det * d_r * d_r, 0.0))) / a
-    lo = (-b * d_l - math.sqrt(max(q * a - det * d_l * d_l, 0.0))) / a
+    d_r = min(max(dy_right, lo_y), hi_y)
+    d_l = min(max(-dy_right, lo_y), hi_y)
+    hi = (-b * d_r + math.sqrt(max(qa - det * d_r * d_r, 0.0))) * inv_a
+    lo = (-b * d_l - math.sqrt(max(qa - det * d_l * d_l, 0.0))) * inv_a
     return lo, hi
 
 
 @njit(inline="always", cache=True)
-def _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height):  # pragma: no cover - numba
-    """Tiles [tx0, tx1] of tile row ty that Gaussian g (sorted position p) is listed in: its box's tiles, narrowed
-    with ``use_conics`` to those holding a pixel centre of the row band inside the 3σ ellipse."""
-    tx0, tx1 = rects[p, 0], rects[p, 1]
-    if use_conics:
-        mx, my = means2d[g, 0], means2d[g, 1]
-        y_top = ty * tile_size + 0.5
-        y_bottom = min((ty + 1) * tile_size, height) - 0.5
-        lo, hi = _ellipse_span(y_top - my, y_bottom - my, conics[g, 0], conics[g, 1], conics[g, 2], _Q_CULL)
-        if lo > hi or mx + lo > width - 0.5:
-            return 0, -1
-        # tile tx holds pixel centres x in [tx·ts + 0.5, tx·ts + ts − 0.5]
-        if math.isfinite(lo):
-            tx0 = max(tx0, int(math.ceil((mx + lo - tile_size + 0.5) / tile_size)))
-        if math.isfinite(hi):
-            tx1 = min(tx1, int(math.floor((mx + hi - 0.5) / tile_size)))
+def _band_tiles(lo, hi, mx, tx0, tx1, tile_size, width):  # pragma: no cover - numba
+    """Tiles [tx0', tx1'] within [tx0, tx1] holding a pixel centre x in [mx + lo, mx + hi] (empty: tx1' < tx0')."""
+    if lo > hi or mx + lo > width - 0.5:
+        return 0, -1
+    # tile tx holds pixel centres x in [tx·ts + 0.5, tx·ts + ts − 0.5]
+    if math.isfinite(lo):
+        tx0 = max(tx0, int(math.ceil((mx + lo - tile_size + 0.5) / tile_size)))
+    if math.isfinite(hi):
+        tx1 = min(tx1, int(math.floor((mx + hi - 0.5) / tile_size)))
     return tx0, tx1
 
 
@@ -135,23 +137,40 @@ def _bin_kernel(
     n_sorted = sorted_ids.shape[0]
     offsets = np.zeros(n_tiles + 1, np.int64)
     g_offsets = np.zeros(n_sorted + 1, np.int64)
-    rects = np.empty((n_sorted, 4), np.int32)  # tile box of each sorted Gaussian, computed once
-    for p in range(n_sorted):
-        g = sorted_ids[p]
-        tx0, tx1, ty0, ty1 = _tile_rect(
-            means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
-        )
-        rects[p, 0] = tx0
-        rects[p, 1] = tx1
-        rects[p, 2] = ty0
-        rects[p, 3] = ty1
-        count = 0
-        for ty in range(ty0, ty1 + 1):
-            a0, a1 = _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height)
-            for tx in range(a0, a1 + 1):
-                offsets[ty * tiles_x + tx + 1] += 1
-            count += max(0, a1 - a0 + 1)
-        g_offsets[p + 1] = g_offsets[p] + count
+    rows = np.empty((n_sorted, 2), np.int32)  # tile rows [ty0, ty1] of each sorted Gaussian's box
+    row_start = np.empty(n_sorted + 1, np.int64)  # its rows' [tx0, tx1] in spans[row_start[p]:row_start[p + 1]]
+    row_start[0] = 0
+    spans = np.empty((0, 2), np.int32)
+    for sweep in range(2):  # 0: box rows, to size the spans; 1: tiles per row, counted per tile
+        if sweep == 1:
+            spans = np.empty((row_start[n_sorted], 2), np.int32)
+        for p in range(n_sorted):
+            g = sorted_ids[p]
+            mx, my = means2d[g, 0], means2d[g, 1]
+            tx0, tx1, ty0, ty1 = _tile_rect(mx, my, extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y)
+            if sweep == 0:
+                rows[p, 0] = ty0
+                rows[p, 1] = ty1
+                row_start[p + 1] = row_start[p] + max(0, ty1 - ty0 + 1)
+                continue
+            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
+            if use_conics:
+                det, qa, inv_a, ymax, dy_right = _ellipse_setup(conics[g, 0], conics[g, 1], conics[g, 2], _Q_CULL)
+            count = 0
+            for ty in range(ty0, ty1 + 1):
+                a0, a1 = tx0, tx1
+                if use_conics:
+                    y_top = ty * tile_size + 0.5 - my
+                    y_bottom = min((ty + 1) * tile_size, height) - 0.5 - my
+                    lo, hi = _ellipse_band(y_top, y_bottom, conics[g, 1], det, qa, inv_a, ymax, dy_right)
+                    a0, a1 = _band_tiles(lo, hi, mx, tx0, tx1, tile_size, width)
+                r = row_start[p] + ty - ty0
+                spans[r, 0] = a0
+                spans[r, 1] = a1
+                for tx in range(a0, a1 + 1):
+                    offsets[ty * tiles_x + tx + 1] += 1
+                count += max(0, a1 - a0 + 1)
+            g_offsets[p + 1] = g_offsets[p] + count
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     ids = np.empty(offsets[n_tiles], np.int32)
@@ -160,9 +179,9 @@ def _bin_kernel(
     for p in range(n_sorted):
         g = sorted_ids[p]
         m = g_offsets[p]
-        for ty in range(rects[p, 2], rects[p, 3] + 1):
-            a0, a1 = _row_tiles(p, ty, rects, means2d, conics, g, use_conics, tile_size, width, height)
-            for tx in range(a0, a1 + 1):
+        for ty in range(rows[p, 0], rows[p, 1] + 1):
+            r = row_start[p] + ty - rows[p, 0]
+            for tx in range(spans[r, 0], spans[r, 1] + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
                 slot_of[cursor[t]] = m
@@ -300,10 +319,10 @@ def _box_halves(mx, ex, x0):  # pragma: no cover - numba
 
 
 @njit(inline="always", cache=True)
-def _pair_halves(mx, my, a, b, c, x0, y, h0, h1):  # pragma: no cover - numba
+def _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y, h0, h1):  # pragma: no cover - numba
     """Halves [q0, q1) within [h0, h1) of the tile's columns (tile at x0) holding a pixel centre of rows y, y + 1
-    inside the 3σ ellipse (conic a, b, c at mx, my; the margin of ``_Q_CULL``); q0 >= q1 when there is none."""
-    lo, hi = _ellipse_span(y + 0.5 - my, y + 1.5 - my, np.float64(a), np.float64(b), np.float64(c), _Q_CULL)
+    inside the 3σ ellipse (at mx, my; constants of :func:`_ellipse_setup`); q0 >= q1 when there is none."""
+    lo, hi = _ellipse_band(y + 0.5 - my, y + 1.5 - my, b, det, qa, inv_a, ymax, dy_right)
     if lo > hi:
         return 0, 0
     cl = max(0, int(math.ceil(mx + lo - x0 - 0.5))) if math.isfinite(lo) else 0
@@ -398,10 +417,13 @@ def _forward_kernel(
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
             both = cull & (h1 - h0 == 2)
+            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
+            if both:
+                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
             for p in range(r0 // 2, (r1 + 1) // 2):
                 q0, q1 = h0, h1
                 if both and alive[0, p] > 0 and alive[1, p] > 0:  # (a dead unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
                 for h in range(q0, q1):
                     if alive[h, p] == 0:
                         continue
@@ -529,10 +551,13 @@ def _backward_kernel(
             g_f2 = zero
             g_f3 = zero
             both = cull & (h1 - h0 == 2)
+            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
+            if both:
+                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
             for p in range(r0 // 2, (r1 + 1) // 2):
                 q0, q1 = h0, h1
                 if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
                 for h in range(q0, q1):
                     if kk >= unit_used[h, p]:
                         continue
@@ -680,10 +705,13 @@ def _backward_kernel_lanes(
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
             lanes[:] = 0.0
             both = cull & (h1 - h0 == 2)
+            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
+            if both:
+                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
             for p in range(r0 // 2, (r1 + 1) // 2):
                 q0, q1 = h0, h1
                 if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, a, b, cc, x0, y0 + 2 * p, h0, h1)
+                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
                 for h in range(q0, q1):
                     if kk >= unit_used[h, p]:
                         continue
