@@ -78,30 +78,18 @@ def bench_speed(args: argparse.Namespace) -> None:
     state = strategy.initial_state(args.n)
     bg = torch.zeros(3)
     names = ("render fwd", "loss fwd", "backward", "adam", "densify stats", "total")
-    from fusion.render import cpu as cpu_backend
-
-    # (label, ellipse tile lists, ellipse units); with --compare the box variant (the kernels before the ellipse
-    # culling) runs in alternate iterations of the same loop, so both see the same load and parameters.
-    configs = [("ellipse", True, True, True)]
-    if args.compare:
-        configs += [("box", False, False, False), ("ellipse-nolanes", True, True, False)]
-    parts = {c[0]: {k: [] for k in names} for c in configs}
-    cpu = {c[0]: {k: [] for k in names} for c in configs}  # process CPU seconds (all threads): less load-sensitive
-    kernels: dict[str, dict[str, list[tuple[float, float]]]] = {c[0]: {} for c in configs}
+    parts: dict[str, list[float]] = {k: [] for k in names}
+    cpu: dict[str, list[float]] = {k: [] for k in names}  # process CPU seconds (all threads): less load-sensitive
 
     def clock() -> tuple[float, float]:
         return time.perf_counter(), time.process_time()
 
     from fusion.render.threads import kernel_times, record_times
 
-    warm = 3 * len(configs)
-    print(f"before: {load()}")
-    for i in range(args.steps * len(configs) + warm):
-        label, tiles, units, lanes = configs[i % len(configs)]
-        cpu_backend.ELLIPSE_TILES[0], cpu_backend.ELLIPSE_UNITS[0], cpu_backend.LANES[0] = tiles, units, lanes
-        if i == warm:
+    kernels: dict[str, list[tuple[float, float]]] = {}
+    for i in range(args.steps + 3):
+        if i == 3:
             record_times(True)
-        kernel_times()  # clear
         c0 = clock()
         out = render_step(params, view, None, args.sh_degree, bg)
         c1 = clock()
@@ -117,32 +105,24 @@ def bench_speed(args: argparse.Namespace) -> None:
         c5 = clock()
         if i == 0:
             print(f"first iteration (numba compile or cache load, thread pool): {c5[0] - c0[0]:.2f} s")
-        if i >= warm:  # warm-up (kernel compilation, thread pool)
+        if i >= 3:  # warm-up (kernel compilation, thread pool)
             spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
             for k, (a, b) in zip(names, spans, strict=True):
-                parts[label][k].append(b[0] - a[0])
-                cpu[label][k].append(b[1] - a[1])
+                parts[k].append(b[0] - a[0])
+                cpu[k].append(b[1] - a[1])
             for k, v in kernel_times().items():
-                kernels[label].setdefault(k, []).append(v)
+                kernels.setdefault(k, []).append(v)
     record_times(False)
-    cpu_backend.ELLIPSE_TILES[0], cpu_backend.ELLIPSE_UNITS[0] = True, True
     print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
-          f"{torch.get_num_threads()} torch threads; after: {load()}")  # fmt: skip
-    for label, *_ in configs:
-        print(f" {label} culling of tiles and units:")
-        for k, v in parts[label].items():
-            print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
-                  f"CPU median {1000 * np.median(cpu[label][k]):7.1f} ms")  # fmt: skip
-        print("  kernels inside those parts (median per iteration):")
-        for k, v in kernels[label].items():
-            arr = np.array(v)
-            print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
-    total = float(np.median(parts["ellipse"]["total"]))
-    if args.compare:
-        for k in names:
-            a, b = np.median(parts["box"][k]), np.median(parts["ellipse"][k])
-            ca, cb = np.median(cpu["box"][k]), np.median(cpu["ellipse"][k])
-            print(f"  box / ellipse {k:14s} wall {a / b:5.2f}x   CPU {ca / cb:5.2f}x")
+          f"{torch.get_num_threads()} torch threads; {load()}")  # fmt: skip
+    for k, v in parts.items():
+        print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
+              f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip
+    print("  kernels inside those parts (median per iteration):")
+    for k, v in kernels.items():
+        arr = np.array(v)
+        print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
+    total = float(np.median(parts["total"]))
     peer = 0.209 if args.n >= 50_000 else 0.119
     print(f"  OpenSplat 1.1.5 CPU: {peer:.3f} s/iter -> ours {total:.3f} s/iter, ratio {peer / total:.2f}x "
           f"(target <= 0.100 s)")  # fmt: skip
@@ -558,7 +538,6 @@ def main() -> None:
     s.add_argument("--size", default="256x192")
     s.add_argument("--steps", type=int, default=20)
     s.add_argument("--sh-degree", type=int, default=0)
-    s.add_argument("--compare", action="store_true", help="alternate with the box culling of the kernels before")
     t = sub.add_parser("tabletop")
     t.add_argument("--scene", required=True)
     t.add_argument("--project", required=True)

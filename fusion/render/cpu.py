@@ -5,8 +5,7 @@ Written by hand because no maintained package rasterises differentiable Gaussian
 this module does the per-pixel work:
 
 1. binning: Gaussians sorted by depth once, then a counting sort by 16×16 tile keeps each tile's list in depth
-   order (no per-tile sort); a Gaussian is listed only in the tiles that hold a pixel centre inside its 3σ ellipse
-   (per tile row, the ellipse's exact x-range over the row band), not in every tile of its 3σ box;
+   order (no per-tile sort);
 2. forward: one thread per tile at a time (tiles sorted by list length, longest first, handed out in small chunks
    to Python threads running GIL-free kernels on both cores; a thread that the OS runs more takes more chunks,
    which keeps the wall time down on a shared machine);
@@ -14,15 +13,18 @@ this module does the per-pixel work:
    16 pixels at once, branch-free so that LLVM vectorises them (hence the polynomial exp, the bitwise masks,
    the compile-time unit size, counters in the float type and ``error_model="numpy"``: each of those alone
    blocked vectorisation or halved its width, 1.5-10x slower); front-to-back compositing with early termination
-   per pixel, per unit and per tile; a box that spans both column halves visits, per row pair, only the halves
-   the ellipse reaches there (the lists and units left out are exactly those where no pixel passes the 3σ test, so
-   images and gradients are bitwise those of the box; ``ELLIPSE_TILES`` / ``ELLIPSE_UNITS`` switch it off for
-   the tests and the bench);
+   per pixel, per unit and per tile;
 3. backward: the same traversal front to back, with what is still to be composited behind each Gaussian taken
    from the saved forward result (no division by transmittance), gradients accumulated per intersection (each
-   tile writes only its own list entries, so no atomics), then summed per Gaussian through the transposed index
-   of the binning (Gaussians split over the threads, each sum in list-entry order: results do not depend on the
-   thread count).
+   tile writes only its own list entries, so no atomics) in 16 per-lane sums over the entry's units, reduced once
+   per entry (a reduction per unit, which LLVM emits for scalar accumulators, cost ~8 % of the kernel), with the
+   conic's terms factored out of the per-pixel sums (Σ g·dx, Σ g·dy, Σ g·dx², ... combined once per entry),
+   then summed per Gaussian through the transposed index of the binning (Gaussians split over the threads, each
+   sum in list-entry order: results do not depend on the thread count).
+
+Tried and dropped (single-thread kernel times, same scene): listing a Gaussian only in the tiles its 3σ ellipse
+reaches (11 % fewer list entries, 3.5 % less raster time, but +3-5 ms in the serial binning) and visiting per row
+pair only the column halves the ellipse reaches (13 % fewer units, no gain: the span costs what it saves).
 
 Kernels are generic in the float type (float32 in production, float64 for gradient checks) and cached on disk
 (a fresh checkout compiles the whole cpu training step, these kernels with projection, loss and Adam, in ~30 s on
@@ -77,100 +79,26 @@ def _tile_rect(mx, my, ex, ey, tile_size, tiles_x, tiles_y):  # pragma: no cover
     return tx0, tx1, ty0, ty1
 
 
-#: Q = dᵀ Σ⁻¹ d bound of the tile test: the kernels draw a pixel only where Q ≤ -2 POWER_MIN (3σ, Q ≤ 9); 1 % and
-#: 0.05 more so that the float32 rounding of Q in the kernels (≲ 1e-7 × the terms, ≲ 0.1 on these images) can never
-#: draw a pixel in a tile the test left out.
-_Q_CULL = -2.0 * POWER_MIN * 1.01 + 0.05
-
-
-@njit(inline="always", cache=True)
-def _ellipse_setup(a, b, c, q):  # pragma: no cover - numba
-    """Per-Gaussian constants of :func:`_ellipse_band` for the ellipse a dx² + 2b dx dy + c dy² ≤ q (float64):
-    (det, q·a, 1 / a, y half-height, dy of the rightmost point); det ≤ 0 marks a degenerate conic (no culling)."""
-    det = a * c - b * b
-    if not (det > 0.0 and a > 0.0 and c > 0.0):
-        return -1.0, 0.0, 0.0, 0.0, 0.0
-    xmax = math.sqrt(q * c / det)
-    return det, q * a, 1.0 / a, math.sqrt(q * a / det), -b * xmax / c
-
-
-@njit(inline="always", cache=True)
-def _ellipse_band(dy0, dy1, b, det, qa, inv_a, ymax, dy_right):  # pragma: no cover - numba
-    """[lo, hi]: the dx range of the ellipse (constants from :func:`_ellipse_setup`) over the band dy ∈ [dy0, dy1]
-    (offsets from the centre); lo > hi when the band misses it; (-inf, inf) for a degenerate conic.
-
-    The right boundary x(dy) = (−b dy + √(q a − det dy²)) / a is concave with its maximum (the rightmost point of
-    the ellipse) at ``dy_right``; its maximum over the band is there or at the nearer band edge. The left boundary
-    is the mirror image (minimum at −dy_right).
-    """
-    if det <= 0.0:
-        return -math.inf, math.inf
-    lo_y = max(dy0, -ymax)
-    hi_y = min(dy1, ymax)
-    if lo_y > hi_y:
-        return 1.0, -1.0
-    d_r = min(max(dy_right, lo_y), hi_y)
-    d_l = min(max(-dy_right, lo_y), hi_y)
-    hi = (-b * d_r + math.sqrt(max(qa - det * d_r * d_r, 0.0))) * inv_a
-    lo = (-b * d_l - math.sqrt(max(qa - det * d_l * d_l, 0.0))) * inv_a
-    return lo, hi
-
-
-@njit(inline="always", cache=True)
-def _band_tiles(lo, hi, mx, tx0, tx1, tile_size, width):  # pragma: no cover - numba
-    """Tiles [tx0', tx1'] within [tx0, tx1] holding a pixel centre x in [mx + lo, mx + hi] (empty: tx1' < tx0')."""
-    if lo > hi or mx + lo > width - 0.5:
-        return 0, -1
-    # tile tx holds pixel centres x in [tx·ts + 0.5, tx·ts + ts − 0.5]
-    if math.isfinite(lo):
-        tx0 = max(tx0, int(math.ceil((mx + lo - tile_size + 0.5) / tile_size)))
-    if math.isfinite(hi):
-        tx1 = min(tx1, int(math.floor((mx + hi - 0.5) / tile_size)))
-    return tx0, tx1
-
-
 @njit(cache=True)
-def _bin_kernel(
-    means2d, extents, conics, use_conics, sorted_ids, tile_size, tiles_x, tiles_y, width, height
-):  # pragma: no cover - numba
+def _bin_kernel(means2d, extents, sorted_ids, tile_size, tiles_x, tiles_y):  # pragma: no cover - numba
     n_tiles = tiles_x * tiles_y
     n_sorted = sorted_ids.shape[0]
     offsets = np.zeros(n_tiles + 1, np.int64)
     g_offsets = np.zeros(n_sorted + 1, np.int64)
-    rows = np.empty((n_sorted, 2), np.int32)  # tile rows [ty0, ty1] of each sorted Gaussian's box
-    row_start = np.empty(n_sorted + 1, np.int64)  # its rows' [tx0, tx1] in spans[row_start[p]:row_start[p + 1]]
-    row_start[0] = 0
-    spans = np.empty((0, 2), np.int32)
-    for sweep in range(2):  # 0: box rows, to size the spans; 1: tiles per row, counted per tile
-        if sweep == 1:
-            spans = np.empty((row_start[n_sorted], 2), np.int32)
-        for p in range(n_sorted):
-            g = sorted_ids[p]
-            mx, my = means2d[g, 0], means2d[g, 1]
-            tx0, tx1, ty0, ty1 = _tile_rect(mx, my, extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y)
-            if sweep == 0:
-                rows[p, 0] = ty0
-                rows[p, 1] = ty1
-                row_start[p + 1] = row_start[p] + max(0, ty1 - ty0 + 1)
-                continue
-            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
-            if use_conics:
-                det, qa, inv_a, ymax, dy_right = _ellipse_setup(conics[g, 0], conics[g, 1], conics[g, 2], _Q_CULL)
-            count = 0
-            for ty in range(ty0, ty1 + 1):
-                a0, a1 = tx0, tx1
-                if use_conics:
-                    y_top = ty * tile_size + 0.5 - my
-                    y_bottom = min((ty + 1) * tile_size, height) - 0.5 - my
-                    lo, hi = _ellipse_band(y_top, y_bottom, conics[g, 1], det, qa, inv_a, ymax, dy_right)
-                    a0, a1 = _band_tiles(lo, hi, mx, tx0, tx1, tile_size, width)
-                r = row_start[p] + ty - ty0
-                spans[r, 0] = a0
-                spans[r, 1] = a1
-                for tx in range(a0, a1 + 1):
-                    offsets[ty * tiles_x + tx + 1] += 1
-                count += max(0, a1 - a0 + 1)
-            g_offsets[p + 1] = g_offsets[p] + count
+    rects = np.empty((n_sorted, 4), np.int32)  # tile box of each sorted Gaussian, computed once
+    for p in range(n_sorted):
+        g = sorted_ids[p]
+        tx0, tx1, ty0, ty1 = _tile_rect(
+            means2d[g, 0], means2d[g, 1], extents[g, 0], extents[g, 1], tile_size, tiles_x, tiles_y
+        )
+        rects[p, 0] = tx0
+        rects[p, 1] = tx1
+        rects[p, 2] = ty0
+        rects[p, 3] = ty1
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
+                offsets[ty * tiles_x + tx + 1] += 1
+        g_offsets[p + 1] = g_offsets[p] + max(0, tx1 - tx0 + 1) * max(0, ty1 - ty0 + 1)
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     ids = np.empty(offsets[n_tiles], np.int32)
@@ -179,9 +107,8 @@ def _bin_kernel(
     for p in range(n_sorted):
         g = sorted_ids[p]
         m = g_offsets[p]
-        for ty in range(rows[p, 0], rows[p, 1] + 1):
-            r = row_start[p] + ty - rows[p, 0]
-            for tx in range(spans[r, 0], spans[r, 1] + 1):
+        for ty in range(rects[p, 2], rects[p, 3] + 1):
+            for tx in range(rects[p, 0], rects[p, 1] + 1):
                 t = ty * tiles_x + tx
                 ids[cursor[t]] = g
                 slot_of[cursor[t]] = m
@@ -237,45 +164,28 @@ def bin_gaussians(
     width: int,
     height: int,
     tile_size: int = TILE_SIZE,
-    conics: np.ndarray | None = None,
 ) -> TileBins:
-    """Tile lists for visible Gaussians: means2d and extents (N, 2) px, depths (N,), visible (N,) bool.
-
-    A Gaussian is listed in every tile its 3σ box (mean ± extent) touches; with ``conics`` (N, 3) (a, b, c) only in
-    those that hold a pixel centre inside its 3σ ellipse (a slightly larger one, see ``_Q_CULL``): the kernels draw
-    nothing elsewhere, so the image and gradients are the same with fewer list entries.
-    """
+    """Tile lists for visible Gaussians: means2d and extents (N, 2) px, depths (N,), visible (N,) bool."""
     with timed("bin"):
-        return _bin(means2d, extents, depths, visible, width, height, tile_size, conics)
+        return _bin(means2d, extents, depths, visible, width, height, tile_size)
 
 
-def _bin(means2d, extents, depths, visible, width, height, tile_size, conics=None) -> TileBins:
+def _bin(means2d, extents, depths, visible, width, height, tile_size) -> TileBins:
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
     vis = np.flatnonzero(visible)
     sorted_ids = vis[depth_order(depths[vis])].astype(np.int64)
-    use_conics = conics is not None
     offsets, ids, g_offsets, slot_of = _bin_kernel(
         np.ascontiguousarray(means2d, np.float64),
         np.ascontiguousarray(extents, np.float64),
-        np.ascontiguousarray(conics if use_conics else np.zeros((1, 3)), np.float64),
-        use_conics,
         sorted_ids,
         tile_size,
         tiles_x,
         tiles_y,
-        width,
-        height,
     )
     by_length = np.argsort(-np.diff(offsets), kind="stable")
     return TileBins(offsets, ids, by_length, tiles_x, tiles_y, tile_size, sorted_ids, g_offsets, slot_of)
 
-
-#: Tile lists from the 3σ ellipse (True, the default) or the 3σ box (False: the tests compare the two).
-ELLIPSE_TILES = [True]
-#: Units (2 rows × 8 columns) a Gaussian visits: those its 3σ ellipse reaches (True) or its box's (False).
-ELLIPSE_UNITS = [True]
-LANES = [True]  # experiment
 
 _TS = TILE_SIZE
 _POWER_MIN = np.float32(POWER_MIN)
@@ -318,20 +228,6 @@ def _box_halves(mx, ex, x0):  # pragma: no cover - numba
     return h0, h1
 
 
-@njit(inline="always", cache=True)
-def _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y, h0, h1):  # pragma: no cover - numba
-    """Halves [q0, q1) within [h0, h1) of the tile's columns (tile at x0) holding a pixel centre of rows y, y + 1
-    inside the 3σ ellipse (at mx, my; constants of :func:`_ellipse_setup`); q0 >= q1 when there is none."""
-    lo, hi = _ellipse_band(y + 0.5 - my, y + 1.5 - my, b, det, qa, inv_a, ymax, dy_right)
-    if lo > hi:
-        return 0, 0
-    cl = max(0, int(math.ceil(mx + lo - x0 - 0.5))) if math.isfinite(lo) else 0
-    ch = min(_TS - 1, int(math.floor(mx + hi - x0 - 0.5))) if math.isfinite(hi) else _TS - 1
-    if ch < cl:
-        return 0, 0
-    return max(h0, cl // _HALF), min(h1, ch // _HALF + 1)
-
-
 @njit(cache=True)
 def _row_span(m, e, y0, y1):  # pragma: no cover - numba
     """Rows r in [y0, y1) whose centres r + 0.5 lie within [m - e, m + e], as tile-local indices."""
@@ -353,7 +249,6 @@ def _forward_kernel(
     width,
     height,
     tiles_x,
-    cull,
     j0,
     j1,
     out,
@@ -416,15 +311,8 @@ def _forward_kernel(
             kk = np.int32(k - start + 1)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
-            both = cull & (h1 - h0 == 2)
-            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
-            if both:
-                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
             for p in range(r0 // 2, (r1 + 1) // 2):
-                q0, q1 = h0, h1
-                if both and alive[0, p] > 0 and alive[1, p] > 0:  # (a dead unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
-                for h in range(q0, q1):
+                for h in range(h0, h1):
                     if alive[h, p] == 0:
                         continue
                     stops = zero
@@ -475,169 +363,6 @@ def _backward_kernel(
     width,
     height,
     tiles_x,
-    cull,
-    j0,
-    j1,
-    out,
-    n_used,
-    grad_out,
-    slot_of,
-    g_isect,
-):  # pragma: no cover - numba
-    """Tiles order[j0:j1]; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of their list entries k:
-    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3). Same unit layout as the forward kernel."""
-    ts = _TS
-    dt = means2d.dtype
-    n_tiles = offsets.shape[0] - 1
-    T = np.empty((2, _PAIRS, 16), dt)
-    rest = np.empty((5, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
-    go = np.empty((5, 2, _PAIRS, 16), dt)
-    used = np.empty((2, _PAIRS, 16), np.int32)
-    unit_used = np.empty((2, _PAIRS), np.int32)  # list entries the slowest pixel of each unit composited
-    xu = np.empty((2, 16), dt)
-    yu = np.empty((_PAIRS, 16), dt)
-    for j in range(j0, min(j1, n_tiles)):
-        t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
-        zero = xu[0, 0] - xu[0, 0]
-        T[:] = 1.0
-        rest[:] = 0.0
-        go[:] = 0.0
-        used[:] = 0
-        unit_used[:] = 0
-        max_used = 0
-        for r in range(y1 - y0):
-            for c in range(x1 - x0):
-                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                u = n_used[y0 + r, x0 + c]
-                used[h, p, i] = u
-                unit_used[h, p] = max(unit_used[h, p], u)
-                max_used = max(max_used, u)
-                for f in range(5):
-                    rest[f, h, p, i] = out[y0 + r, x0 + c, f]
-                    go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
-        start = offsets[t]
-        for k in range(start, start + max_used):
-            g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
-            f0 = features[g, 0]
-            f1 = features[g, 1]
-            f2 = features[g, 2]
-            f3 = features[g, 3]
-            kk = np.int32(k - start)
-            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-            h0, h1 = _box_halves(mx, extents[g, 0], x0)
-            g_mx = zero
-            g_my = zero
-            g_a = zero
-            g_b = zero
-            g_c = zero
-            g_op = zero
-            g_f0 = zero
-            g_f1 = zero
-            g_f2 = zero
-            g_f3 = zero
-            both = cull & (h1 - h0 == 2)
-            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
-            if both:
-                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
-            for p in range(r0 // 2, (r1 + 1) // 2):
-                q0, q1 = h0, h1
-                if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
-                for h in range(q0, q1):
-                    if kk >= unit_used[h, p]:
-                        continue
-                    for i in range(16):
-                        dx = xu[h, i] - mx
-                        dy = yu[p, i] - my
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        gauss = _exp_neg(power)
-                        raw = op * gauss
-                        alpha = min(_ALPHA_MAX, raw)
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
-                        tp = T[h, p, i]
-                        w = alpha * tp if ok else zero
-                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
-                        r_0 = rest[0, h, p, i] - w * f0
-                        r_1 = rest[1, h, p, i] - w * f1
-                        r_2 = rest[2, h, p, i] - w * f2
-                        r_3 = rest[3, h, p, i] - w * f3
-                        r_4 = rest[4, h, p, i] - w
-                        rest[0, h, p, i] = r_0
-                        rest[1, h, p, i] = r_1
-                        rest[2, h, p, i] = r_2
-                        rest[3, h, p, i] = r_3
-                        rest[4, h, p, i] = r_4
-                        go0 = go[0, h, p, i]
-                        go1 = go[1, h, p, i]
-                        go2 = go[2, h, p, i]
-                        go3 = go[3, h, p, i]
-                        go4 = go[4, h, p, i]
-                        g_f0 += w * go0
-                        g_f1 += w * go1
-                        g_f2 += w * go2
-                        g_f3 += w * go3
-                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
-                        g_alpha = (
-                            go0 * (f0 * tp - r_0 * inv)
-                            + go1 * (f1 * tp - r_1 * inv)
-                            + go2 * (f2 * tp - r_2 * inv)
-                            + go3 * (f3 * tp - r_3 * inv)
-                            + go4 * (tp - r_4 * inv)
-                        )
-                        T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
-                        g_op += g_alpha * gauss
-                        g_pow = g_alpha * alpha
-                        g_mx += g_pow * (a * dx + b * dy)
-                        g_my += g_pow * (cc * dy + b * dx)
-                        g_a -= np.float32(0.5) * g_pow * dx * dx
-                        g_b -= g_pow * dx * dy
-                        g_c -= np.float32(0.5) * g_pow * dy * dy
-            m = slot_of[k]
-            g_isect[m, 0] = g_mx
-            g_isect[m, 1] = g_my
-            g_isect[m, 2] = g_a
-            g_isect[m, 3] = g_b
-            g_isect[m, 4] = g_c
-            g_isect[m, 5] = g_op
-            g_isect[m, 6] = g_f0
-            g_isect[m, 7] = g_f1
-            g_isect[m, 8] = g_f2
-            g_isect[m, 9] = g_f3
-        for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
-            for f in range(10):
-                g_isect[slot_of[k], f] = zero
-
-
-@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-def _backward_kernel_lanes(
-    means2d,
-    conics,
-    opacities,
-    features,
-    extents,
-    offsets,
-    ids,
-    order,
-    width,
-    height,
-    tiles_x,
-    cull,
     j0,
     j1,
     out,
@@ -704,15 +429,8 @@ def _backward_kernel_lanes(
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
             lanes[:] = 0.0
-            both = cull & (h1 - h0 == 2)
-            det, qa, inv_a, ymax, dy_right = -1.0, 0.0, 0.0, 0.0, 0.0
-            if both:
-                det, qa, inv_a, ymax, dy_right = _ellipse_setup(np.float64(a), np.float64(b), np.float64(cc), _Q_CULL)
             for p in range(r0 // 2, (r1 + 1) // 2):
-                q0, q1 = h0, h1
-                if both and kk < unit_used[0, p] and kk < unit_used[1, p]:  # (a finished unit is skipped anyway)
-                    q0, q1 = _pair_halves(mx, my, b, det, qa, inv_a, ymax, dy_right, x0, y0 + 2 * p, h0, h1)
-                for h in range(q0, q1):
+                for h in range(h0, h1):
                     if kk >= unit_used[h, p]:
                         continue
                     for i in range(16):
@@ -835,7 +553,7 @@ class _RasterizeCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
-        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x, ELLIPSE_UNITS[0])
+        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
         run_chunks(_forward_kernel, args, (out, n_used), len(bins.order), "raster fwd")
@@ -849,8 +567,7 @@ class _RasterizeCPU(torch.autograd.Function):
         ids = args[6]
         g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
         tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, g_isect)
-        kernel = _backward_kernel_lanes if LANES[0] else _backward_kernel
-        run_chunks(kernel, args, tail, len(ctx.bins.order), "raster bwd")
+        run_chunks(_backward_kernel, args, tail, len(ctx.bins.order), "raster bwd")
         n, dt = args[0].shape[0], args[0].dtype
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins
@@ -880,6 +597,5 @@ def rasterize_cpu(
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
     if features.shape[1] != 4:
         raise ValueError(f"the cpu rasteriser composites exactly 4 features per Gaussian, got {features.shape[1]}")
-    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size,
-                         conics=_np(conics) if ELLIPSE_TILES[0] else None)  # fmt: skip
+    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
     return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height)
