@@ -87,6 +87,7 @@ def bench_speed(args: argparse.Namespace) -> None:
     from fusion.render.threads import kernel_times, record_times
 
     kernels: dict[str, list[tuple[float, float]]] = {}
+    print(f"before: {load()}")
     for i in range(args.steps + 3):
         if i == 3:
             record_times(True)
@@ -114,7 +115,7 @@ def bench_speed(args: argparse.Namespace) -> None:
                 kernels.setdefault(k, []).append(v)
     record_times(False)
     print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
-          f"{torch.get_num_threads()} torch threads; {load()}")  # fmt: skip
+          f"{torch.get_num_threads()} torch threads; after: {load()}")  # fmt: skip
     for k, v in parts.items():
         print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
               f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip
