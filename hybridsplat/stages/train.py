@@ -43,9 +43,10 @@ class TrainStageOptions:
     lpips_weight: weight of an LPIPS term on the mask pixels (fusion.train.perceptual) from ``lpips_start`` × the
         iterations on; 0 = off (the default). lpips_weights: the LPIPS v0.1 AlexNet weights (.npz); empty =
         $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips (eval.lpips.find_weights); resolved and checked before
-        training starts, only when the term is on. On the demo (600 steps from 0.8, held-out views, merged, inside
-        the masks) 0.1 changed PSNR / SSIM / LPIPS by −0.09 dB / −0.008 / −0.001 and 0.2 by 0.00 dB / −0.007 /
-        −0.017, for ~0.12 s of CPU per LPIPS step (AlexNet forward of both crops + backward, ~210×320 px).
+        training starts, only when the term is on. On the demo (600 steps, from step 480; held-out views, merged,
+        inside the masks; seed 1) 0.1 changed PSNR / SSIM / LPIPS by −0.09 dB / −0.008 / −0.001 and 0.2 by
+        0.00 dB / −0.007 / −0.017 (seed 2: −0.29 dB / −0.015 / −0.016), for ~0.12 s of CPU per LPIPS step
+        (AlexNet forward of both crops + backward, crops ~210×320 px): off by default.
     """
 
     iterations: int = 2000
