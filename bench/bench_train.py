@@ -6,6 +6,11 @@
     at 50 k Gaussians, 256×192, 2 cores, measured on this kind of machine). Also the time of every kernel inside
     those parts (projection, binning, rasteriser forward / backward, per-Gaussian sums, loss forward / backward,
     Adam), wall and process CPU, medians per iteration; first-call compile / cache-load time reported apart.
+    The kernels split their work over 2 threads, so on an idle machine the wall time of those parts is about half
+    their CPU time. On the shared machine (kernel.sched_autogroup_enabled = 1) a busy process of another session,
+    even niced, takes one core's share: both threads then run one after the other and wall = CPU time (measured
+    with two GIL-free numba loops: 1 thread 1.2 s, 2 threads 2.35 s wall / 2.4 s CPU at load 3.3). Read such
+    figures as CPU time.
 
 ``python bench/bench_train.py tabletop --scene SCENE --project PROJECT [--iterations 2000] ...``
     The hybrid on a data_synth scene that ``hybridsplat run`` has processed: masks and ``needs_splats`` from the
@@ -87,6 +92,7 @@ def bench_speed(args: argparse.Namespace) -> None:
     from fusion.render.threads import kernel_times, record_times
 
     kernels: dict[str, list[tuple[float, float]]] = {}
+    print(f"before: {load()}")
     for i in range(args.steps + 3):
         if i == 3:
             record_times(True)
@@ -114,7 +120,7 @@ def bench_speed(args: argparse.Namespace) -> None:
                 kernels.setdefault(k, []).append(v)
     record_times(False)
     print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
-          f"{torch.get_num_threads()} torch threads; {load()}")  # fmt: skip
+          f"{torch.get_num_threads()} torch threads; after: {load()}")  # fmt: skip
     for k, v in parts.items():
         print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
               f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip

@@ -39,6 +39,7 @@ from fusion.train.params import (
     set_from_tensors,
     tensors_from_set,
 )
+from fusion.train.perceptual import MIN_SIZE, PerceptualCrop, PerceptualNetwork, perceptual_loss, prepare_crop
 from fusion.train.priors import PriorOptions, prior_loss, view_priors
 from fusion.train.render import project_context, render_step
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
@@ -89,6 +90,9 @@ class TrainOptions:
     hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
     photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
     ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
+    lpips_weight: weight of an LPIPS term on the loss pixels (:mod:`fusion.train.perceptual`; needs the
+    ``lpips`` network argument of :func:`train_splats`) from step ``ceil(lpips_start × iterations)`` on; 0 = off.
+    lpips_margin: context pixels around the loss pixels' bounding box.
     priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
     (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
@@ -122,6 +126,9 @@ class TrainOptions:
     hard_views: HardViewOptions | None = None
     photometric: str = "l1_ssim"
     smoothl1_beta: float = 0.05
+    lpips_weight: float = 0.0
+    lpips_start: float = 0.8
+    lpips_margin: int = 16
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -141,6 +148,11 @@ class TrainOptions:
             )
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
+        if not (self.lpips_weight >= 0 and 0.0 <= self.lpips_start <= 1.0 and self.lpips_margin >= 0):
+            raise ConfigError(
+                f"need lpips_weight >= 0, lpips_start in [0, 1] and lpips_margin >= 0, got {self.lpips_weight}, "
+                f"{self.lpips_start}, {self.lpips_margin}"
+            )
 
 
 @dataclass(frozen=True)
@@ -229,15 +241,20 @@ def train_splats(
     context: GaussianSet | None = None,
     options: TrainOptions | None = None,
     progress: Callable[[StepInfo], None] | None = None,
+    lpips: PerceptualNetwork | None = None,
 ) -> TrainResult:
     """Train ``init`` (any origin) against ``images`` inside ``masks``, with ``context`` frozen beside it.
 
     images: name → (H, W, 3) photo at its camera's size (uint8 or float in [0, 1]); only names with a camera and,
     with masks, a non-empty mask are used. masks: name → (H, W) bool, or None for whole images. Returns a
     :class:`TrainResult`; deterministic for a given seed on the CPU.
+    lpips: the frozen LPIPS network (an :class:`eval.lpips.LPIPS`), needed when ``options.lpips_weight`` > 0 and
+    never called otherwise.
     """
     opts = options or TrainOptions()
     t0 = time.perf_counter()
+    if opts.lpips_weight > 0 and lpips is None:
+        raise ConfigError("lpips_weight > 0 needs the LPIPS network (eval.lpips.LPIPS with its weights file)")
     if len(init) == 0:
         raise DataError("no initial splats to train (the regions got no seeds)")
     origin = cameras.origin
@@ -250,6 +267,10 @@ def train_splats(
     )  # fmt: skip
     if not views:
         raise DataError("no training view has mask pixels: nothing to train")
+    lpips_from = math.ceil(opts.lpips_start * opts.iterations) if opts.lpips_weight > 0 else opts.iterations + 1
+    lpips_crops: dict[int, PerceptualCrop | None] = {}
+    if lpips_from <= opts.iterations and min(min(v.width, v.height) for v in views) < MIN_SIZE:
+        raise ConfigError(f"the LPIPS term needs training images of at least {MIN_SIZE}×{MIN_SIZE} pixels")
     gen = torch.Generator().manual_seed(opts.seed)
     rng = np.random.default_rng(opts.seed)
 
@@ -325,6 +346,11 @@ def train_splats(
         else:
             terms = smoothl1_msssim_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda, opts.smoothl1_beta)
         loss = terms.loss
+        if step >= lpips_from:
+            if vi not in lpips_crops:
+                lpips_crops[vi] = prepare_crop(view, opts.lpips_margin)
+            if lpips_crops[vi] is not None:
+                loss = loss + opts.lpips_weight * perceptual_loss(out.colour, lpips_crops[vi], lpips)
         if opts.scale_reg > 0:
             loss = loss + opts.scale_reg * params["log_scales"].exp().mean() / scale
         if opts.flat:
