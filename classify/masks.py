@@ -377,15 +377,22 @@ def region_masks(
     user_masks: dict[str, np.ndarray] | None = None,
     names: list[str] | None = None,
     seen: SeenInView | None = None,
+    cloud_downscale: float = 1.0,
 ) -> list[PhotoMask]:
     """:func:`photo_mask` for every view of ``cameras`` (or those named in ``names``), in image-id order.
 
-    seen: which points each photo sees (``explained_by="seen"``), see :class:`SeenInView`."""
+    seen: which points each photo sees (``explained_by="seen"``), see :class:`SeenInView`. cloud_downscale: how
+    many times smaller than these cameras' images the cloud's depth maps were (the MVS image size, e.g. 3072 px
+    photos reconstructed at 1000 px: 3.07). The hole radius is ``hole_gsd`` GSDs *of the cloud*: a cloud sampled
+    from smaller images has coarser pixels, and a radius in the photos' GSD would leave gaps between its points
+    that read as holes everywhere."""
     pts = np.asarray(positions, dtype=np.float64)
     flags = np.asarray(needs_splats, dtype=bool)
     if len(flags) != len(pts):
         raise DataError(f"{len(flags)} needs-splats flags for {len(pts)} points")
-    gsd = ground_sample_distance(cameras, pts, names) if options.hole_gsd > 0 else None
+    if not (cloud_downscale >= 1.0 and np.isfinite(cloud_downscale)):
+        raise DataError(f"cloud_downscale must be >= 1, got {cloud_downscale}")
+    gsd = ground_sample_distance(cameras, pts, names) * cloud_downscale if options.hole_gsd > 0 else None
     out = []
     for view in cameras:
         if names is not None and view.name not in names:

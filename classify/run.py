@@ -171,6 +171,23 @@ def write_classified(path: str | PathLike[str], result: ClassifiedCloud) -> Path
     return write_ply(path, out)
 
 
+def _cloud_downscale(cameras, dense_dir: Path | None) -> float:
+    """How many times smaller than the photos the dense workspace's (undistorted, MVS-sized) images are: the ratio
+    of the largest image sides; 1 without a dense workspace model."""
+    if dense_dir is None:
+        return 1.0
+    from core.io.colmap import read_model
+    from recon.workspace import DenseWorkspace
+
+    sparse = DenseWorkspace(Path(dense_dir)).sparse
+    if not sparse.is_dir():
+        return 1.0
+    dense, _ = read_model(sparse)
+    photo_side = max(max(c.width, c.height) for c in cameras.cameras.values())
+    dense_side = max(max(c.width, c.height) for c in dense.cameras.values())
+    return max(1.0, photo_side / dense_side)
+
+
 def project_masks(
     points_ply: str | PathLike[str],
     report_json: str | PathLike[str],
@@ -228,8 +245,9 @@ def project_masks(
         photo = (lambda name: read_image(folder / name)) if folder is not None else None
         seen = SeenInView(visibility, cloud.colors, photo)
     masks = region_masks(
-        cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, seen
-    )
+        cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, seen,
+        cloud_downscale=_cloud_downscale(cameras, dense_dir),
+    )  # fmt: skip
     photos = []
     for i, pm in enumerate(masks):
         path = mask_path(pm.name)

@@ -157,6 +157,24 @@ def test_ground_sample_distance_and_hole_radius_in_gsd():
     assert 0.6 < narrow.holes_px < 0.75
 
 
+def test_hole_radius_is_in_the_clouds_gsd_when_the_cloud_came_from_smaller_images():
+    """The same 4 cm grid seen by photos of 1 cm GSD, but reconstructed from images 3× smaller (a 3 cm GSD): 1 GSD
+    of the cloud is 3 px of the photo, which covers the lattice as 3 GSD of the photo does (no false holes)."""
+    import pytest
+
+    from core.errors import DataError
+
+    cams, _ = _rig()
+    pts = _grid(spacing=0.04, half=0.8)
+    flags = np.zeros(len(pts), bool)
+    opts = MaskOptions(hole_gsd=1.0, close_px=0, dilate_px=0, dilate_spacings=0, min_hole_px=1)
+    same = region_masks(cams, pts, flags, 0.04, opts)[0]
+    coarse = region_masks(cams, pts, flags, 0.04, opts, cloud_downscale=3.0)[0]
+    assert same.holes_px > 0.6 and coarse.empty
+    with pytest.raises(DataError, match="cloud_downscale"):
+        region_masks(cams, pts, flags, 0.04, opts, cloud_downscale=0.5)
+
+
 def test_area_grows_over_unreconstructed_surface_that_looks_like_the_scene():
     """An upright camera looks at a brown wall (image rows 20-59) under a grey sky (rows 0-19); MVS reconstructed
     only the wall's lower part (rows 40-59). Without growth the unreconstructed upper part lies above the cloud's
