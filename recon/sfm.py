@@ -14,9 +14,10 @@ byte-identical models. What varied before, measured on the ``tiny`` preset (benc
   every later step depends on ids (known-pose runs too: their frames/images/points files differed) → extraction
   runs on one thread;
 - two-view geometry RANSAC draws from thread-local generators when unseeded → its seed is set, and matching runs
-  on one thread too: with two matching threads, one CI run in about twenty gave 167 points against 168 on the
-  second of two identical runs in one process (not reproduced in 40 runs here, whole or stage by stage, so the
-  cause is not pinned down; one thread removes the last multi-threaded COLMAP step);
+  on one thread too: with two matching threads, one CI run (of many that passed) gave 167 points against 168 in
+  the second of two identical runs in one process (not reproduced in 40 runs here, whole or stage by stage, so
+  the cause is not pinned down; one thread removes the last multi-threaded COLMAP step; about 1.4× the time of
+  features + matching on the demo scene);
 - the mapper's, the triangulator's and the global generator's seeds are set; the mapper and the bundle
   adjustments run on one thread. This last part is a precaution, not a measurement: Ceres multi-threads only
   problems above 50 000 residuals (``min_num_residuals_for_cpu_multi_threading``), which ``tiny`` never reaches,
