@@ -166,7 +166,7 @@ def _extract_and_match(
         reader.mask_path = str(mask_dir)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = int(options.max_image_size)
-    extraction.num_threads = 1 if options.deterministic else int(options.num_threads)
+    extraction.num_threads = _colmap_threads(options)
     extraction.sift.max_num_features = int(options.max_num_features)
     mode = pycolmap.CameraMode.PER_IMAGE if per_image else pycolmap.CameraMode.SINGLE
     t0 = time.perf_counter()
@@ -177,7 +177,7 @@ def _extract_and_match(
     report.seconds_features = time.perf_counter() - t0
     t1 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = 1 if options.deterministic else int(options.num_threads)
+    matching.num_threads = _colmap_threads(options)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = int(options.seed)  # unseeded: thread-local generators, order-dependent
     kw = {"matching_options": matching, "verification_options": verification, "device": pycolmap.Device.cpu}
@@ -250,13 +250,18 @@ def _camera_model(name: str) -> str:
     return str(name).upper()
 
 
+def _colmap_threads(options: SfmOptions) -> int:
+    """Threads of every COLMAP step: one when deterministic (see the module docstring), else ``num_threads``."""
+    return 1 if options.deterministic else int(options.num_threads)
+
+
 def _mapper_options(options: SfmOptions):
     """Incremental pipeline options with every seed set and, when deterministic, single-threaded solves."""
     import pycolmap
 
     pycolmap.set_random_seed(int(options.seed))  # the global generator some COLMAP code paths draw from
     mapper = pycolmap.IncrementalPipelineOptions()
-    mapper.num_threads = 1 if options.deterministic else int(options.num_threads)
+    mapper.num_threads = _colmap_threads(options)
     mapper.random_seed = int(options.seed)
     mapper.mapper.random_seed = int(options.seed)
     mapper.triangulation.random_seed = int(options.seed)

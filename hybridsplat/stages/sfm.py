@@ -29,7 +29,7 @@ class SfmStageOptions:
     max_image_size: features are extracted on photos downscaled to this longer side (pixels).
     align_threshold_m: RANSAC inlier threshold of the alignment to reference centres, metres (0: 2 % of their extent).
     deterministic: byte-identical sparse models run to run (COLMAP on one thread); false uses every core for
-        feature extraction and matching (features and matching about 1.5x faster on 2 cores, demo scene).
+        feature extraction and matching (features + matching about 1.4x faster on 2 cores, demo scene).
     """
 
     camera_model: str = "SIMPLE_RADIAL"

@@ -41,9 +41,10 @@ class TrainStageOptions:
     iterations: 1000 keeps a CPU run of the 11 fountain-P11 photos (500×333 training size, 270 k frozen MVS
         Gaussians, about 0.3 s a step on 2 cores) inside 15 minutes. On the demo tabletop (seed 1, masks of the
         default model; held-out views, merged product inside the true non-collaborative masks; the 2000-step
-        whole-scene baseline scores 21.85 dB there) the masked PSNR / merged C2C mean / train time were
-        21.00 dB / 1.85 mm / 59 s at 600 steps, 21.30 dB / 2.06 mm / 99 s at 1000, 21.57 dB / 2.39 mm / 204 s at
-        1500, and 21.56 dB / 2.23 mm / 177 s at 1500 with refine_until 0.35 (MVS alone: 11.17 dB / 2.28 mm).
+        whole-scene baseline scores 21.85 dB there, 22.16 dB at 4000) the masked PSNR / merged C2C mean / train
+        time were 21.00 dB / 1.85 mm / 59 s at 600 steps, 21.30 dB / 2.06 mm / 99 s at 1000, 21.57 dB / 2.39 mm /
+        204 s at 1500, and 21.56 dB / 2.23 mm / 177 s at 1500 with refine_until 0.35 (MVS alone: 11.17 dB /
+        2.28 mm).
     refine_start / refine_until: densification (clone, split, prune; fusion.train.DefaultStrategy) runs from step
         ``refine_start`` until the share ``refine_until`` of ``iterations`` (never in the last half by default).
         Densifying to the last step had cost the demo 1.1 dB (600 steps: 18.99 dB, with refine_until 0.5: 20.13).
