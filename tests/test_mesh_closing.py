@@ -144,3 +144,59 @@ def test_a_tube_through_the_cube_is_capped_by_discs(sign):
     lo, hi = result.cube_lo, result.cube_hi
     cube, tube = float(np.prod(hi - lo)), np.pi * r**2 * (hi[2] - lo[2])
     assert volume(result.mesh) == pytest.approx(tube if sign > 0 else cube - tube, rel=0.03)
+
+
+def _staircase_with_hole(rng: np.random.Generator, subdivide: int) -> list[np.ndarray]:
+    """A rectilinear outer ring (anticlockwise) of random steps and a square hole (clockwise), each edge split into
+    ``subdivide`` collinear pieces: the runs of straight vertices a cube cap along a flat ground has."""
+    steps = rng.integers(1, 4, size=6)
+    outer = [(0.0, 0.0), (20.0, 0.0)]
+    y = 0.0
+    for i, h in enumerate(steps):  # right side climbs in steps, alternating inwards and outwards
+        y += h
+        x = 20.0 - (i % 2)
+        outer += [(outer[-1][0], y), (x, y)]
+    outer += [(outer[-1][0], y + 1.0), (0.0, y + 1.0)]
+    hole = [(5.0, 3.0), (5.0, 6.0), (8.0, 6.0), (8.0, 3.0)]  # clockwise
+
+    def split(ring: list[tuple[float, float]]) -> np.ndarray:
+        pts = []
+        for a, b in zip(ring, ring[1:] + ring[:1], strict=True):
+            a, b = np.array(a), np.array(b)
+            if np.allclose(a, b):
+                continue
+            pts += [a + (b - a) * t for t in np.arange(subdivide) / subdivide]
+        return np.array(pts)
+
+    return [split(outer), split(hole)]
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("subdivide", [1, 3, 7])
+def test_cap_triangulation_uses_every_ring_vertex_and_edge_exactly_once(seed, subdivide):
+    from fusion.mesh.closing import triangulate_rings
+
+    rings = _staircase_with_hole(np.random.default_rng(seed), subdivide)
+    uv = np.concatenate(rings)
+    tri = triangulate_rings(rings)
+    p = uv[tri]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * (e1[:, 0] * e2[:, 1] - e2[:, 0] * e1[:, 1])
+    assert (area > 1e-9).all(), "flat or clockwise triangles"
+
+    def shoelace(r: np.ndarray) -> float:
+        return 0.5 * float(np.sum(r[:, 0] * np.roll(r[:, 1], -1) - np.roll(r[:, 0], -1) * r[:, 1]))
+
+    assert area.sum() == pytest.approx(shoelace(rings[0]) + shoelace(rings[1]), rel=1e-12)  # the hole's is negative
+    directed = {tuple(e) for e in np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]).tolist()}
+    assert len(directed) == 3 * len(tri)  # no directed edge twice: the triangles do not overlap
+    offset = 0
+    ring_edges = set()
+    for r in rings:
+        idx = np.arange(offset, offset + len(r))
+        ring_edges |= set(zip(idx.tolist(), np.roll(idx, -1).tolist(), strict=True))
+        offset += len(r)
+    assert ring_edges <= directed  # every boundary edge is a triangle's edge, in the ring's direction
+    inner = directed - ring_edges
+    assert all((b, a) in inner for a, b in inner)  # every other edge is shared by two triangles: no gap, no T-junction
+    assert set(tri.ravel().tolist()) == set(range(len(uv)))

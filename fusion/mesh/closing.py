@@ -23,10 +23,12 @@ Per cube face F (2D frame (u, v) with u × v = the outward normal of F):
   left, the smallest left turn at a vertex shared by several rings); anticlockwise rings are outer boundaries,
   clockwise ones are holes and go to the smallest outer ring containing them;
 - each outer ring with its holes is triangulated by ``mapbox-earcut`` (the ear-clipping triangulator trimesh uses),
-  which adds no vertex; along collinear ring vertices (a straight chain along a flat ground) it skips vertices or
-  emits flat triangles, and either would leave a T-junction; flat triangles are dropped and the triangle on the edge
-  that jumps over such vertices is split into a fan through them. Cap triangles are anticlockwise in (u, v): their
-  normals point out of the cube, i.e. out of the solid.
+  which adds no vertex (:func:`triangulate_rings`). Along collinear ring vertices (a straight chain along a flat
+  ground) earcut drops vertices or clips flat ears, and either would leave a T-junction: runs of straight vertices
+  are therefore bowed slightly into the region for earcut only, the flat triangles that remain where vertices of
+  different runs share a line are removed by edge flips, and a ring edge still missing is restored by splitting the
+  triangle over it into a fan. Cap triangles are anticlockwise in (u, v): their normals point out of the cube, i.e.
+  out of the solid.
 
 Cap vertices are the mesh's own boundary vertices (snapped exactly onto the cube's planes: open3d's float32 round-off
 leaves them ~1e-7 m off) and the cube corners that lie inside; a vertex on a cube edge is a chain end on both faces
@@ -361,8 +363,6 @@ class _FaceCut:
 
     def triangulate(self, corner_state: dict[int, bool]) -> np.ndarray:
         """(C, 3) cap triangles (vertex ids as in the class docstring), anticlockwise in (u, v)."""
-        import mapbox_earcut
-
         segs = []
         for a, b, state in self._segments:
             if state is None:  # no chain end on this face: the corners' common state
@@ -388,11 +388,7 @@ class _FaceCut:
         for o, hs in members.items():
             ring_ids = [rings[o]] + [rings[h] for h in hs]
             flat = np.concatenate(ring_ids)
-            uv = np.array([self.uv(int(v)) for v in flat])
-            ends = np.cumsum([len(r) for r in ring_ids]).astype(np.uint32)
-            local = np.asarray(mapbox_earcut.triangulate_float64(uv, ends), dtype=np.int64).reshape(-1, 3)
-            local = _drop_flat(_orient_anticlockwise(local, uv), uv)
-            local = _fan_skipped(local, ring_ids)
+            local = triangulate_rings([np.array([self.uv(int(v)) for v in r]) for r in ring_ids])
             out.append(flat[local])
         return np.concatenate(out) if out else np.zeros((0, 3), dtype=np.int64)
 
@@ -404,6 +400,64 @@ class _FaceCut:
         return 0.5 * (a + b) + 1e-6 * left
 
 
+def triangulate_rings(rings: list[np.ndarray]) -> np.ndarray:
+    """(T, 3) int64 anticlockwise triangles of a polygon region: ``rings[0]`` (P0, 2) its outer boundary,
+    anticlockwise, the others its holes, clockwise; indices into the rings concatenated in order. Every ring vertex
+    is used and every ring edge is an edge of exactly one triangle, collinear runs of vertices included (earcut
+    would skip them or clip flat ears: see :func:`_nudge_straight_vertices`); no Steiner point is added."""
+    import mapbox_earcut
+
+    uv = np.concatenate([np.asarray(r, dtype=np.float64).reshape(-1, 2) for r in rings])
+    ends = np.cumsum([len(r) for r in rings]).astype(np.uint32)
+    nudged = _nudge_straight_vertices(uv, ends)
+    local = np.asarray(mapbox_earcut.triangulate_float64(nudged, ends), dtype=np.int64).reshape(-1, 3)
+    local = _flip_flat(_orient_anticlockwise(local, nudged), uv)
+    positions = np.split(np.arange(len(uv)), ends[:-1].astype(np.int64))
+    return _fan_skipped(local, [list(p) for p in positions])
+
+
+def _nudge_straight_vertices(uv: np.ndarray, ends: np.ndarray, fraction: float = 1e-4) -> np.ndarray:
+    """A copy of the ring vertices (P, 2) where every run of vertices that lie straight between their ring neighbours
+    is bowed into the region (the ring's left): a vertex at arc length t ∈ (0, 1) along a run of length L moves by
+    ``fraction`` · L · 4t(1 − t). ``ends``: cumulative ring lengths. On the strictly concave bow every such vertex is
+    reflex, so earcut can neither drop it as collinear, skip it, nor clip it as a flat ear: it is joined to a vertex
+    across the region (triangles that are not flat at the true positions). Only the triangulation sees the moved
+    positions; the cap's vertices stay where they are."""
+    out = uv.copy()
+    start = 0
+    for end in np.asarray(ends, dtype=np.int64):
+        ring = uv[start:end]
+        n = len(ring)
+        if n >= 3:
+            d_in = ring - np.roll(ring, 1, axis=0)
+            d_out = np.roll(ring, -1, axis=0) - ring
+            len_in = np.linalg.norm(d_in, axis=1)
+            len_out = np.linalg.norm(d_out, axis=1)
+            cross = d_in[:, 0] * d_out[:, 1] - d_in[:, 1] * d_out[:, 0]
+            dot = np.einsum("ij,ij->i", d_in, d_out)
+            straight = (np.abs(cross) <= 1e-9 * len_in * len_out) & (dot > 0)
+            if straight.any() and not straight.all():
+                first = int(np.flatnonzero(~straight)[0])
+                j = first + 1
+                while j < first + n:
+                    if not straight[j % n]:
+                        j += 1
+                        continue
+                    k = j
+                    while straight[k % n]:
+                        k += 1
+                    run = [m % n for m in range(j - 1, k + 1)]  # a corner, the straight vertices, a corner
+                    arc = np.concatenate([[0.0], np.cumsum(len_out[run[:-1]])])
+                    length = arc[-1]
+                    t = arc[1:-1] / length
+                    chord = ring[run[-1]] - ring[run[0]]
+                    left = np.array([-chord[1], chord[0]]) / max(float(np.linalg.norm(chord)), 1e-300)
+                    out[start + np.array(run[1:-1])] += np.outer(fraction * length * 4 * t * (1 - t), left)
+                    j = k
+        start = end
+    return out
+
+
 def _orient_anticlockwise(tri: np.ndarray, uv: np.ndarray) -> np.ndarray:
     p = uv[tri]
     area = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (p[:, 1, 1] - p[:, 0, 1])
@@ -412,13 +466,49 @@ def _orient_anticlockwise(tri: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return tri
 
 
-def _drop_flat(tri: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """The triangles without those whose three corners are collinear (earcut emits some along straight chains)."""
-    p = uv[tri]
+def _flat(p: np.ndarray) -> np.ndarray:
+    """(T,) bool: triangles (T, 3, 2) whose corners are collinear (area below 1e-9 × their longest edge²)."""
     e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
     cross = np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     longest = np.max(np.linalg.norm(np.stack([e1, e2, p[:, 2] - p[:, 1]], axis=1), axis=2), axis=1)
-    return tri[cross > 1e-9 * longest**2]
+    return cross <= 1e-9 * longest**2
+
+
+def _flip_flat(tri: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """The triangulation without flat triangles: a flat (a, b, c), b on the segment c → a, and its neighbour
+    (a, c, d) across that segment become (a, b, d) and (b, c, d) (an edge flip, which keeps every edge of the
+    region's boundary), repeated while flat triangles remain. Earcut makes them where vertices of different rings or
+    runs lie on one line (seen through the nudged positions they are thin, not flat)."""
+    tris = [list(t) for t in tri.tolist()]
+    edge_of = {}
+    for i, (p, q, r) in enumerate(tris):
+        edge_of[(p, q)], edge_of[(q, r)], edge_of[(r, p)] = i, i, i
+    todo = list(np.flatnonzero(_flat(uv[tri])))
+    for _ in range(10 * len(tris) + 10):
+        if not todo:
+            return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+        i = todo.pop()
+        p = uv[tris[i]]
+        if not _flat(p[None])[0]:
+            continue
+        lengths = [np.linalg.norm(p[(k + 1) % 3] - p[k]) for k in range(3)]  # edge k runs from corner k to k + 1
+        k = int(np.argmax(lengths))
+        c, a = tris[i][k], tris[i][(k + 1) % 3]  # the longest edge c → a
+        b = tris[i][(k + 2) % 3]
+        j = edge_of.get((a, c))
+        if j is None:
+            raise _CannotClose("a flat cap triangle lies on the region's boundary")
+        d = next(v for v in tris[j] if v not in (a, c))
+        for t in (i, j):
+            q, r, s = tris[t]
+            for e in ((q, r), (r, s), (s, q)):
+                edge_of.pop(e, None)
+        tris[i], tris[j] = [a, b, d], [b, c, d]
+        for t in (i, j):
+            q, r, s = tris[t]
+            edge_of[(q, r)], edge_of[(r, s)], edge_of[(s, q)] = t, t, t
+        todo += [i, j]
+    raise _CannotClose("flat cap triangles remain after edge flips")
 
 
 def _fan_skipped(tri: np.ndarray, rings: list[list[int]]) -> np.ndarray:
