@@ -128,3 +128,43 @@ def test_rim_distance_is_the_metric_distance_to_the_mask_edge() -> None:
     opts = SurveyPointOptions(min_views=1, max_rim_spacing=10.0, shape_checks=False)
     sel = select_survey_points(gs, cams, {"a.png": mask}, None, 0.01, opts)  # rim limit 0.1 m
     assert sel.reasons.tolist() == [PointReason.INTERIOR, PointReason.KEPT, PointReason.INTERIOR]
+
+
+def test_hole_filled_depth_continues_a_plane_across_its_hole() -> None:
+    from fusion.clean import hole_filled_depth
+
+    ys, xs = np.mgrid[0:80, 0:100]
+    plane = (2.0 + 0.004 * xs + 0.002 * ys).astype(np.float32)  # a tilted plane's depth, 2.0 .. 2.56 m
+    depth = plane.copy()
+    depth[25:55, 35:65] = np.inf  # an MVS hole of 30 × 30 px
+    depth[0:3, 0:3] = 0.0  # empty pixels may also be 0
+    filled = hole_filled_depth(depth)
+    assert np.isfinite(filled).all()
+    np.testing.assert_array_equal(filled[~np.isinf(depth) & (depth > 0)], depth[~np.isinf(depth) & (depth > 0)])
+    # linear interpolation between the hole's border pixels continues a plane exactly (up to float32)
+    np.testing.assert_allclose(filled[25:55, 35:65], plane[25:55, 35:65], rtol=1e-6)
+    np.testing.assert_allclose(filled[0:3, 0:3], plane[0:3, 0:3], atol=0.013)  # outside the hull: nearest border px
+    assert np.isinf(hole_filled_depth(np.full((4, 5), np.inf))).all()
+    np.testing.assert_array_equal(hole_filled_depth(plane), plane)
+
+
+def test_splats_behind_the_trusted_surface_across_its_hole_are_rejected() -> None:
+    from fusion.clean import PointReason, SurveyPointOptions, select_survey_points
+
+    cams = one_camera()  # at the origin looking down +z, focal 100, 100×80 px
+    # a trusted wall at z = 2 (5 mm grid, ~0.25 px apart) with a 0.4 × 0.4 m hole in the middle (pixels 40..60, 30..50)
+    xs, ys = np.meshgrid(np.arange(-1.0, 1.0, 0.005), np.arange(-0.8, 0.8, 0.005))
+    wall = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 2.0)])
+    wall = wall[~((np.abs(wall[:, 0]) < 0.2) & (np.abs(wall[:, 1]) < 0.2))]
+    mask = np.zeros((80, 100), bool)
+    mask[30:50, 40:60] = True  # the hole is the region to fill
+    means = np.array([[0.0, 0.0, 2.0], [0.05, 0.0, 2.03], [0.0, 0.05, 2.3], [0.0, 0.0, 1.6]])
+    # 0: in the wall's plane; 1: 3 cm behind it, within the 5 cm margin; 2: 30 cm behind (a splat explaining a
+    # reflection); 3: 40 cm in front of it (in front is not what this test judges)
+    opts = SurveyPointOptions(min_views=1, max_rim_spacing=None, max_behind_share=0.5, behind_margin_spacing=2.0)
+    sel = select_survey_points(splats(means), cams, {"a.png": mask}, wall, 0.025, opts)  # margin 5 cm
+    assert sel.reasons.tolist() == [PointReason.KEPT, PointReason.KEPT, PointReason.BEHIND, PointReason.KEPT]
+    assert sel.counts.behind == 1
+    off = select_survey_points(splats(means), cams, {"a.png": mask}, wall, 0.025,
+                               SurveyPointOptions(min_views=1, max_rim_spacing=None))  # fmt: skip
+    assert off.keep.all()

@@ -1,6 +1,9 @@
 """A mesh with a triangle budget from a merged Gaussian set: the chain of :mod:`fusion.mesh` in one function.
 
-1. oriented points from the merged Gaussians (:mod:`fusion.mesh.oriented_points`), optionally only the MVS ones;
+1. oriented points from the merged Gaussians (:mod:`fusion.mesh.oriented_points`), optionally only the MVS ones,
+   and only those whose ``surface`` field (written by the merge stage: splats whose centres pass a geometric test,
+   :func:`fusion.clean.surface_splat_options`) is 1 when the set has one — the other splats are floaters, virtual
+   images and colour corrections that render well but lie off every surface;
 2. plus, for transparent / reflective regions, the points of the union of training snapshots with opacity 1
    (:mod:`fusion.mesh.transparent`);
 3. screened Poisson, closed at its reconstruction cube (:mod:`fusion.mesh.closing`), cap removal, support and
@@ -48,13 +51,16 @@ class MeshOptions:
     mvs_priority: splat points (trained or snapshot) closer to an MVS point than this many median MVS point
     spacings are left out (default 2; 0 keeps all): where MVS measured the surface, its metric points alone shape
     it, and splats fill only where MVS has none (splats float around surfaces by a fraction of their σ).
-    color_neighbors: Gaussians blended per vertex colour (default 8). Sub-options: see their classes."""
+    color_neighbors: Gaussians blended per vertex colour (default 8). surface_only: leave Gaussians whose
+    ``surface`` field is 0 out of the geometry (default True; no effect on a set without that field; colours still
+    come from every Gaussian). Sub-options: see their classes."""
 
     budget: int | None = 10_000
     source: MeshSource = MeshSource.ALL
     use_snapshots: bool = True
     mvs_priority: float = 2.0
     color_neighbors: int = 8
+    surface_only: bool = True
     points: OrientedPointOptions = field(default_factory=OrientedPointOptions)
     poisson: PoissonOptions = field(default_factory=PoissonOptions)
     decimate: DecimateOptions = field(default_factory=DecimateOptions)
@@ -99,6 +105,7 @@ class MeshResult:
     snapshot_stats: SnapshotStats | None
     snapshot_points: int
     splat_points_dropped_near_mvs: int
+    off_surface_gaussians: int
     poisson_depth: int
     closing: ClosingStats | None
     trim_stats: TrimStats
@@ -114,6 +121,7 @@ class MeshResult:
             "oriented_points": len(self.points),
             "snapshot_points": self.snapshot_points,
             "splat_points_dropped_near_mvs": self.splat_points_dropped_near_mvs,
+            "off_surface_gaussians": self.off_surface_gaussians,
             "poisson_depth": self.poisson_depth,
             "triangles_untrimmed": self.quality_untrimmed.triangles,
             "untrimmed_watertight": self.quality_untrimmed.watertight,
@@ -170,18 +178,25 @@ def mesh_from_gaussians(
     timings = MeshTimings()
     t = time.perf_counter()
     gs = merged
+    off_surface = 0
+    if options.surface_only and "surface" in merged.fields:
+        on = np.asarray(merged.fields["surface"]) > 0.5
+        off_surface = int((~on).sum())
+        if not on.any():
+            raise DataError(f"no Gaussian of the merged set (of {len(merged)}) has surface = 1: nothing to mesh")
+        gs = merged.subset(on)
     if options.source is MeshSource.MVS:
         if "source" not in merged.fields:
             raise DataError("an MVS-only mesh needs the merged set's 'source' field (1 = MVS, 2 = splat)")
-        is_mvs = np.asarray(merged.fields["source"]) == Source.MVS
+        is_mvs = np.asarray(gs.fields["source"]) == Source.MVS
         if not is_mvs.any():
             raise DataError(f"the merged set holds no MVS Gaussians (of {len(merged)}): nothing to mesh MVS-only")
-        gs = merged.subset(is_mvs)
+        gs = gs.subset(is_mvs)
     points, point_stats = oriented_points_from_gaussians(gs, options.points, viewpoints)
     snap_stats = None
     n_snap = 0
     if snapshots and options.use_snapshots and options.source is MeshSource.ALL:
-        union, snap_stats = snapshot_union(snapshots, merged, options.snapshots)
+        union, snap_stats = snapshot_union(snapshots, gs, options.snapshots)
         if len(union):
             extra, _ = oriented_points_from_gaussians(
                 union, options.points, viewpoints, weight_override=np.ones(len(union))
@@ -222,6 +237,7 @@ def mesh_from_gaussians(
         snapshot_stats=snap_stats,
         snapshot_points=n_snap,
         splat_points_dropped_near_mvs=dropped_near_mvs,
+        off_surface_gaussians=off_surface,
         poisson_depth=result.depth,
         closing=result.closing,
         trim_stats=trim_stats,

@@ -10,6 +10,11 @@ is trustworthy (:func:`fusion.clean.select_survey_points`: splats opaque, thin a
 seen inside the region mask from several training views, not seen outside it unoccluded, and near the silhouette rim
 of some view, which rejects the virtual images of reflections and refractions that MVS and splats place inside
 mirrors and glass); the counts of what was left out and why are recorded.
+
+merged.ply carries a ``surface`` field besides ``source``: 1 for the MVS Gaussians and for the splats whose centres
+pass :func:`fusion.clean.surface_splat_options` (opaque, inside the visual hull of the masks, not behind the trusted
+surface filled across its holes), 0 for the other splats. The mesh stage builds its geometry from ``surface = 1``
+only (colours from every Gaussian).
 """
 
 from __future__ import annotations
@@ -35,6 +40,8 @@ class MergeStageOptions:
     their own rim limit ``points_needs_mvs_max_rim_spacing`` (with the classifier's masks, wider than the objects,
     tabletop kept 1 of 1114 such points at 0.5 and 1002 at 4 spacings: 2.08 instead of 1.62 mm mean C2C, 0.647
     instead of 0.642 completeness, and every non-collaborative material more complete than MVS-only).
+    surface_test: mark the splats that may shape a mesh (``surface`` field of merged.ply, see the module docstring);
+    off: every Gaussian gets ``surface = 1``.
     """
 
     keep_needs_splats: bool = False
@@ -46,6 +53,7 @@ class MergeStageOptions:
     points_max_rim_spacing: float = 0.5
     points_needs_mvs: bool = True
     points_needs_mvs_max_rim_spacing: float = 0.5
+    surface_test: bool = True
 
     def survey_options(self, shape_checks: bool = True, rim: float | None = None):
         from fusion.clean import SurveyPointOptions
@@ -58,6 +66,17 @@ class MergeStageOptions:
                                   opt(self.points_min_mask_share),
                                   max_rim_spacing=opt(self.points_max_rim_spacing if rim is None else rim),
                                   shape_checks=shape_checks)  # fmt: skip
+
+
+@dataclass
+class ViewTests:
+    """cameras (Cameras), masks (name → (H, W) bool), trusted MVS points (M, 3) in the cameras' local frame, and
+    their median spacing (metres)."""
+
+    cameras: Any
+    masks: dict[str, np.ndarray]
+    trusted: np.ndarray
+    spacing: float
 
 
 class MergeStage(Stage):
@@ -96,14 +115,19 @@ class MergeStage(Stage):
             needs = needs_splats_per_gaussian(ctx, mvs)
             result = merge_hybrid(mvs, splats, needs, keep_needs_splats=opts.keep_needs_splats)
             export_gaussian_ply(layout.splats_export, splats)
+            views = self._views(ctx, mvs, needs, splats)
+            surface, sel_surface = surface_field(result.gaussians, views, opts.surface_test)
+            result.gaussians.fields["surface"] = surface
             written = export_gaussian_ply(layout.merged_ply, result.gaussians, ExportOptions(extra_fields=True))
-            sel_splats, sel_mvs = self._survey_points(ctx, mvs, needs, splats, opts)
+            sel_splats, sel_mvs = self._survey_points(views, mvs, needs, splats, opts)
             needs_left_out = needs.copy()
             if sel_mvs is not None:
                 needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False
             points = merge_hybrid(mvs, subset(splats, sel_splats.keep), needs_left_out,
                                   keep_needs_splats=opts.keep_needs_splats).gaussians  # fmt: skip
             extra = {"point_splats": vars(sel_splats.counts)}
+            if sel_surface is not None:
+                extra["surface_splats"] = vars(sel_surface.counts)
             if sel_mvs is not None:
                 extra["point_needs_mvs"] = vars(sel_mvs.counts)
         else:
@@ -126,12 +150,10 @@ class MergeStage(Stage):
         return {"merged": len(result.gaussians), "written": written.num_written, "mvs": s.mvs_kept,
                 "splats": s.splats_kept, "points": len(points), **extra}  # fmt: skip
 
-    def _survey_points(self, ctx: StageContext, mvs, needs, splats, opts: MergeStageOptions):
-        """Which cleaned splats and which ``needs_splats`` MVS points go into the point product (selections of
-        fusion.clean.select_survey_points; the second is None when ``points_needs_mvs`` is off)."""
+    def _views(self, ctx: StageContext, mvs, needs, splats) -> ViewTests:
+        """What the view tests of fusion.clean.select_survey_points need: cameras, masks, trusted points, spacing."""
         from scipy.spatial import cKDTree
 
-        from fusion.clean import select_survey_points
         from hybridsplat.stages.base import read_project_model
         from hybridsplat.stages.train import read_masks
 
@@ -144,7 +166,14 @@ class MergeStage(Stage):
             own = splats.means
             spacing = float(np.median(cKDTree(own).query(own, k=2)[0][:, 1])) if len(own) > 1 else 1.0
         spacing = spacing if spacing > 0 else 1.0
-        masks = read_masks(ctx, cameras)
+        return ViewTests(cameras, read_masks(ctx, cameras), trusted, spacing)
+
+    def _survey_points(self, views: ViewTests, mvs, needs, splats, opts: MergeStageOptions):
+        """Which cleaned splats and which ``needs_splats`` MVS points go into the point product (selections of
+        fusion.clean.select_survey_points; the second is None when ``points_needs_mvs`` is off)."""
+        from fusion.clean import select_survey_points
+
+        cameras, masks, trusted, spacing = views.cameras, views.masks, views.trusted, views.spacing
         sel_splats = select_survey_points(splats, cameras, masks, trusted, spacing, opts.survey_options())
         sel_mvs = None
         if opts.points_needs_mvs and not opts.keep_needs_splats and needs.any():
@@ -158,3 +187,20 @@ class MergeStage(Stage):
             c = counts["point_splats"]
             text += f", {counts['points']} survey points ({c['kept']} of {c['input']} splats trustworthy)"
         return text
+
+
+def surface_field(merged, views: ViewTests, test: bool):  # -> tuple[np.ndarray, SurveyPointSelection | None]
+    """(N,) uint8 ``surface`` per merged Gaussian (1 for MVS Gaussians; for splats the verdict of
+    fusion.clean.surface_splat_options, or 1 when ``test`` is off) and the splats' selection (None when off)."""
+    from fusion.clean import select_survey_points, surface_splat_options
+    from fusion.convert import Source
+    from fusion.merge import subset
+
+    out = np.ones(len(merged), np.uint8)
+    if not test:
+        return out, None
+    is_splat = np.asarray(merged.fields["source"]) == Source.SPLAT
+    sel = select_survey_points(subset(merged, is_splat), views.cameras, views.masks, views.trusted, views.spacing,
+                               surface_splat_options())  # fmt: skip
+    out[is_splat] = sel.keep
+    return out, sel
