@@ -265,7 +265,6 @@ def part_speed(args) -> dict:
         backend, _, search = variant.partition("/")
         geo = GeometricOptions(backend=backend, workers=threads, search=search or "grid")
         opts = FeatureOptions(groups=GEO_RAD, geometric=geo)
-        tracemalloc.start()
         c0 = cpu_seconds()
         t0 = time.perf_counter()
         table = compute_features(cloud, opts)
@@ -273,6 +272,11 @@ def part_speed(args) -> dict:
         predict(model, table, smooth_passes=1)  # as the default model predicts: smoothed over the neighbours
         t2 = time.perf_counter()
         cpu = cpu_seconds() - c0
+        del table
+        # Peak memory in a second, untimed pass: tracemalloc hooks every allocation (it slowed the timed pass by
+        # about 10 % when both were one).
+        tracemalloc.start()
+        predict(model, compute_features(cloud, opts), smooth_passes=1)
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
         out[variant] = {

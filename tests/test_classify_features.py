@@ -312,3 +312,44 @@ def test_height_above_ground_brute_force():
     # Only the coarser scales carry it.
     assert "height_s1" in feature_specs(3) and "height_s0" not in feature_specs(3)
     assert resolve_names(("height",), 3, ()) == ("height_s1", "height_s2")
+
+
+def test_rgb_hsv_kernel_matches_scikit_image_on_every_kind_of_colour():
+    from skimage.color import rgb2hsv
+
+    rng = np.random.default_rng(7)
+    c = rng.integers(0, 256, (20000, 3)).astype(np.uint8)
+    ties = rng.integers(0, 256, (300, 1)).astype(np.uint8)
+    c = np.vstack([c, np.repeat(ties, 3, axis=1),  # greys
+                   np.hstack([ties, ties, ties // 2]), np.hstack([ties // 2, ties, ties]),  # two channels tie
+                   np.hstack([ties, ties // 3, ties]), [[0, 0, 0], [255, 255, 255]]]).astype(np.uint8)  # fmt: skip
+    f = rgb_hsv(c)
+    ref = rgb2hsv((c.astype(np.float32) / np.float32(255.0))[None])[0]
+    for j, name in enumerate(("hue", "saturation", "value")):
+        np.testing.assert_allclose(f[name], ref[:, j], atol=2e-7, err_msg=name)
+
+
+def test_reorder_kernels_match_their_numpy_twins():
+    from classify.features.reorder import morton_codes, renumber_neighbours, scatter_column
+
+    rng = np.random.default_rng(8)
+    pts = rng.normal(size=(5000, 3)) * [3.0, 1.0, 0.2] + 1e5  # large coordinates, a flat-ish cloud
+    lo = pts.min(axis=0)
+    span = (pts.max(axis=0) - lo).max()
+    q = np.minimum(((pts - lo) / span * (1 << 16)).astype(np.uint64), np.uint64((1 << 16) - 1))
+    code = np.zeros(len(pts), dtype=np.uint64)
+    for b in range(16):
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + axis)
+    np.testing.assert_array_equal(morton_codes(pts), code)
+    order = rng.permutation(len(pts))
+    neigh = rng.integers(0, len(pts), (len(pts), 7))
+    twin = np.empty_like(neigh)
+    twin[order] = order[neigh]
+    np.testing.assert_array_equal(renumber_neighbours(neigh, order), twin)
+    values = np.zeros((len(pts), 3), np.float32)
+    col = rng.normal(size=len(pts)).astype(np.float32)
+    scatter_column(values, order, 1, col)
+    expected = np.zeros_like(values)
+    expected[order, 1] = col
+    np.testing.assert_array_equal(values, expected)

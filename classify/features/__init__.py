@@ -19,6 +19,7 @@ from classify.features.registry import (
     feature_specs,
     resolve_names,
 )
+from classify.features.reorder import renumber_neighbours, scatter_column
 from core.errors import ConfigError, DataError
 from core.pointcloud import PointCloud
 
@@ -131,8 +132,7 @@ def compute_features(
         )
     neighbours = None
     if geo.neighbours is not None:  # back to the cloud's order: row order[i] has neighbours order[neigh[i]]
-        neighbours = np.empty_like(geo.neighbours)
-        neighbours[order] = order[geo.neighbours]
+        neighbours = renumber_neighbours(geo.neighbours, order)
     del geo
     columns: dict[str, np.ndarray] = {}
     if FeatureGroup.MULTIVIEW in groups:
@@ -149,7 +149,7 @@ def compute_features(
         if n_bad:
             col = np.where(bad, np.float32(0.0), col)
         if in_order:
-            values[order, j] = col
+            scatter_column(values, order, j, col)
         else:
             values[:, j] = col
     return FeatureTable(names, values, spacing, neighbours)

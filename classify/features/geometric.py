@@ -80,17 +80,9 @@ def spatial_order(positions: np.ndarray, bits: int = 16) -> np.ndarray:
     """A permutation (N,) int64 that sorts points (N, 3) float64 along a Morton (Z-order) curve of their bounding
     box (``bits`` per axis): neighbours in space become neighbours in memory, so the k-NN gathers of the
     features hit the cache (clouds are often stored in scan or random order)."""
-    pts = np.asarray(positions, dtype=np.float64)
-    if len(pts) == 0:
-        return np.zeros(0, np.int64)
-    lo = pts.min(axis=0)
-    span = max(float((pts.max(axis=0) - lo).max()), 1e-300)
-    q = np.minimum(((pts - lo) / span * (1 << bits)).astype(np.uint64), np.uint64((1 << bits) - 1))
-    code = np.zeros(len(pts), dtype=np.uint64)
-    for b in range(bits):
-        for axis in range(3):
-            code |= ((q[:, axis] >> np.uint64(b)) & np.uint64(1)) << np.uint64(3 * b + axis)
-    return np.argsort(code, kind="stable")
+    from classify.features.reorder import morton_codes
+
+    return np.argsort(morton_codes(positions, bits), kind="stable")
 
 
 def point_spacing(positions: np.ndarray, sample: int = 100_000, seed: int = 0, workers: int = -1) -> float:

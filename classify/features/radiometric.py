@@ -10,15 +10,42 @@ from scipy.spatial import cKDTree
 def rgb_hsv(colors: np.ndarray) -> dict[str, np.ndarray]:
     """red, green, blue, hue, saturation, value (each (N,) float32 in [0, 1]) from colours (N, 3) uint8.
 
-    Hue is HSV hue / 360 and 0 for grey pixels (scikit-image's ``rgb2hsv`` convention).
+    Hue is HSV hue / 360 and 0 for grey pixels: scikit-image's ``rgb2hsv`` rule, in float32 like it (when two
+    channels tie for the maximum, blue's formula wins over green's over red's), as a threaded numba kernel
+    (``rgb2hsv`` takes 0.26 s on 1 M points, the kernel about 0.01 s; the tests compare the two).
     """
-    from skimage.color import rgb2hsv
-
-    rgb = np.asarray(colors, dtype=np.float32).reshape(-1, 3) / 255.0
-    hsv = rgb2hsv(rgb[None])[0] if len(rgb) else np.zeros((0, 3), np.float32)
+    rgb = np.ascontiguousarray(np.asarray(colors, dtype=np.float32).reshape(-1, 3) / np.float32(255.0))
+    hue, sat, val = _hsv_kernel(rgb)
     names = ("red", "green", "blue", "hue", "saturation", "value")
-    cols = (rgb[:, 0], rgb[:, 1], rgb[:, 2], hsv[:, 0], hsv[:, 1], hsv[:, 2])
+    cols = (rgb[:, 0], rgb[:, 1], rgb[:, 2], hue, sat, val)
     return {n: np.ascontiguousarray(c, dtype=np.float32) for n, c in zip(names, cols, strict=True)}
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _hsv_kernel(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover
+    n = rgb.shape[0]
+    hue = np.empty(n, dtype=np.float32)
+    sat = np.empty(n, dtype=np.float32)
+    val = np.empty(n, dtype=np.float32)
+    zero, one, two, four, six = np.float32(0), np.float32(1), np.float32(2), np.float32(4), np.float32(6)
+    for i in numba.prange(n):
+        r, g, b = rgb[i, 0], rgb[i, 1], rgb[i, 2]
+        v = max(r, g, b)
+        delta = v - min(r, g, b)
+        val[i] = v
+        if delta == zero:
+            sat[i] = zero
+            hue[i] = zero
+            continue
+        sat[i] = delta / v
+        if b == v:
+            h = four + (r - g) / delta
+        elif g == v:
+            h = two + (b - r) / delta
+        else:
+            h = (g - b) / delta
+        hue[i] = (h / six) % one
+    return hue, sat, val
 
 
 def color_variance(

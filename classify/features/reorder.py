@@ -1,0 +1,70 @@
+"""Threaded numba kernels for the per-point bookkeeping of :func:`classify.features.compute_features`.
+
+Features are computed on the points sorted along a Morton curve and written back in the cloud's order. With numpy
+each of these steps is a one-threaded fancy-index pass that allocates a temporary of the whole array (measured on
+1 M points, 2 cores: Morton codes 0.45 s, scattering 42 feature columns 0.85 s, renumbering the (N, 15) neighbour
+lists 0.43 s); the kernels below do each in one threaded pass without temporaries. ``tests/test_classify_features.py``
+compares them with their numpy twins.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _morton_kernel(pts, lo, span, bits):  # pragma: no cover - compiled
+    n = pts.shape[0]
+    top = (1 << bits) - 1
+    cells = float(1 << bits)
+    out = np.empty(n, dtype=np.uint64)
+    for i in numba.prange(n):
+        code = np.uint64(0)
+        for axis in range(3):
+            q = int((pts[i, axis] - lo[axis]) / span * cells)
+            q = min(max(q, 0), top)
+            for b in range(bits):
+                code |= np.uint64((q >> b) & 1) << np.uint64(3 * b + axis)
+        out[i] = code
+    return out
+
+
+def morton_codes(positions: np.ndarray, bits: int = 16) -> np.ndarray:
+    """(N,) uint64 Morton (Z-order) codes of points (N, 3) float64 in their bounding cube, ``bits`` per axis
+    (bit b of axis a at position 3b + a; coordinates quantised by truncation, clamped to 2^bits − 1)."""
+    pts = np.ascontiguousarray(positions, dtype=np.float64)
+    if len(pts) == 0:
+        return np.zeros(0, np.uint64)
+    lo = pts.min(axis=0)
+    span = max(float((pts.max(axis=0) - lo).max()), 1e-300)
+    return _morton_kernel(pts, lo, span, bits)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _scatter_column_kernel(values, order, j, column):  # pragma: no cover - compiled
+    for i in numba.prange(order.shape[0]):
+        values[order[i], j] = column[i]
+
+
+def scatter_column(values: np.ndarray, order: np.ndarray, j: int, column: np.ndarray) -> None:
+    """``values[order, j] = column`` in place: values (N, F) float32, order (N,) int64 a permutation, column (N,)."""
+    _scatter_column_kernel(values, np.ascontiguousarray(order, np.int64), int(j),
+                           np.ascontiguousarray(column, np.float32))  # fmt: skip
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _renumber_kernel(neighbours, order):  # pragma: no cover - compiled
+    n, m = neighbours.shape
+    out = np.empty((n, m), dtype=np.int64)
+    for i in numba.prange(n):
+        row = order[i]
+        for j in range(m):
+            out[row, j] = order[neighbours[i, j]]
+    return out
+
+
+def renumber_neighbours(neighbours: np.ndarray, order: np.ndarray) -> np.ndarray:
+    """Neighbour lists of points sorted by ``order`` (row i is point order[i], entries index sorted rows) in the
+    original numbering: out[order[i]] = order[neighbours[i]]; (N, m) int64."""
+    return _renumber_kernel(np.ascontiguousarray(neighbours, np.int64), np.ascontiguousarray(order, np.int64))
