@@ -16,7 +16,8 @@ Sections (all printed in one run, JSON with --json):
    triangle), completeness = share of GT surface
    samples within τ of our mesh, over the GT surface that at least two training views see (visibility from the
    scene's true depth maps: what any photogrammetry could reconstruct), overall and per material. MVS-only mesh
-   always; the hybrid mesh (all merged Gaussians + training snapshots of splat regions) when the project has splats.
+   always; the hybrid mesh (the merged Gaussians whose `surface` field is 1, i.e. the splats that pass the merge
+   stage's surface test, + training snapshots of their regions) when the project has splats.
 4. Time of the whole mesh chain (default options, the demo's 2 k budget) on the demo scene, with the machine's load.
 5. Where coverage is lost, per material: completeness at τ (and accuracy) of the oriented points, of the untrimmed
    Poisson surface (caps left out), of the trimmed one and of the decimated mesh, MVS-only and hybrid; and, for the
