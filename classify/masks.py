@@ -65,6 +65,13 @@ class MaskOptions:
     dilate_spacings: the dilation radius in point spacings at the view's median depth, when larger than
     ``dilate_px`` (default 3: ~5 px on tabletop_s1, 3 px on aerial_s1; a margin tied to the sampling, not to the
     image size; 0 = ``dilate_px`` only).
+    train_margin_spacings: the extra margin of the *training* masks, in point spacings at the view's median depth
+    (default 3; 0 = none): recorded per photo as ``train_margin_px`` (:class:`PhotoMask`); the train and clean
+    stages dilate the region mask by it (the region masks themselves, what the classification is scored on, stay
+    as they are). Splats at a region's edge then see the photo on both sides of it: on the demo tabletop (1500
+    steps, held-out views, inside the true non-collaborative masks) the merged PSNR rose from 21.57 to 22.13 dB
+    (the 4000-step whole-scene baseline: 22.16), while widening the region masks themselves to 6 spacings would
+    have covered 25 % of the pixels that need no splats instead of 11 %.
     holes: whether MVS holes are added (default True). hole_area: "hull_below" (default), "hull", "below" or
     "enclosed"; explained_by: "seen" (default) or "all"; colour_tolerance: mean absolute RGB difference (/255)
     under which a point's colour matches the photo (best of the 3×3 pixels around its projection; default 0.04)
@@ -82,6 +89,7 @@ class MaskOptions:
     close_px: int = 3
     dilate_px: int = 2
     dilate_spacings: float = 3.0
+    train_margin_spacings: float = 3.0
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"
@@ -97,8 +105,10 @@ class MaskOptions:
             raise ConfigError(f"hole_gsd must be >= 0, got {self.hole_gsd}")
         if self.grow_area < 0 or self.grow_max_px < 16:
             raise ConfigError(f"grow_area must be >= 0 and grow_max_px >= 16, got {self.grow_area}, {self.grow_max_px}")
-        if not (self.dilate_spacings >= 0 and np.isfinite(self.dilate_spacings)):
-            raise ConfigError(f"dilate_spacings must be >= 0, got {self.dilate_spacings}")
+        for name in ("dilate_spacings", "train_margin_spacings"):
+            v = getattr(self, name)
+            if not (v >= 0 and np.isfinite(v)):
+                raise ConfigError(f"{name} must be >= 0, got {v}")
         if self.hole_area not in HOLE_AREAS:
             raise ConfigError(f"hole_area must be one of {HOLE_AREAS}, got {self.hole_area!r}")
         if self.explained_by not in EXPLAINED_BY:
@@ -109,7 +119,8 @@ class MaskOptions:
 class PhotoMask:
     """The mask of one photo: ``mask`` (H, W) bool (True = needs splats); ``coverage`` its share of the image;
     ``points_px`` share from non-collaborative points, ``holes_px`` from MVS holes, ``user_px`` from user masks
-    (shares of the image before closing/dilation); ``empty`` when nothing is set (training skips the photo)."""
+    (shares of the image before closing/dilation); ``empty`` when nothing is set (training skips the photo);
+    ``train_margin_px`` the extra dilation radius (pixels) of the training mask (see ``train_margin_spacings``)."""
 
     name: str
     mask: np.ndarray
@@ -117,6 +128,7 @@ class PhotoMask:
     points_px: float
     holes_px: float
     user_px: float
+    train_margin_px: int = 0
 
     @property
     def empty(self) -> bool:
@@ -351,9 +363,12 @@ def photo_mask(
     if options.close_px > 0:
         union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, _disk(options.close_px))
     dilate = options.dilate_px
-    if options.dilate_spacings > 0 and len(idx):
+    margin = 0
+    if len(idx):
         spacing_px = spacing * fx / float(np.median(zz))
-        dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
+        if options.dilate_spacings > 0:
+            dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
+        margin = min(int(round(options.train_margin_spacings * spacing_px)), 4 * options.max_radius_px)
     if dilate > 0:
         union = cv2.dilate(union, _disk(dilate))
     mask = union.astype(bool)
@@ -365,6 +380,7 @@ def photo_mask(
         float(from_points.sum() / npx),
         float(holes.sum() / npx),
         float(user.sum() / npx),
+        margin,
     )
 
 

@@ -261,6 +261,7 @@ def project_masks(
                 "holes": pm.holes_px,
                 "user": pm.user_px,
                 "empty": pm.empty,
+                "train_margin_px": pm.train_margin_px,
             }  # fmt: skip
         )
         if progress is not None:

@@ -201,3 +201,15 @@ def test_area_grows_over_unreconstructed_surface_that_looks_like_the_scene():
     plain = photo_mask(cams, view, wall, flags, 0.01, MaskOptions(grow_area=0, **base), seen=seen)
     assert grown.mask[22:37, 5:75].all() and not grown.mask[:19].any() and not grown.mask[42:].any()
     assert not plain.mask[:37].any()
+
+
+def test_training_margin_is_recorded_in_pixels_and_leaves_the_region_mask_alone():
+    """1 px per spacing at this rig: a margin of 5 spacings is 5 px; the region mask does not change with it."""
+    cams, view = _rig()
+    pts = _grid()
+    bad = (np.abs(pts[:, 0]) < 0.1) & (np.abs(pts[:, 1]) < 0.1)
+    a = photo_mask(cams, view, pts, bad, 0.01, MaskOptions(holes=False, train_margin_spacings=0))
+    b = photo_mask(cams, view, pts, bad, 0.01, MaskOptions(holes=False, train_margin_spacings=5))
+    c = photo_mask(cams, view, pts, bad, 0.02, MaskOptions(holes=False, train_margin_spacings=5))
+    assert (a.train_margin_px, b.train_margin_px, c.train_margin_px) == (0, 5, 10)
+    np.testing.assert_array_equal(a.mask, b.mask)

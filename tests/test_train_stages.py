@@ -80,6 +80,37 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     assert len(points) == m["points"] == m["mvs"] + p["kept"] + q["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
     assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors asked for are used
+    # merged.ply's surface field: every MVS Gaussian, and the splats that pass the surface test, counted by reason
+    s = m["surface_splats"]
+    surface = np.asarray(merged.fields["surface"]) > 0.5
+    is_mvs = merged.fields["source"] == Source.MVS
+    assert surface[is_mvs].all() and int(surface[~is_mvs].sum()) == s["kept"]
+    assert s["input"] == c["kept"] and s["thick"] == s["large"] == s["interior"] == 0  # not part of that rule
+    assert s["kept"] + s["low_opacity"] + s["few_views"] + s["off_masks"] + s["behind"] == s["input"]
+
+
+def test_training_masks_are_the_region_masks_dilated_by_the_recorded_margin(tmp_path) -> None:
+    import cv2
+
+    from core.io.json_io import write_json_atomic
+    from hybridsplat.stages.train import read_masks
+
+    layout, _, _ = make_project(tmp_path / "p")
+    ctx = StageContext(layout=layout, config=ProjectConfig(), source=SimpleNamespace(holdout_names=()))
+    cams = ring_cameras(6)
+    names = [v.name for v in cams]
+    record = {"per_photo": [{"name": names[0], "train_margin_px": 3}, {"name": names[1], "train_margin_px": 0}]}
+    write_json_atomic(layout.record("masks"), record)
+    region, train = read_masks(ctx, cams), read_masks(ctx, cams, training=True)
+    assert region.keys() == train.keys() and region[names[0]].any()
+    # scipy's dilation with the disk of radius 3 that the masks stage uses (OpenCV's 7 × 7 ellipse element)
+    from scipy import ndimage
+
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7)).astype(bool)
+    np.testing.assert_array_equal(train[names[0]], ndimage.binary_dilation(region[names[0]], structure=disk))
+    assert train[names[0]].sum() > region[names[0]].sum()
+    for name in names[1:]:  # margin 0, or no entry in the record
+        np.testing.assert_array_equal(train[name], region[name])
 
 
 def test_train_is_skipped_without_classification(tmp_path) -> None:

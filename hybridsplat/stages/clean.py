@@ -31,7 +31,8 @@ class CleanStage(Stage):
     title = "splat cleaning"
 
     def inputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.trained_splats, ctx.layout.masks_dir, ctx.layout.dense_workspace.sparse]
+        layout = ctx.layout
+        return [layout.trained_splats, layout.masks_dir, layout.record("masks"), layout.dense_workspace.sparse]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.cleaned_splats]
@@ -54,7 +55,7 @@ class CleanStage(Stage):
 
         options = CleanOptions(o.mask_dilation_px, opt(o.min_opacity), opt(o.max_scale_scene),
                                opt(o.max_scale_spacing), opt(o.cluster_eps_spacing), o.min_cluster_size)  # fmt: skip
-        result = clean_splats(splats, cameras, read_masks(ctx, cameras), options)
+        result = clean_splats(splats, cameras, read_masks(ctx, cameras, training=True), options)
         write_gaussian_ply(ctx.layout.cleaned_splats, result.splats)
         return vars(result.counts)
 

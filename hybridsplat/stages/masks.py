@@ -1,8 +1,9 @@
 """Stage ``masks``: one PNG per registered training photo (255 = needs splats) in classify/masks/.
 
 Non-collaborative points (classify/points.ply), MVS holes and the user's ``--splat-masks`` are united (see
-:mod:`classify.masks`). Held-out photos get no training mask. classify/masks.json (the stage record) lists each
-photo's coverage; empty masks are marked so that training skips the photo, and a project without any
+:mod:`classify.masks`). Held-out photos get no training mask. logs/masks.json (the stage record) lists each
+photo's coverage and training margin (the train and clean stages dilate each region mask by it); empty masks are
+marked so that training skips the photo, and a project without any
 non-collaborative region or hole says that training is not needed.
 """
 
@@ -23,7 +24,8 @@ class MasksStageOptions:
     footprint: point radius in spacings (1.5). hole_gsd: radius within which a point explains pixels when looking
     for holes, in ground sample distances (2.5; 0 = ``hole_footprint`` point spacings, 2.5). close_px /
     dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the dilation in point spacings at the
-    photo's median depth when larger (3).
+    photo's median depth when larger (3). train_margin_spacings: the training masks' extra margin (3; see
+    classify.masks.MaskOptions), recorded per photo in logs/masks.json.
     holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
     explained_by: seen | all (seen): which points explain pixels when looking for holes.
     grow_area: GrabCut iterations growing the valid area by what looks like the reconstructed scene (3; 0 = off).
@@ -35,6 +37,7 @@ class MasksStageOptions:
     close_px: int = 3
     dilate_px: int = 2
     dilate_spacings: float = 3.0
+    train_margin_spacings: float = 3.0
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"
@@ -48,6 +51,7 @@ class MasksStageOptions:
             close_px=self.close_px,
             dilate_px=self.dilate_px,
             dilate_spacings=self.dilate_spacings,
+            train_margin_spacings=self.train_margin_spacings,
             holes=self.holes,
             hole_area=self.hole_area,
             explained_by=self.explained_by,

@@ -112,18 +112,33 @@ def training_downscale(cameras, downscale: int, max_image_size: int) -> int:
     return max(downscale, -(-longest // max_image_size) if max_image_size else 1)
 
 
-def read_masks(ctx: StageContext, cameras) -> dict[str, np.ndarray]:
-    """Masks (bool, at each camera's size; resized nearest when classify wrote another size) by image name."""
+def read_masks(ctx: StageContext, cameras, training: bool = False) -> dict[str, np.ndarray]:
+    """Masks (bool, at each camera's size; resized nearest when classify wrote another size) by image name.
+
+    training: the training masks, i.e. each region mask dilated by a disk (OpenCV's ellipse element, as in the
+    masks stage) of its photo's ``train_margin_px`` (recorded by the masks stage, see
+    classify.masks.MaskOptions.train_margin_spacings; 0 when the record has none)."""
     import cv2
 
     from core.io.images import read_image
 
+    margins: dict[str, int] = {}
+    record = ctx.layout.record("masks")
+    if training and record.is_file():
+        from core.io.json_io import read_json
+
+        per_photo = read_json(record).get("per_photo", [])
+        margins = {p["name"]: int(p.get("train_margin_px", 0)) for p in per_photo}
     masks = {}
     for view in cameras:
         path = ctx.layout.mask_path(view.name)
         if not path.is_file():
             continue
         m = read_image(path, grayscale=True) > 127
+        margin = margins.get(view.name, 0)
+        if margin > 0 and m.any():
+            disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+            m = cv2.dilate(m.astype(np.uint8), disk) > 0
         cam = cameras.camera_of(view)
         if m.shape != (cam.height, cam.width):
             m = cv2.resize(m.astype(np.uint8), (cam.width, cam.height), interpolation=cv2.INTER_NEAREST) > 0
@@ -154,7 +169,9 @@ class TrainStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         ws = ctx.layout.dense_workspace
-        return [ctx.layout.classified_points, ctx.layout.masks_dir, ctx.layout.mvs_gaussians, ws.sparse, ws.images]
+        layout = ctx.layout
+        return [layout.classified_points, layout.masks_dir, layout.record("masks"), layout.mvs_gaussians, ws.sparse,
+                ws.images]  # fmt: skip
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.trained_splats, ctx.layout.snapshots_dir]
@@ -189,7 +206,8 @@ class TrainStage(Stage):
         cameras, _ = read_project_model(ctx, ws.sparse)
         _, sfm = read_project_model(ctx, layout.sparse)
         held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
-        masks = {k: m for k, m in read_masks(ctx, cameras).items() if k not in held_out}  # never train on those
+        masks = read_masks(ctx, cameras, training=True)
+        masks = {k: m for k, m in masks.items() if k not in held_out}  # never train on those
         if not any(m.any() for m in masks.values()):
             return {"trained": 0, "reason": "masks are empty"}
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
