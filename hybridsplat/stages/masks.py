@@ -24,7 +24,7 @@ class MasksStageOptions:
     footprint: point radius in spacings (1.5). hole_gsd: radius within which a point explains pixels when looking
     for holes, in ground sample distances (2.5; 0 = ``hole_footprint`` point spacings, 2.5). close_px /
     dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the dilation in point spacings at the
-    photo's median depth when larger (3). train_margin_spacings: the training masks' extra margin (3; see
+    photo's median depth when larger (3). train_margin_spacings: the training masks' extra margin (5; see
     classify.masks.MaskOptions), recorded per photo in logs/masks.json.
     holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
     explained_by: seen | all (seen): which points explain pixels when looking for holes.
@@ -37,7 +37,7 @@ class MasksStageOptions:
     close_px: int = 3
     dilate_px: int = 2
     dilate_spacings: float = 3.0
-    train_margin_spacings: float = 3.0
+    train_margin_spacings: float = 5.0
     holes: bool = True
     hole_area: str = "hull_below"
     explained_by: str = "seen"

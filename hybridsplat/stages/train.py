@@ -44,7 +44,10 @@ class TrainStageOptions:
         whole-scene baseline scores 21.85 dB there, 22.16 dB at 4000) the masked PSNR / merged C2C mean / train
         time were 21.00 dB / 1.85 mm / 59 s at 600 steps, 21.30 dB / 2.06 mm / 99 s at 1000, 21.57 dB / 2.39 mm /
         204 s at 1500, and 21.56 dB / 2.23 mm / 177 s at 1500 with refine_until 0.35 (MVS alone: 11.17 dB /
-        2.28 mm).
+        2.28 mm); 3000 steps gave 21.59 dB (405 s): a plateau, while the training photos' own hold-out pixels kept
+        improving (24.4 → 26.0 dB). Training inside masks widened by the masks stage's training margin instead
+        (``train_margin_spacings``): 21.93 dB / 2.41 mm at 1500 steps with 3 spacings (226 s), 22.26 dB / 2.46 mm
+        with 5 (207 s; the default).
     refine_start / refine_until: densification (clone, split, prune; fusion.train.DefaultStrategy) runs from step
         ``refine_start`` until the share ``refine_until`` of ``iterations`` (never in the last half by default).
         Densifying to the last step had cost the demo 1.1 dB (600 steps: 18.99 dB, with refine_until 0.5: 20.13).
