@@ -142,9 +142,11 @@ def test_collinear_points_are_refused_and_do_not_crash_orientation():
             mesh_from_gaussians(g, MeshOptions(budget=100))
 
 
-def test_footprint_support_keeps_surface_that_sparse_large_gaussians_cover():
-    # dense samples below the cap z > 0.25 of a sphere, 1 in 12 there; each sparse sample's footprint covers the
-    # gaps to its neighbours (1.2 × their spacing). Without footprint support the spacing rule cuts the cap open.
+def test_sparse_parts_keep_their_surface_by_local_spacing_and_footprints_are_exact():
+    # dense samples below the cap z > 0.25 of a sphere, 1 in 12 there (a hybrid cloud: dense splat samples next to
+    # sparse MVS surfels); each sparse sample's footprint covers the gaps to its neighbours (1.2 × their spacing).
+    # One global spacing (the dense part's) cut the cap open (under 70 % covered); the local spacing keeps most of it
+    # (88 %: near the dense part the median takes in dense neighbours), the footprints all of it.
     pts = fibonacci_sphere(6000, R)
     cap = pts[:, 2] > 0.25
     keep = ~cap | (np.arange(len(pts)) % 12 == 0)
@@ -167,4 +169,4 @@ def test_footprint_support_keeps_surface_that_sparse_large_gaussians_cover():
         dist = np.linalg.norm(result.mesh.vertices[some, None, :] - pos[None, :, :], axis=2)
         expected = (dist <= footprint[None, :]).any(axis=1) if fp else np.zeros(len(dist), dtype=bool)
         assert np.array_equal(result.footprint_supported[some], expected) and (not fp or expected.any())
-    assert cap_cover[False] < 0.7 and cap_cover[True] > 0.98, cap_cover
+    assert cap_cover[False] > 0.8 and cap_cover[True] > 0.98, cap_cover
