@@ -234,8 +234,8 @@ def surface_splat_options() -> SurveyPointOptions:
     needs there. Measured on the demo tabletop (24 views 320×240, 600 training steps, 100 k triangles, τ = 4.4 mm;
     ``bench/bench_mesh.py --sections 3``): the hybrid mesh from every splat was 16.3 mm mean off the truth
     (precision at τ 0.467) with completeness 0.712; from the 1 926 of 15 361 splats passing this rule 2.6 mm (0.853)
-    with 0.691 (MVS only: 0.42 mm, 0.986, 0.636). What stays off: the virtual images inside the mirror ball (17.7 mm
-    mean on that material)."""
+    with 0.691 (MVS only: 0.42 mm, 0.986, 0.636), 3.1 mm (0.831) with 0.698 once Poisson trimming followed the local
+    spacing. What stays off: the virtual images inside the mirror ball (17 mm mean on that material)."""
     return SurveyPointOptions(
         min_opacity=0.5, max_thickness_spacing=None, max_extent_spacing=None, min_views=3, min_mask_share=0.9,
         max_rim_spacing=None, max_behind_share=0.5,
