@@ -330,7 +330,7 @@ def test_rgb_hsv_kernel_matches_scikit_image_on_every_kind_of_colour():
 
 
 def test_reorder_kernels_match_their_numpy_twins():
-    from classify.features.reorder import morton_codes, renumber_neighbours, scatter_column
+    from classify.features.reorder import gather_rows, morton_codes, renumber_neighbours, scatter_column
 
     rng = np.random.default_rng(8)
     pts = rng.normal(size=(5000, 3)) * [3.0, 1.0, 0.2] + 1e5  # large coordinates, a flat-ish cloud
@@ -353,3 +353,7 @@ def test_reorder_kernels_match_their_numpy_twins():
     expected = np.zeros_like(values)
     expected[order, 1] = col
     np.testing.assert_array_equal(values, expected)
+    for a in (pts, pts.astype(np.float32), rng.integers(0, 256, (len(pts), 3)).astype(np.uint8)):
+        got = gather_rows(a, order)
+        assert got.dtype == a.dtype
+        np.testing.assert_array_equal(got, a[order])

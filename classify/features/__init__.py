@@ -19,7 +19,7 @@ from classify.features.registry import (
     feature_specs,
     resolve_names,
 )
-from classify.features.reorder import renumber_neighbours, scatter_column
+from classify.features.reorder import gather_rows, renumber_neighbours, scatter_column
 from core.errors import ConfigError, DataError
 from core.pointcloud import PointCloud
 
@@ -114,18 +114,19 @@ def compute_features(
     # friendly neighbour gathers) and written back in the cloud's order; multi-view features in the cloud's order.
     order = spatial_order(cloud.positions)
     sorted_columns: dict[str, np.ndarray] = {}
-    normals = cloud.normals[order] if cloud.normals is not None else None
-    geo = geometric_features(cloud.positions[order], normals, options.geometric)
+    normals = gather_rows(cloud.normals, order) if cloud.normals is not None else None
+    positions = gather_rows(cloud.positions, order)
+    geo = geometric_features(positions, normals, options.geometric)
     spacing = geo.spacing
     if FeatureGroup.GEOMETRIC in groups:
         sorted_columns.update(geo.features)
     if FeatureGroup.RADIOMETRIC in groups:
-        colors = cloud.colors[order]  # type: ignore[index]
+        colors = gather_rows(cloud.colors, order)  # type: ignore[arg-type]
         sorted_columns.update(rgb_hsv(colors))
         sorted_columns["color_variance"] = color_variance(
             colors,
             neighbours=geo.neighbours,
-            positions=cloud.positions[order],
+            positions=positions,
             k=options.geometric.k,
             workers=options.geometric.workers,
             with_self=geo.neighbours is not None,
