@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from classify.features.reorder import morton_codes
 from core.errors import ConfigError, DataError
 
 EIGEN_BACKENDS = ("numba", "numpy", "pgeof")
@@ -80,8 +81,6 @@ def spatial_order(positions: np.ndarray, bits: int = 16) -> np.ndarray:
     """A permutation (N,) int64 that sorts points (N, 3) float64 along a Morton (Z-order) curve of their bounding
     box (``bits`` per axis): neighbours in space become neighbours in memory, so the k-NN gathers of the
     features hit the cache (clouds are often stored in scan or random order)."""
-    from classify.features.reorder import morton_codes
-
     return np.argsort(morton_codes(positions, bits), kind="stable")
 
 

@@ -437,15 +437,7 @@ def _nudge_straight_vertices(uv: np.ndarray, ends: np.ndarray, fraction: float =
             dot = np.einsum("ij,ij->i", d_in, d_out)
             straight = (np.abs(cross) <= 1e-9 * len_in * len_out) & (dot > 0)
             if straight.any() and not straight.all():
-                first = int(np.flatnonzero(~straight)[0])
-                j = first + 1
-                while j < first + n:
-                    if not straight[j % n]:
-                        j += 1
-                        continue
-                    k = j
-                    while straight[k % n]:
-                        k += 1
+                for j, k in _cyclic_runs(straight.tolist()):
                     run = [m % n for m in range(j - 1, k + 1)]  # a corner, the straight vertices, a corner
                     arc = np.concatenate([[0.0], np.cumsum(len_out[run[:-1]])])
                     length = arc[-1]
@@ -453,9 +445,27 @@ def _nudge_straight_vertices(uv: np.ndarray, ends: np.ndarray, fraction: float =
                     chord = ring[run[-1]] - ring[run[0]]
                     left = np.array([-chord[1], chord[0]]) / max(float(np.linalg.norm(chord)), 1e-300)
                     out[start + np.array(run[1:-1])] += np.outer(fraction * length * 4 * t * (1 - t), left)
-                    j = k
         start = end
     return out
+
+
+def _cyclic_runs(flags: list[bool]) -> list[tuple[int, int]]:
+    """The runs of True in a cyclic sequence that holds at least one False: (j, k) per run, its items j .. k − 1
+    taken modulo the length (0 < j < k)."""
+    n = len(flags)
+    first = next(i for i in range(n) if not flags[i])
+    runs = []
+    j = first + 1
+    while j < first + n:
+        if not flags[j % n]:
+            j += 1
+            continue
+        k = j
+        while flags[k % n]:
+            k += 1
+        runs.append((j, k))
+        j = k
+    return runs
 
 
 def _orient_anticlockwise(tri: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -532,15 +542,7 @@ def _fan_skipped(tri: np.ndarray, rings: list[list[int]]) -> np.ndarray:
             continue
         if all(missing):
             raise _CannotClose("the triangulation misses a whole ring")
-        first = next(j for j in range(n) if not missing[j])
-        j = first + 1
-        while j < first + 1 + n:
-            if not missing[j % n]:
-                j += 1
-                continue
-            k = j
-            while missing[k % n]:
-                k += 1
+        for j, k in _cyclic_runs(missing):
             chain = [idx[m % n] for m in range(j, k + 1)]  # run of missing edges j .. k-1: vertices j .. k
             a, c = chain[0], chain[-1]
             t = edge_of.get((a, c))
@@ -551,7 +553,6 @@ def _fan_skipped(tri: np.ndarray, rings: list[list[int]]) -> np.ndarray:
                 raise _CannotClose("a flat triangle where a skipped ring vertex goes")
             xv = x.pop()
             replaced[t] = [[chain[m], chain[m + 1], xv] for m in range(len(chain) - 1)]
-            j = k
     if not replaced:
         return tri
     out = []
