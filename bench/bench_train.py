@@ -1,6 +1,6 @@
 """Splat-training benchmarks.
 
-``python bench/bench_train.py speed [--n 50000] [--size 256x192] [--steps 20]``
+``python bench/bench_train.py speed [--n 50000] [--size 256x192] [--steps 20] [--mask-share 0]``
     One full training iteration (mask = whole image: render, loss, backward, Adam, densification bookkeeping)
     on a random scene, each part timed, next to OpenSplat 1.1.5's CPU figures (0.119 s/iter at 5 k, 0.209 s/iter
     at 50 k Gaussians, 256×192, 2 cores, measured on this kind of machine). Also the time of every kernel inside
@@ -10,7 +10,10 @@
     their CPU time. On the shared machine (kernel.sched_autogroup_enabled = 1) a busy process of another session,
     even niced, takes one core's share: both threads then run one after the other and wall = CPU time (measured
     with two GIL-free numba loops: 1 thread 1.2 s, 2 threads 2.35 s wall / 2.4 s CPU at load 3.3). Read such
-    figures as CPU time.
+    figures as CPU time. ``--mask-share S`` (0 < S < 1): the loss mask is a centred ellipse over that share of
+    the image, as in the hybrid's masked training; the Gaussians culled to the active tiles; each iteration is then
+    run twice side by side, compositing every pixel of the active tiles and only the loss's pixels
+    (``render_step(loss_pixels_only=True)``, the trainer's default), and the ratio of the medians is printed.
 
 ``python bench/bench_train.py tabletop --scene SCENE --project PROJECT [--iterations 2000] ...``
     The hybrid on a data_synth scene that ``hybridsplat run`` has processed: masks and ``needs_splats`` from the
@@ -58,7 +61,7 @@ def bench_speed(args: argparse.Namespace) -> None:
     from fusion.train.params import make_optimizer, make_parameters
     from fusion.train.render import render_step
     from fusion.train.strategy import DefaultStrategy
-    from fusion.train.views import TrainView
+    from fusion.train.views import TrainView, active_tile_prefix, pixels_within_reach
 
     width, height = (int(x) for x in args.size.split("x"))
     scene = random_scene(args.n, width, height, seed=0, sh_degree=args.sh_degree)
@@ -67,8 +70,20 @@ def bench_speed(args: argparse.Namespace) -> None:
 
     with torch.no_grad():
         target = render(*truth.params, *truth.camera, backend="cpu").colour.clamp(0, 1)
-    view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat, scene.K,
-                     width, height, width * height, None)  # fmt: skip
+    if 0 < args.mask_share < 1:
+        rows, cols = np.mgrid[0:height, 0:width]
+        r = ((cols + 0.5 - width / 2) / width) ** 2 + ((rows + 0.5 - height / 2) / height) ** 2
+        mask = r <= np.quantile(r, args.mask_share)
+        view = TrainView("bench", target, torch.from_numpy(mask), torch.zeros((height, width), dtype=torch.bool),
+                         scene.viewmat, scene.K, width, height, int(mask.sum()), active_tile_prefix(mask),
+                         pixels_within_reach(mask))  # fmt: skip
+        modes = (False, True)
+        reach = float(view.render_pixels.mean())
+        print(f"mask: {mask.mean():.1%} of the pixels, {reach:.1%} within the SSIM reach")
+    else:
+        view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat,
+                         scene.K, width, height, width * height, None)  # fmt: skip
+        modes = (False,)
     tensors = {
         "means": scene.means,
         "quats": scene.quats,
@@ -83,52 +98,63 @@ def bench_speed(args: argparse.Namespace) -> None:
     state = strategy.initial_state(args.n)
     bg = torch.zeros(3)
     names = ("render fwd", "loss fwd", "backward", "adam", "densify stats", "total")
-    parts: dict[str, list[float]] = {k: [] for k in names}
-    cpu: dict[str, list[float]] = {k: [] for k in names}  # process CPU seconds (all threads): less load-sensitive
+    parts = {m: {k: [] for k in names} for m in modes}
+    cpu = {m: {k: [] for k in names} for m in modes}  # process CPU seconds (all threads): less load-sensitive
 
     def clock() -> tuple[float, float]:
         return time.perf_counter(), time.process_time()
 
     from fusion.render.threads import kernel_times, record_times
 
-    kernels: dict[str, list[tuple[float, float]]] = {}
+    kernels: dict[bool, dict[str, list[tuple[float, float]]]] = {m: {} for m in modes}
     print(f"before: {load()}")
     for i in range(args.steps + 3):
         if i == 3:
             record_times(True)
-        c0 = clock()
-        out = render_step(params, view, None, args.sh_degree, bg)
-        c1 = clock()
-        terms = masked_photometric_loss(out.colour, view.image, None)
-        c2 = clock()
-        terms.loss.backward()
-        c3 = clock()
-        optimizer.step()
-        optimizer.zero_grad(set_to_none=True)
-        c4 = clock()
-        strategy.after_backward(state, out.means2d, width, height, i)
-        strategy.refine(state, params, optimizer, i + 1, 10**9, 1.0, torch.Generator())
-        c5 = clock()
-        if i == 0:
-            print(f"first iteration (numba compile or cache load, thread pool): {c5[0] - c0[0]:.2f} s")
-        if i >= 3:  # warm-up (kernel compilation, thread pool)
-            spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
-            for k, (a, b) in zip(names, spans, strict=True):
-                parts[k].append(b[0] - a[0])
-                cpu[k].append(b[1] - a[1])
-            for k, v in kernel_times().items():
-                kernels.setdefault(k, []).append(v)
+        for only in modes:  # side by side, alternating, so that both see the same machine load
+            kernel_times()
+            c0 = clock()
+            out = render_step(params, view, None, args.sh_degree, bg, loss_pixels_only=only)
+            c1 = clock()
+            terms = masked_photometric_loss(out.colour, view.image, view.loss_mask)
+            c2 = clock()
+            terms.loss.backward()
+            c3 = clock()
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+            c4 = clock()
+            strategy.after_backward(state, out.means2d, width, height, i)
+            strategy.refine(state, params, optimizer, i + 1, 10**9, 1.0, torch.Generator())
+            c5 = clock()
+            if i == 0:
+                print(f"first iteration (numba compile or cache load, thread pool): {c5[0] - c0[0]:.2f} s")
+            if i >= 3:  # warm-up (kernel compilation, thread pool)
+                spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
+                for k, (a, b) in zip(names, spans, strict=True):
+                    parts[only][k].append(b[0] - a[0])
+                    cpu[only][k].append(b[1] - a[1])
+                for k, v in kernel_times().items():
+                    kernels[only].setdefault(k, []).append(v)
     record_times(False)
     print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
           f"{torch.get_num_threads()} torch threads; after: {load()}")  # fmt: skip
-    for k, v in parts.items():
-        print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
-              f"CPU median {1000 * np.median(cpu[k]):7.1f} ms")  # fmt: skip
-    print("  kernels inside those parts (median per iteration):")
-    for k, v in kernels.items():
-        arr = np.array(v)
-        print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
-    total = float(np.median(parts["total"]))
+    for only in modes:
+        if len(modes) > 1:
+            print("compositing " + ("only the loss's pixels" if only else "every pixel of the active tiles"))
+        for k, v in parts[only].items():
+            print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
+                  f"CPU median {1000 * np.median(cpu[only][k]):7.1f} ms")  # fmt: skip
+        print("  kernels inside those parts (median per iteration):")
+        for k, v in kernels[only].items():
+            arr = np.array(v)
+            print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
+    if len(modes) > 1:
+        ratio = {w: np.median(parts[True][w]) / np.median(parts[False][w]) for w in ("render fwd", "backward", "total")}
+        cpu_ratio = np.median(cpu[True]["total"]) / np.median(cpu[False]["total"])
+        print("  loss pixels only / every active pixel: render fwd {:.2f}, backward {:.2f}, total {:.2f} (CPU {:.2f})"
+              .format(ratio["render fwd"], ratio["backward"], ratio["total"], cpu_ratio))  # fmt: skip
+        return
+    total = float(np.median(parts[False]["total"]))
     peer = 0.209 if args.n >= 50_000 else 0.119
     print(f"  OpenSplat 1.1.5 CPU: {peer:.3f} s/iter -> ours {total:.3f} s/iter, ratio {peer / total:.2f}x "
           f"(target <= 0.100 s)")  # fmt: skip
@@ -544,6 +570,7 @@ def main() -> None:
     s.add_argument("--size", default="256x192")
     s.add_argument("--steps", type=int, default=20)
     s.add_argument("--sh-degree", type=int, default=0)
+    s.add_argument("--mask-share", type=float, default=0.0, help="0 < S < 1: a masked view, both render modes")
     t = sub.add_parser("tabletop")
     t.add_argument("--scene", required=True)
     t.add_argument("--project", required=True)

@@ -251,10 +251,12 @@ def _forward_kernel(
     tiles_x,
     j0,
     j1,
+    live,
     out,
     n_used,
 ):  # pragma: no cover - numba
-    """Tiles order[j0:j1] into out (H, W, 5) and n_used (H, W) (disjoint per tile).
+    """Tiles order[j0:j1] into out (H, W, 5) and n_used (H, W) (disjoint per tile); pixels where ``live`` (H, W)
+    is 0 are not composited (features 0, alpha 0, n_used 0).
 
     Tile state is kept in units of 2 rows × 8 columns, [half h, row pair p, i] with pixel (row 2p + i // 8,
     column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop each; a
@@ -282,7 +284,11 @@ def _forward_kernel(
             for p in range(_PAIRS):
                 alive[h, p] = 0
                 for i in range(16):
-                    inside = (x0 + h * _HALF + i % _HALF < width) and (y0 + 2 * p + i // _HALF < height)
+                    px = x0 + h * _HALF + i % _HALF
+                    py = y0 + 2 * p + i // _HALF
+                    inside = (px < width) and (py < height)
+                    if inside:
+                        inside = live[py, px] != 0
                     T[h, p, i] = 1.0 if inside else -1.0
                     n_done += 0 if inside else 1
                     alive[h, p] += 1 if inside else 0
@@ -296,7 +302,8 @@ def _forward_kernel(
         zero = xu[0, 0] - xu[0, 0]
         one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
         start = offsets[t]
-        for k in range(start, offsets[t + 1]):
+        stop_k = offsets[t + 1] if n_done < ts * ts else start  # a tile without a live pixel composites nothing
+        for k in range(start, stop_k):
             g = ids[k]
             mx = means2d[g, 0]
             my = means2d[g, 1]
@@ -550,13 +557,13 @@ class _RasterizeCPU(torch.autograd.Function):
     """Composite 4 features front to back; differentiable w.r.t. means2d, conics, opacities and features."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
         args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
         out = np.zeros((height, width, 5), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
-        run_chunks(_forward_kernel, args, (out, n_used), len(bins.order), "raster fwd")
+        run_chunks(_forward_kernel, args, (live, out, n_used), len(bins.order), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins = args, out, n_used, bins
         return torch.from_numpy(out)
 
@@ -572,7 +579,7 @@ class _RasterizeCPU(torch.autograd.Function):
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
         bins = ctx.bins
         run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
-        return (*(torch.from_numpy(a) for a in outs), None, None, None, None)
+        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None)
 
 
 def rasterize_cpu(
@@ -586,16 +593,25 @@ def rasterize_cpu(
     width: int,
     height: int,
     tile_size: int = TILE_SIZE,
+    pixels: np.ndarray | None = None,
 ) -> torch.Tensor:
     """Front-to-back composite of per-Gaussian features (N, 4) into an (H, W, 5) image with the numba kernels.
 
     Inputs as :class:`fusion.render.projection.Projection` plus opacities (N,) in (0, 1). Output channels are the
     4 composited features (Σ wᵢ fᵢ) and the accumulated alpha (1 - T_final). No background: the caller blends it
     with the alpha channel. Gradients flow to means2d, conics, opacities and features.
+    pixels: (H, W) bool, the pixels to composite (training renders only the pixels its loss reads); the others
+    come out empty (0 everywhere) and cost nothing. None = every pixel.
     """
     if tile_size != TILE_SIZE:
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
     if features.shape[1] != 4:
         raise ValueError(f"the cpu rasteriser composites exactly 4 features per Gaussian, got {features.shape[1]}")
+    if pixels is None:
+        live = np.ones((height, width), np.uint8)
+    else:
+        if tuple(pixels.shape) != (height, width):
+            raise ValueError(f"pixels must be ({height}, {width}), got {tuple(pixels.shape)}")
+        live = np.ascontiguousarray(pixels, dtype=np.uint8)
     bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
-    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height)
+    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height, live)

@@ -8,6 +8,7 @@ take part in the next chunk.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, POWER_MIN, T_MIN, TILE_SIZE
@@ -60,10 +61,12 @@ def rasterize_reference(
     height: int,
     tile_size: int = TILE_SIZE,
     chunk: int = 32,
+    pixels: np.ndarray | None = None,
 ) -> torch.Tensor:
     """Front-to-back composite of features (N, C) into an (H, W, C + 1) image, accumulated alpha last.
 
-    Same contract as :func:`fusion.render.cpu.rasterize_cpu` (which fixes C = 4).
+    Same contract as :func:`fusion.render.cpu.rasterize_cpu` (which fixes C = 4), ``pixels`` included: the pixels
+    outside it are rendered and then zeroed.
     """
     features = torch.cat([features, torch.ones_like(features[:, :1])], dim=1)
     tiles_x = (width + tile_size - 1) // tile_size
@@ -107,4 +110,7 @@ def rasterize_reference(
         T = T.index_copy(0, active, T_in[..., 0] * trans[..., -1])
 
     image = acc.reshape(tiles_y, tiles_x, tile_size, tile_size, n_feat).permute(0, 2, 1, 3, 4)
-    return image.reshape(tiles_y * tile_size, tiles_x * tile_size, n_feat)[:height, :width]
+    image = image.reshape(tiles_y * tile_size, tiles_x * tile_size, n_feat)[:height, :width]
+    if pixels is not None:
+        image = image * torch.from_numpy(np.asarray(pixels, bool)).to(dtype)[..., None]
+    return image

@@ -81,8 +81,14 @@ def render_step(
     sh_degree: int,
     background: torch.Tensor,
     backend: str = "cpu",
+    loss_pixels_only: bool = False,
 ) -> StepRender:
-    """Render trainable splats (``params`` as in :mod:`fusion.train.params`) plus the cached context into ``view``."""
+    """Render trainable splats (``params`` as in :mod:`fusion.train.params`) plus the cached context into ``view``.
+
+    loss_pixels_only: composite only ``view.render_pixels`` (the pixels the L1 + D-SSIM loss reads; the others get
+    the background and no gradient). Exact for that loss, which reads nothing else; a loss with a wider reach
+    (MS-SSIM, an LPIPS crop) renders every pixel.
+    """
     if backend not in ("cpu", "reference"):
         raise ConfigError(f"training renders with the 'cpu' or 'reference' backend, got {backend!r}")
     if backend == "cpu":
@@ -124,7 +130,8 @@ def render_step(
         m2, con, dep, ext, opa, col, vis = (torch.cat(list(x), dim=0) for x in zip(*parts, strict=True))
     features = torch.cat([col, dep[:, None]], dim=1)
     rasterize = rasterize_cpu if backend == "cpu" else rasterize_reference
-    image = rasterize(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height)
+    pixels = view.render_pixels if loss_pixels_only else None
+    image = rasterize(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height, pixels=pixels)
     alpha = image[..., 4]
     colour = image[..., :3] + (1 - alpha)[..., None] * background
     return StepRender(colour, alpha, means2d, visible)

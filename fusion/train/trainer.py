@@ -340,7 +340,8 @@ def train_splats(
             if group["name"] == "means":
                 group["lr"] = lrs["means"] * decay**step
 
-        out = render_step(params, view, caches[vi], degree, background, opts.backend)
+        only_loss_pixels = opts.photometric == "l1_ssim" and step < lpips_from
+        out = render_step(params, view, caches[vi], degree, background, opts.backend, only_loss_pixels)
         if opts.photometric == "l1_ssim":
             terms = masked_photometric_loss(out.colour, view.image, view.loss_mask, opts.ssim_lambda)
         else:

@@ -3,9 +3,9 @@
 The training frame is the cameras' local frame shifted by a float64 ``centre`` (so float32 keeps precision):
 ``x_train = x_local − centre`` and each view's world-to-camera matrix becomes ``[R | R·centre + t]``.
 
-Per view: the loss pixels (mask minus a seeded hold-out share kept for early stopping), the hold-out pixels, and
-the 16×16 tiles worth rendering (those within the SSIM window's reach of a mask pixel); Gaussians whose 3σ box
-touches none of them are culled for that view.
+Per view: the loss pixels (mask minus a seeded hold-out share kept for early stopping), the hold-out pixels, the
+pixels worth rendering (those within the SSIM window's reach of a mask pixel: the L1 + D-SSIM loss reads no other)
+and the 16×16 tiles holding them; Gaussians whose 3σ box touches none of those tiles are culled for that view.
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ class TrainView:
     holdout_mask: (H, W) bool, a seeded share of the mask pixels kept out of the loss. viewmat: (4, 4)
     float32 training frame → camera (OpenCV axes). K: (3, 3) float32 pinhole, pixel centres at +0.5.
     tile_prefix: (tiles_y + 1, tiles_x + 1) int64 2-D prefix sum of the active-tile map, None = all tiles active.
+    render_pixels: (H, W) bool numpy, the pixels within ``SSIM_REACH`` of the mask (the only ones the L1 + D-SSIM
+    loss reads), None = every pixel.
     """
 
     name: str
@@ -44,6 +46,7 @@ class TrainView:
     height: int
     mask_pixels: int
     tile_prefix: np.ndarray | None
+    render_pixels: np.ndarray | None = None
 
     @property
     def camera_centre(self) -> torch.Tensor:
@@ -65,10 +68,15 @@ def resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return resize_image(mask.astype(np.float32), size) >= 0.5
 
 
+def pixels_within_reach(mask: np.ndarray, reach: int = SSIM_REACH) -> np.ndarray:
+    """(H, W) bool: the pixels within ``reach`` px (Chebyshev distance: the square SSIM window) of a mask pixel."""
+    return cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+
+
 def active_tile_prefix(mask: np.ndarray, reach: int = SSIM_REACH, tile: int = TILE_SIZE) -> np.ndarray:
     """2-D prefix sum (ty + 1, tx + 1) of the tiles holding a pixel within ``reach`` px of the mask."""
     h, w = mask.shape
-    grown = cv2.dilate(mask.astype(np.uint8), np.ones((2 * reach + 1, 2 * reach + 1), np.uint8)) > 0
+    grown = pixels_within_reach(mask, reach)
     ty, tx = (h + tile - 1) // tile, (w + tile - 1) // tile
     padded = np.zeros((ty * tile, tx * tile), bool)
     padded[:h, :w] = grown
@@ -167,6 +175,7 @@ def prepare_views(
                 height=h,
                 mask_pixels=int(m.sum()),
                 tile_prefix=None if masks is None else active_tile_prefix(m),
+                render_pixels=None if masks is None else pixels_within_reach(m),
             )
         )
     return views
