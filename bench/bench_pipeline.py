@@ -87,11 +87,11 @@ FULL = Plan(
     scenes=("demo", "aerial", "textured"),
     train_iterations=600,
     baseline_iterations=4000,
-    train_sweep=(150, 300, 1000, 1500),
+    train_sweep=(300, 1000, 1500),
     baseline_sweep=(500, 1000, 2000),
     mvs_sizes=(160,),
     convert_modes=("paper",),
-    scaling=((12, 160, 120), (40, 400, 300)),
+    scaling=((12, 160, 120), (36, 400, 300)),
 )
 SCENE_OVERRIDES = {  # every scene at the demo's size (24 training + 4 test views of 320×240)
     "demo": {},
