@@ -317,6 +317,8 @@ def plot_pareto(scene: str, points: list[Point], out: Path) -> list[str]:
     files = []
     for key, label, lower in (("c2c_mean", "C2C mean (m)", True), ("masked_psnr", "masked PSNR (dB)", False),
                               ("completeness", "completeness at τ", False)):  # fmt: skip
+        if not any(getattr(p, key) is not None for p in points):  # e.g. no masked PSNR on a scene without masks
+            continue
         fig, ax = plt.subplots(figsize=(6, 4))
         for product, colour in (("mvs", "tab:blue"), ("baseline", "tab:orange"), ("merged", "tab:green")):
             pts, labels = [], {}

@@ -118,3 +118,47 @@ def test_train_is_skipped_without_classification(tmp_path) -> None:
     ctx = StageContext(layout=layout, config=ProjectConfig(), source=SimpleNamespace(holdout_names=()))
     assert "classified" in TrainStage().needs(ctx)
     assert "no trained splats" in CleanStage().needs(ctx)
+
+
+def test_point_product_keeps_the_needs_splats_mvs_points_of_the_chosen_classes(tmp_path) -> None:
+    """Textureless (and thin) MVS points that needed splats go into the point product as they are; reflective ones
+    only through the view and rim tests; ``points_needs_mvs_classes = ()`` keeps none by class."""
+    import json
+
+    from hybridsplat.stages.merge import MergeStageOptions
+
+    layout, truth, needs = make_project(tmp_path / "p")
+    codes = np.zeros(len(truth), np.uint8)
+    idx = np.flatnonzero(needs)
+    codes[idx[::2]] = 3  # textureless
+    codes[idx[1::2]] = 1  # reflective
+    cloud = read_point_cloud(layout.classified_points)
+    cloud.fields["classification"] = codes
+    write_point_cloud(layout.classified_points, cloud)
+    names = ("collaborative", "reflective", "transparent", "textureless", "thin")
+    classes = [{"name": n, "code": c, "needs_splats": c > 0} for c, n in enumerate(names)]
+    layout.classify_report.write_text(json.dumps({"classes": {"class": classes}}))
+    config = ProjectConfig().with_stage_options("train", TrainStageOptions(iterations=12, rays_per_view=20))
+    ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
+    TrainStage().run(ctx)
+    CleanStage().run(ctx)
+    products = {}
+    for kept in (("textureless", "thin"), ()):
+        ctx.config = config.with_stage_options("merge", MergeStageOptions(points_needs_mvs_classes=kept))
+        counts = MergeStage().run(ctx)
+        products[kept] = (counts, read_point_cloud(layout.merged_points_ply))
+    (with_classes, pts_with), (without, pts_without) = products[("textureless", "thin")], products[()]
+    textureless = truth.means[codes == 3]
+    assert with_classes["point_needs_mvs_classes"] == {"textureless": len(textureless), "thin": 0}
+    assert without["point_needs_mvs_classes"] == {}
+
+    def has(points, queries):
+        d = np.linalg.norm(points.positions[None, :, :] - queries[:, None, :], axis=2).min(axis=1)
+        return d < 1e-6
+
+    assert has(pts_with, textureless).all()
+    assert not has(pts_without, textureless).all()  # the rule alone drops some of them
+    reflective = truth.means[codes == 1]
+    np.testing.assert_array_equal(has(pts_with, reflective), has(pts_without, reflective))
+    extra = len(pts_with) - len(pts_without)
+    assert extra == int((~has(pts_without, textureless)).sum()) > 0

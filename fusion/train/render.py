@@ -2,14 +2,15 @@
 
 The frozen Gaussians never change, so their projection, colour and culling are computed once per view and cached
 (:class:`ContextProjection`); each step only the trainable splats are projected (with autograd) and both sets are
-composited in one rasterisation so that occlusion between them is exact. Same conventions and kernels as
-:func:`fusion.render.render` (backends ``cpu`` and ``reference``).
+composited in one rasterisation so that occlusion between them is exact (the context's own gradients are never
+computed). Same conventions and kernels as :func:`fusion.render.render` (backends ``cpu`` and ``reference``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from core.errors import ConfigError
@@ -129,9 +130,15 @@ def render_step(
     else:
         m2, con, dep, ext, opa, col, vis = (torch.cat(list(x), dim=0) for x in zip(*parts, strict=True))
     features = torch.cat([col, dep[:, None]], dim=1)
-    rasterize = rasterize_cpu if backend == "cpu" else rasterize_reference
     pixels = view.render_pixels if loss_pixels_only else None
-    image = rasterize(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height, pixels=pixels)
+    if backend == "cpu":
+        frozen = np.zeros(len(m2), bool)
+        frozen[len(means2d) :] = True  # the context: its backward only composites
+        image = rasterize_cpu(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height, pixels=pixels,
+                              frozen=frozen)  # fmt: skip
+    else:
+        image = rasterize_reference(m2, con, opa, features, ext, dep.detach(), vis, view.width, view.height,
+                                    pixels=pixels)  # fmt: skip
     alpha = image[..., 4]
     colour = image[..., :3] + (1 - alpha)[..., None] * background
     return StepRender(colour, alpha, means2d, visible)

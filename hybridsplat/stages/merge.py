@@ -9,7 +9,9 @@ survey deliverable) keeps the trusted MVS points and only those splats and ``nee
 is trustworthy (:func:`fusion.clean.select_survey_points`: splats opaque, thin along the normal and not large; both
 seen inside the region mask from several training views, not seen outside it unoccluded, and near the silhouette rim
 of some view, which rejects the virtual images of reflections and refractions that MVS and splats place inside
-mirrors and glass); the counts of what was left out and why are recorded.
+mirrors and glass), plus the ``needs_splats`` MVS points of the classes that leave MVS incomplete rather than wrong
+(``points_needs_mvs_classes``: textureless and thin by default); the counts of what was left out and why are
+recorded.
 
 merged.ply carries a ``surface`` field besides ``source``: 1 for the MVS Gaussians and for the splats whose centres
 pass :func:`fusion.clean.surface_splat_options` (opaque, inside the visual hull of the masks, not behind the trusted
@@ -40,6 +42,15 @@ class MergeStageOptions:
     their own rim limit ``points_needs_mvs_max_rim_spacing`` (with the classifier's masks, wider than the objects,
     tabletop kept 1 of 1114 such points at 0.5 and 1002 at 4 spacings: 2.08 instead of 1.62 mm mean C2C, 0.647
     instead of 0.642 completeness, and every non-collaborative material more complete than MVS-only).
+    points_needs_mvs_classes: the predicted classes (names of the project's class set; others are ignored) whose
+    ``needs_splats`` MVS points go into the point product as they are. Textureless and thin surfaces leave MVS
+    incomplete, not wrong: the points it does fuse there lie on the surface (data_synth tabletop, MVS accuracy:
+    textureless paint 3.5 mm, wire 1.3 mm, mirror 22 mm), while reflective and transparent ones add virtual images
+    behind mirrors and glass. Measured on the benchmark's projects (seed 1, 24 views 320×240, merge + eval re-run
+    on the same trained splats): tabletop, 600 training steps, merged C2C mean 1.77 → 1.79 mm and completeness
+    0.711 → 0.722 (MVS only 2.28 mm, 0.716), 1000 steps 1.97 → 1.98 mm, 0.721 → 0.732; aerial 215.8 → 221.7 mm,
+    0.687 → 0.688 (MVS only 223.6 mm, 0.690). Every needs-splats class kept (``keep_needs_splats`` for the points):
+    2.35 mm / 0.724 and 224.3 mm / 0.690, less accurate than MVS only on both.
     surface_test: mark the splats that may shape a mesh (``surface`` field of merged.ply, see the module docstring);
     off: every Gaussian gets ``surface = 1``.
     """
@@ -53,6 +64,7 @@ class MergeStageOptions:
     points_max_rim_spacing: float = 0.5
     points_needs_mvs: bool = True
     points_needs_mvs_max_rim_spacing: float = 0.5
+    points_needs_mvs_classes: tuple[str, ...] = ("textureless", "thin")
     surface_test: bool = True
 
     def survey_options(self, shape_checks: bool = True, rim: float | None = None):
@@ -123,6 +135,9 @@ class MergeStage(Stage):
             needs_left_out = needs.copy()
             if sel_mvs is not None:
                 needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False
+            by_class = self._kept_classes(ctx, mvs, needs, opts)
+            for kept in by_class.values():
+                needs_left_out[kept] = False
             points = merge_hybrid(mvs, subset(splats, sel_splats.keep), needs_left_out,
                                   keep_needs_splats=opts.keep_needs_splats).gaussians  # fmt: skip
             extra = {"point_splats": vars(sel_splats.counts)}
@@ -130,6 +145,7 @@ class MergeStage(Stage):
                 extra["surface_splats"] = vars(sel_surface.counts)
             if sel_mvs is not None:
                 extra["point_needs_mvs"] = vars(sel_mvs.counts)
+            extra["point_needs_mvs_classes"] = {name: int(kept.sum()) for name, kept in by_class.items()}
         else:
             result = merge_gaussians(None, mvs)
             written = export_gaussian_ply(layout.merged_ply, result.gaussians)
@@ -180,6 +196,23 @@ class MergeStage(Stage):
             mvs_rule = opts.survey_options(shape_checks=False, rim=opts.points_needs_mvs_max_rim_spacing)
             sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing, mvs_rule)
         return sel_splats, sel_mvs
+
+    def _kept_classes(self, ctx: StageContext, mvs, needs, opts: MergeStageOptions) -> dict[str, np.ndarray]:
+        """Per class name of ``points_needs_mvs_classes`` present in the project's class set (classify/report.json):
+        (N,) bool, its ``needs_splats`` MVS points. Empty when ``keep_needs_splats`` keeps them all anyway."""
+        if opts.keep_needs_splats or not opts.points_needs_mvs_classes or not needs.any():
+            return {}
+        from core.io.json_io import read_json_object
+        from hybridsplat.stages.train import classified_field_per_gaussian
+
+        report = ctx.layout.classify_report
+        classes = read_json_object(report).get("classes", {}).get("class", []) if report.is_file() else []
+        codes = {c["name"]: int(c["code"]) for c in classes if c.get("needs_splats")}
+        wanted = [n for n in opts.points_needs_mvs_classes if n in codes]
+        if not wanted:
+            return {}
+        predicted = classified_field_per_gaussian(ctx, mvs, "classification").astype(np.int64)
+        return {name: needs & (predicted == codes[name]) for name in wanted}
 
     def summary(self, counts: dict[str, Any]) -> str:
         text = f"{counts['written']} Gaussians in the merged product"

@@ -151,18 +151,24 @@ def read_masks(ctx: StageContext, cameras, training: bool = False) -> dict[str, 
 
 def needs_splats_per_gaussian(ctx: StageContext, mvs) -> np.ndarray:
     """``needs_splats`` of the classified cloud, one per MVS Gaussian (same order, or matched by nearest position)."""
+    return classified_field_per_gaussian(ctx, mvs, "needs_splats").astype(bool)
+
+
+def classified_field_per_gaussian(ctx: StageContext, mvs, field: str) -> np.ndarray:
+    """A per-point field of the classified cloud (``needs_splats``, ``classification``, ...), one value per MVS
+    Gaussian (same order, or matched by nearest position)."""
     from scipy.spatial import cKDTree
 
     from core.io import read_point_cloud
 
     cloud = read_point_cloud(ctx.layout.classified_points)
-    if "needs_splats" not in cloud.fields:
-        raise DataError("classified cloud has no 'needs_splats' field", ctx.layout.classified_points)
-    needs = np.asarray(cloud.fields["needs_splats"]).astype(bool)
+    if field not in cloud.fields:
+        raise DataError(f"classified cloud has no {field!r} field", ctx.layout.classified_points)
+    values = np.asarray(cloud.fields[field])
     if len(cloud) == len(mvs):
-        return needs
+        return values
     _, idx = cKDTree(cloud.world_positions).query(mvs.world_means, k=1, workers=-1)
-    return needs[idx]
+    return values[idx]
 
 
 class TrainStage(Stage):
