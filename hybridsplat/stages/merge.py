@@ -10,7 +10,7 @@ is trustworthy (:func:`fusion.clean.select_survey_points`: splats opaque, thin a
 seen inside the region mask from several training views, not seen outside it unoccluded, and near the silhouette rim
 of some view, which rejects the virtual images of reflections and refractions that MVS and splats place inside
 mirrors and glass), plus the ``needs_splats`` MVS points of the classes that leave MVS incomplete rather than wrong
-(``points_needs_mvs_classes``: textureless and thin by default); the counts of what was left out and why are
+(``points_needs_mvs_classes``: textureless by default); the counts of what was left out and why are
 recorded.
 
 merged.ply carries a ``surface`` field besides ``source``: 1 for the MVS Gaussians and for the splats whose centres
@@ -43,14 +43,16 @@ class MergeStageOptions:
     tabletop kept 1 of 1114 such points at 0.5 and 1002 at 4 spacings: 2.08 instead of 1.62 mm mean C2C, 0.647
     instead of 0.642 completeness, and every non-collaborative material more complete than MVS-only).
     points_needs_mvs_classes: the predicted classes (names of the project's class set; others are ignored) whose
-    ``needs_splats`` MVS points go into the point product as they are. Textureless and thin surfaces leave MVS
-    incomplete, not wrong: the points it does fuse there lie on the surface (data_synth tabletop, MVS accuracy:
-    textureless paint 3.5 mm, wire 1.3 mm, mirror 22 mm), while reflective and transparent ones add virtual images
-    behind mirrors and glass. Measured on the benchmark's projects (seed 1, 24 views 320×240, merge + eval re-run
-    on the same trained splats): tabletop, 600 training steps, merged C2C mean 1.77 → 1.79 mm and completeness
-    0.711 → 0.722 (MVS only 2.28 mm, 0.716), 1000 steps 1.97 → 1.98 mm, 0.721 → 0.732; aerial 215.8 → 221.7 mm,
-    0.687 → 0.688 (MVS only 223.6 mm, 0.690). Every needs-splats class kept (``keep_needs_splats`` for the points):
-    2.35 mm / 0.724 and 224.3 mm / 0.690, less accurate than MVS only on both.
+    ``needs_splats`` MVS points go into the point product as they are. Textureless surfaces leave MVS incomplete,
+    not wrong: the points it does fuse there lie on the surface (data_synth tabletop, MVS accuracy: textureless
+    paint 3.5 mm against mirror 22 mm), while reflective and transparent ones add virtual images behind mirrors
+    and glass. Measured on the benchmark's projects (seed 1, 24 views 320×240, merge + eval re-run on the same
+    trained splats; merged C2C mean / completeness, MVS only 2.28 mm / 0.716 and 223.6 mm / 0.690): tabletop, 600
+    training steps, 1.77 mm / 0.711 → 1.79 / 0.722, 1000 steps 1.97 / 0.721 → 1.98 / 0.732; aerial, 600 steps
+    215.8 mm / 0.687 → 216.3 / 0.688, 1000 steps 220.3 / 0.687 → 220.7 / 0.688. Adding ``thin`` changed nothing on
+    the tabletop (4 points) and cost the aerial 5.4 mm (221.7 mm; 226.2 at 1000 steps, above MVS only: the steel
+    lattice's points); every needs-splats class (as ``keep_needs_splats`` for the points) 2.35 mm / 0.724 and
+    224.3 mm / 0.690, less accurate than MVS only on both.
     surface_test: mark the splats that may shape a mesh (``surface`` field of merged.ply, see the module docstring);
     off: every Gaussian gets ``surface = 1``.
     """
@@ -64,7 +66,7 @@ class MergeStageOptions:
     points_max_rim_spacing: float = 0.5
     points_needs_mvs: bool = True
     points_needs_mvs_max_rim_spacing: float = 0.5
-    points_needs_mvs_classes: tuple[str, ...] = ("textureless", "thin")
+    points_needs_mvs_classes: tuple[str, ...] = ("textureless",)
     surface_test: bool = True
 
     def survey_options(self, shape_checks: bool = True, rim: float | None = None):
