@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -12,6 +14,18 @@ from fusion.train.loss import masked_photometric_loss
 from fusion.train.params import ContextGaussians, make_parameters
 from fusion.train.render import project_context, render_step
 from fusion.train.views import TrainView, active_tile_prefix, pixels_within_reach
+
+
+def _trainable(scene) -> dict[str, torch.Tensor]:
+    """The trainable tensors (fusion.train.params names) of a random scene."""
+    return {
+        "means": scene.means,
+        "quats": scene.quats,
+        "log_scales": scene.log_scales,
+        "logit_opacities": scene.logit_opacities,
+        "sh_dc": scene.sh_coeffs[:, :1],
+        "sh_rest": scene.sh_coeffs[:, 1:],
+    }
 
 
 def test_cpu_step_equals_reference_step() -> None:
@@ -32,14 +46,7 @@ def test_cpu_step_equals_reference_step() -> None:
                      active_tile_prefix(mask))  # fmt: skip
     cache = project_context(context, view)
     assert cache is not None and 0 < len(cache) < len(context)
-    tensors = {
-        "means": scene.means,
-        "quats": scene.quats,
-        "log_scales": scene.log_scales,
-        "logit_opacities": scene.logit_opacities,
-        "sh_dc": scene.sh_coeffs[:, :1],
-        "sh_rest": scene.sh_coeffs[:, 1:],
-    }
+    tensors = _trainable(scene)
     weights = torch.rand(h, w, 3, generator=torch.Generator().manual_seed(1))
     out = {}
     for backend in ("reference", "cpu"):
@@ -69,14 +76,7 @@ def _masked_scene(w: int = 96, h: int = 64):
     view = TrainView("v", torch.rand(h, w, 3, generator=torch.Generator().manual_seed(2)), torch.from_numpy(mask),
                      torch.zeros((h, w), dtype=torch.bool), scene.viewmat, scene.K, w, h, int(mask.sum()),
                      active_tile_prefix(mask), pixels_within_reach(mask))  # fmt: skip
-    tensors = {
-        "means": scene.means,
-        "quats": scene.quats,
-        "log_scales": scene.log_scales,
-        "logit_opacities": scene.logit_opacities,
-        "sh_dc": scene.sh_coeffs[:, :1],
-        "sh_rest": scene.sh_coeffs[:, 1:],
-    }
+    tensors = _trainable(scene)
     return view, tensors, mask
 
 
@@ -105,9 +105,7 @@ def test_rendering_only_the_loss_pixels_leaves_loss_and_gradients_unchanged() ->
         np.testing.assert_allclose(g_part[name].numpy(), g.numpy(), rtol=1e-5, atol=1e-7 * float(g.abs().max()))
     np.testing.assert_allclose(m_part.numpy(), m_full.numpy(), rtol=1e-5, atol=1e-7 * float(m_full.abs().max()))
     # The reach is what makes it exact: compositing the mask pixels alone changes the SSIM term's gradient.
-    narrow = TrainView(*[getattr(view, f) for f in ("name", "image", "loss_mask", "holdout_mask", "viewmat", "K",
-                                                    "width", "height", "mask_pixels", "tile_prefix")],
-                       render_pixels=mask)  # fmt: skip
+    narrow = replace(view, render_pixels=mask)
     params = make_parameters(tensors)
     res = render_step(params, narrow, None, 1, bg, "cpu", loss_pixels_only=True)
     masked_photometric_loss(res.colour, view.image, view.loss_mask, 0.2).loss.backward()

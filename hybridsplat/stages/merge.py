@@ -204,12 +204,15 @@ class MergeStage(Stage):
         (N,) bool, its ``needs_splats`` MVS points. Empty when ``keep_needs_splats`` keeps them all anyway."""
         if opts.keep_needs_splats or not opts.points_needs_mvs_classes or not needs.any():
             return {}
+        from classify.classes import ClassSet
         from core.io.json_io import read_json_object
         from hybridsplat.stages.train import classified_field_per_gaussian
 
         report = ctx.layout.classify_report
-        classes = read_json_object(report).get("classes", {}).get("class", []) if report.is_file() else []
-        codes = {c["name"]: int(c["code"]) for c in classes if c.get("needs_splats")}
+        stored = read_json_object(report).get("classes") if report.is_file() else None
+        if not stored:
+            return {}
+        codes = {c.name: c.code for c in ClassSet.from_dict(stored, report).classes if c.needs_splats}
         wanted = [n for n in opts.points_needs_mvs_classes if n in codes]
         if not wanted:
             return {}
