@@ -259,8 +259,8 @@ def part_speed(args) -> dict:
     sample = FeatureTable(names, rng.normal(size=(20000, len(names))).astype(np.float32), 0.0)
     labels = rng.choice(classes.codes, 20000)
     model, _ = train(sample, labels, classes, FeatureOptions(groups=GEO_RAD), ForestOptions(n_jobs=threads))
-    # Warm-up on a small cloud: numba kernels compile (or load their cache) outside the timings.
-    compute_features(synthetic_million(5000), FeatureOptions(groups=GEO_RAD))
+    # Warm-up on a small cloud: numba kernels (the smoothing's too) compile or load their cache outside the timings.
+    predict(model, compute_features(synthetic_million(5000), FeatureOptions(groups=GEO_RAD)), smooth_passes=1)
     for variant in args.backends.split(","):
         backend, _, search = variant.partition("/")
         geo = GeometricOptions(backend=backend, workers=threads, search=search or "grid")
