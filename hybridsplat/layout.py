@@ -140,6 +140,11 @@ class ProjectLayout:
         """The whole-scene 3DGS baseline (for comparison)."""
         return self.splats_dir / "baseline.ply"
 
+    @property
+    def baseline_checkpoints_dir(self) -> Path:
+        """The baseline's splats at chosen steps of its training, ``baseline_<step:06d>.ply``."""
+        return self.splats_dir / "baseline_checkpoints"
+
     # -- export ---------------------------------------------------------------------------------
     @property
     def export_dir(self) -> Path:
@@ -248,6 +253,7 @@ class ProjectLayout:
             "splats/cleaned.ply": self.cleaned_splats,
             "splats/snapshots/": self.snapshots_dir,
             "splats/baseline.ply": self.baseline_splats,
+            "splats/baseline_checkpoints/": self.baseline_checkpoints_dir,
             "export/mvs_gaussians.ply": self.mvs_gaussians,
             "export/splats.ply": self.splats_export,
             "export/merged.ply": self.merged_ply,

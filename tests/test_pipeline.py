@@ -20,7 +20,7 @@ from hybridsplat.stages.train import TrainStageOptions
 # tiny trains its splats (and the whole-scene baseline) for a few dozen steps in tests (the default is thousands)
 FAST_STAGES = {
     "train": TrainStageOptions(iterations=40, snapshot_iterations=(20,)),
-    "baseline": BaselineStageOptions(enabled=True, iterations=40),
+    "baseline": BaselineStageOptions(enabled=True, iterations=40, checkpoints=(20,)),
 }
 
 
@@ -102,7 +102,7 @@ def test_three_products_side_by_side_with_scores_per_material(project):
     # per material: every material of the scene that the LiDAR saw, for every measured product
     materials = {m["name"] for m in json.loads((scene / "scene.json").read_text())["materials"]}
     per_material = json.loads(layout.per_material_json.read_text())
-    assert set(per_material["products"]) == {"mvs", "baseline", "splats", "merged"}
+    assert set(per_material["products"]) == {"mvs", "baseline", "baseline_20", "splats", "merged"}
     seen = set(per_material["products"]["mvs"])
     assert seen and seen <= materials
     for name in ("mvs", "baseline", "merged"):
@@ -110,6 +110,24 @@ def test_three_products_side_by_side_with_scores_per_material(project):
         assert all(0.0 <= r["completeness"] <= 1.0 for r in rows.values())
         assert any(r["psnr"] is not None for r in rows.values()), name
     assert "Table 5 — per ground-truth material" in (layout.report_dir / "report.md").read_text()
+
+
+def test_baseline_checkpoints_are_measured_as_products(project):
+    _, project = project
+    layout = ProjectLayout(project)
+    record = json.loads(layout.manifest.read_text())["stages"]["baseline"]
+    assert sorted(p.name for p in layout.baseline_checkpoints_dir.iterdir()) == ["baseline_000020.ply"]
+    seconds = record["counts"]["checkpoints"]
+    assert list(seconds) == ["20"] and 0 < seconds["20"] < record["seconds"]
+    checkpoint = read_gaussian_ply(layout.baseline_checkpoints_dir / "baseline_000020.ply")
+    final = read_gaussian_ply(layout.baseline_splats)
+    assert len(checkpoint) > 0 and not (len(checkpoint) == len(final) and np.allclose(checkpoint.means, final.means)), (
+        "the step-20 checkpoint is the final state"
+    )
+    metrics = json.loads(layout.metrics_json.read_text())["products"]
+    product = metrics["baseline_20"]
+    assert not product.get("skipped") and product["c2c"]["count"] == len(checkpoint)
+    assert np.isfinite(product["images"]["full"]["psnr"]) and np.isfinite(product["images"]["masked"]["psnr"])
 
 
 def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(project, capsys):

@@ -193,6 +193,7 @@ class TrainResult:
     view_steps: tuple[int, ...] = ()  # steps spent on each view (views sorted by name)
     prior_views: int = 0  # views with a depth / normal prior
     prior_pixels: int = 0  # their pixels with a prior weight > 0
+    snapshot_seconds: dict[int, float] = field(default_factory=dict)  # per snapshot step, seconds since the start
 
     @property
     def final_holdout_psnr(self) -> float:
@@ -313,6 +314,7 @@ def train_splats(
     window = len(views) * math.ceil(opts.eval_every / len(views))  # whole epochs, so windows are comparable
     history: list[Checkpoint] = []
     snapshots: dict[int, GaussianSet] = {}
+    snapshot_seconds: dict[int, float] = {}
     best, stale, stopped = -math.inf, 0, False
     sq_err, n_err, loss_sum, n_loss = 0.0, 0, 0.0, 0
     prior_sums = [0.0, 0.0, 0]  # depth, normal, steps with a prior term
@@ -385,6 +387,7 @@ def train_splats(
             ema = hard.ema
             running[vi] = loss_now if not np.isfinite(running[vi]) else (1 - ema) * running[vi] + ema * loss_now
         if step in opts.snapshot_iterations:
+            snapshot_seconds[step] = time.perf_counter() - t0
             snapshots[step] = _with_normals(set_from_tensors(params, centre, origin))
         if step % window == 0 or step == opts.iterations:
             psnr = -10.0 * math.log10(max(sq_err / max(n_err, 1), 1e-10)) if n_err else float("nan")
@@ -425,4 +428,5 @@ def train_splats(
         view_steps=tuple(int(c) for c in view_counts),
         prior_views=sum(p is not None for p in priors) if priors is not None else 0,
         prior_pixels=sum(p.pixels for p in priors if p is not None) if priors is not None else 0,
+        snapshot_seconds=snapshot_seconds,
     )

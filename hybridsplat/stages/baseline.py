@@ -8,6 +8,8 @@ the demo turns it on): a survey does not need it, a comparison does.
 
 from __future__ import annotations
 
+import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,6 +30,11 @@ class BaselineStageOptions:
     refine_start / refine_until: densification window, as the ``train`` stage's (same defaults). On the demo
         tabletop (seed 1) 1000 steps reached 19.99 dB held-out masked PSNR (23.82 whole image) with densification
         from step 100 to 500, against 17.81 (20.81) when it ran from step 500 to the last step.
+    checkpoints: steps (< iterations) after which the splats are also written to splats/baseline_checkpoints/,
+        with the seconds the stage had taken by then (counts ``checkpoints``): points of one run's time against
+        error curve, which the eval stage measures as products ``baseline_<step>``. A checkpoint is the state of
+        the longer run at that step (learning rates and densification scheduled for ``iterations`` steps), not
+        what a run of that many steps would give.
     """
 
     enabled: bool = False
@@ -38,10 +45,14 @@ class BaselineStageOptions:
     sh_degree: int = 3
     refine_start: int = 100
     refine_until: float = 0.5
+    checkpoints: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
             raise ConfigError("baseline: iterations, downscale and cap must be >= 1, max_image_size >= 0")
+        if any(not 1 <= int(s) < self.iterations for s in self.checkpoints):
+            raise ConfigError(f"baseline: checkpoints must be steps from 1 to iterations - 1 ({self.iterations - 1}), "
+                              f"got {list(self.checkpoints)}")  # fmt: skip
         if self.refine_start < 0 or not 0.0 < self.refine_until <= 1.0:
             raise ConfigError("baseline: need refine_start >= 0 and 0 < refine_until <= 1")
 
@@ -56,7 +67,7 @@ class BaselineStage(Stage):
         return [ctx.layout.sparse, ws.sparse, ws.images]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.baseline_splats]
+        return [ctx.layout.baseline_splats, ctx.layout.baseline_checkpoints_dir]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout_names)}
@@ -73,6 +84,7 @@ class BaselineStage(Stage):
         from fusion.train.init import sfm_seeds
         from hybridsplat.stages.train import training_downscale
 
+        t0 = time.perf_counter()
         opts: BaselineStageOptions = ctx.options(self)
         layout = ctx.layout
         ws = layout.dense_workspace
@@ -84,6 +96,7 @@ class BaselineStage(Stage):
         downscale = training_downscale(cameras, opts.downscale, opts.max_image_size)
         train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
                                   sh_degree=opts.sh_degree, refine_until=opts.refine_until,
+                                  snapshot_iterations=tuple(int(s) for s in opts.checkpoints),
                                   strategy=DefaultStrategy(cap=opts.cap, refine_start=opts.refine_start))  # fmt: skip
 
         def progress(info) -> None:
@@ -93,8 +106,14 @@ class BaselineStage(Stage):
                 info.iterations,
             )
 
+        setup = time.perf_counter() - t0
         result = train_splats(cameras, images, None, init, None, train_opts, progress)
         write_gaussian_ply(layout.baseline_splats, result.splats)
+        shutil.rmtree(layout.baseline_checkpoints_dir, ignore_errors=True)  # none left from other settings
+        if result.snapshots:
+            layout.baseline_checkpoints_dir.mkdir(parents=True)
+        for step, snap in sorted(result.snapshots.items()):
+            write_gaussian_ply(layout.baseline_checkpoints_dir / f"baseline_{step:06d}.ply", snap)
         return {
             "splats": len(result.splats),
             "initial": result.initial_gaussians,
@@ -108,6 +127,8 @@ class BaselineStage(Stage):
             "seconds_training": result.seconds,
             # (step, seconds since the start, PSNR on the held-back pixels) per evaluation window
             "history": [[c.step, round(c.seconds, 3), round(c.holdout_psnr, 3)] for c in result.history],
+            # step -> seconds of the stage until that checkpoint (the setup before the training included)
+            "checkpoints": {str(s): round(setup + t, 3) for s, t in sorted(result.snapshot_seconds.items())},
         }
 
     def summary(self, counts: dict[str, Any]) -> str:

@@ -67,7 +67,8 @@ class EvalStage(Stage):
         layout, spec = ctx.layout, ctx.source.spec
         truth = [self._reference(ctx), ctx.source.holdout.model, ctx.source.holdout.image_dir, spec.test_labels]
         products = [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, layout.merged_points_ply,
-                    layout.splats_export, layout.baseline_splats, layout.mesh_path("ply")]  # fmt: skip
+                    layout.splats_export, layout.baseline_splats, layout.baseline_checkpoints_dir,
+                    layout.mesh_path("ply")]  # fmt: skip
         return [*products, *(p for p in truth if p)]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
@@ -131,7 +132,8 @@ class EvalStage(Stage):
     def _products(self, ctx: StageContext) -> dict[str, tuple[Any, Any] | str]:
         """name → (cloud, Gaussians) to measure, or the reason it is not measured (recorded as skipped).
 
-        The splats alone are measured for geometry only (their renders without the MVS context mean nothing).
+        The splats alone are measured for geometry only (their renders without the MVS context mean nothing). The
+        baseline's checkpoints (splats/baseline_checkpoints/baseline_<step>.ply) are products ``baseline_<step>``.
         """
         from core.io.gaussian_ply import read_gaussian_ply
         from fusion.export import gaussians_to_points
@@ -146,6 +148,10 @@ class EvalStage(Stage):
             products["baseline"] = (gaussians_to_points(baseline), baseline)
         else:
             products["baseline"] = "not trained: the whole-scene baseline is off (run --baseline to compare with it)"
+        if layout.baseline_checkpoints_dir.is_dir():
+            for path in sorted(layout.baseline_checkpoints_dir.glob("baseline_*.ply")):
+                checkpoint = read_gaussian_ply(path)
+                products[f"baseline_{int(path.stem.split('_')[1])}"] = (gaussians_to_points(checkpoint), checkpoint)
         if layout.splats_export.is_file():
             products["splats"] = (gaussians_to_points(read_gaussian_ply(layout.splats_export)), None)
         else:
