@@ -8,7 +8,6 @@ the demo turns it on): a survey does not need it, a comparison does.
 
 from __future__ import annotations
 
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -109,9 +108,8 @@ class BaselineStage(Stage):
         setup = time.perf_counter() - t0
         result = train_splats(cameras, images, None, init, None, train_opts, progress)
         write_gaussian_ply(layout.baseline_splats, result.splats)
-        shutil.rmtree(layout.baseline_checkpoints_dir, ignore_errors=True)  # none left from other settings
-        if result.snapshots:
-            layout.baseline_checkpoints_dir.mkdir(parents=True)
+        if result.snapshots:  # (the runner removed the folder of an earlier run)
+            layout.baseline_checkpoints_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.baseline_checkpoints_dir / f"baseline_{step:06d}.ply", snap)
         return {

@@ -9,7 +9,6 @@ no mask pixel.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -257,8 +256,7 @@ class TrainStage(Stage):
         result = train_splats(cameras, images, masks, seeds.gaussians, mvs.subset(~needs), train_opts, progress,
                               lpips=lpips)  # fmt: skip
         write_gaussian_ply(layout.trained_splats, result.splats)
-        shutil.rmtree(layout.snapshots_dir, ignore_errors=True)  # none left from other settings
-        layout.snapshots_dir.mkdir(parents=True)
+        layout.snapshots_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
         return {
