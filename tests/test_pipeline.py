@@ -2,6 +2,7 @@
 current, per-stage commands run the same stages, and a bad input leaves nothing behind."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -128,6 +129,20 @@ def test_baseline_checkpoints_are_measured_as_products(project):
     product = metrics["baseline_20"]
     assert not product.get("skipped") and product["c2c"]["count"] == len(checkpoint)
     assert np.isfinite(product["images"]["full"]["psnr"]) and np.isfinite(product["images"]["masked"]["psnr"])
+
+
+def test_a_baseline_without_checkpoints_is_up_to_date_on_the_next_run(project, tmp_path):
+    scene, project = project
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy)
+    stages = {**FAST_STAGES, "baseline": BaselineStageOptions(enabled=True, iterations=40)}
+    config = ProjectConfig(input=InputOptions(path=str(scene)), stages=stages)
+    first = run_pipeline(copy, config).stages
+    assert not first["baseline"].cached and not first["eval"].cached  # the checkpoint option changed
+    assert not any(ProjectLayout(copy).baseline_checkpoints_dir.iterdir())
+    assert "baseline_20" not in json.loads(ProjectLayout(copy).metrics_json.read_text())["products"]
+    second = run_pipeline(copy, config).stages
+    assert all(r.cached or r.skipped for r in second.values()), [n for n, r in second.items() if not r.cached]
 
 
 def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(project, capsys):

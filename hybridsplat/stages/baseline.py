@@ -108,8 +108,8 @@ class BaselineStage(Stage):
         setup = time.perf_counter() - t0
         result = train_splats(cameras, images, None, init, None, train_opts, progress)
         write_gaussian_ply(layout.baseline_splats, result.splats)
-        if result.snapshots:  # (the runner removed the folder of an earlier run)
-            layout.baseline_checkpoints_dir.mkdir(parents=True, exist_ok=True)
+        # Written even when empty: a recorded output that does not exist would make the stage never up to date.
+        layout.baseline_checkpoints_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.baseline_checkpoints_dir / f"baseline_{step:06d}.ply", snap)
         return {
