@@ -330,7 +330,7 @@ def test_rgb_hsv_kernel_matches_scikit_image_on_every_kind_of_colour():
 
 
 def test_reorder_kernels_match_their_numpy_twins():
-    from classify.features.reorder import gather_rows, morton_codes, renumber_neighbours, scatter_columns
+    from classify.features.reorder import gather_rows, morton_codes, renumber_neighbours, scatter_column
 
     rng = np.random.default_rng(8)
     pts = rng.normal(size=(5000, 3)) * [3.0, 1.0, 0.2] + 1e5  # large coordinates, a flat-ish cloud
@@ -347,12 +347,11 @@ def test_reorder_kernels_match_their_numpy_twins():
     twin = np.empty_like(neigh)
     twin[order] = order[neigh]
     np.testing.assert_array_equal(renumber_neighbours(neigh, order), twin)
-    values = np.zeros((len(pts), 4), np.float32)
-    block = rng.normal(size=(2, len(pts))).astype(np.float32)
-    scatter_columns(values, order, np.array([3, 1]), block)
+    values = np.zeros((len(pts), 3), np.float32)
+    col = rng.normal(size=len(pts)).astype(np.float32)
+    scatter_column(values, order, 1, col)
     expected = np.zeros_like(values)
-    expected[order, 3] = block[0]
-    expected[order, 1] = block[1]
+    expected[order, 1] = col
     np.testing.assert_array_equal(values, expected)
     for a in (pts, pts.astype(np.float32), rng.integers(0, 256, (len(pts), 3)).astype(np.uint8)):
         got = gather_rows(a, order)

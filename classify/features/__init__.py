@@ -19,7 +19,7 @@ from classify.features.registry import (
     feature_specs,
     resolve_names,
 )
-from classify.features.reorder import gather_rows, renumber_neighbours, scatter_columns
+from classify.features.reorder import gather_rows, renumber_neighbours, scatter_column
 from core.errors import ConfigError, DataError
 from core.pointcloud import PointCloud
 
@@ -87,11 +87,6 @@ class FeatureTable:
         return FeatureTable(tuple(names), self.values[:, cols], self.spacing, self.neighbours)
 
 
-# Sorted columns written back per pass over the rows: each pass writes 8 values of a row at once (one random
-# cache line, not one per column) from a block that stays small (8 × N float32).
-_SCATTER_COLUMNS = 8
-
-
 def compute_features(
     cloud: PointCloud,
     options: FeatureOptions = FeatureOptions(),
@@ -145,22 +140,17 @@ def compute_features(
         assert views is not None
         columns.update(multiview_features(cloud.positions, cloud.visibility, views, options.multiview))
     values = np.empty((len(cloud), len(names)), dtype=np.float32)
-    in_order = [j for j, name in enumerate(names) if name in sorted_columns]
-    for first in range(0, len(in_order), _SCATTER_COLUMNS):  # a few columns per pass over the rows
-        js = in_order[first : first + _SCATTER_COLUMNS]
-        block = np.stack([_finite(names[j], sorted_columns.pop(names[j])) for j in js])
-        scatter_columns(values, order, np.asarray(js, dtype=np.int64), block)
     for j, name in enumerate(names):
-        if name in columns:
-            values[:, j] = _finite(name, columns[name])
+        in_order = name in sorted_columns
+        col = np.asarray(sorted_columns[name] if in_order else columns[name], dtype=np.float32)
+        bad = ~np.isfinite(col)
+        n_bad = int(np.count_nonzero(bad))
+        if n_bad > 0.01 * len(col):
+            raise DataError(f"feature {name!r} is non-finite for {n_bad} of {len(col)} points")
+        if n_bad:
+            col = np.where(bad, np.float32(0.0), col)
+        if in_order:
+            scatter_column(values, order, j, col)
+        else:
+            values[:, j] = col
     return FeatureTable(names, values, spacing, neighbours)
-
-
-def _finite(name: str, column: np.ndarray) -> np.ndarray:
-    """``column`` as float32 with non-finite values replaced by 0; more than 1 % of them is a :class:`DataError`."""
-    col = np.asarray(column, dtype=np.float32)
-    bad = ~np.isfinite(col)
-    n_bad = int(np.count_nonzero(bad))
-    if n_bad > 0.01 * len(col):
-        raise DataError(f"feature {name!r} is non-finite for {n_bad} of {len(col)} points")
-    return np.where(bad, np.float32(0.0), col) if n_bad else col

@@ -59,20 +59,15 @@ def gather_rows(a: np.ndarray, order: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _scatter_columns_kernel(values, order, columns, block):  # pragma: no cover - compiled
-    m = columns.shape[0]
+def _scatter_column_kernel(values, order, j, column):  # pragma: no cover - compiled
     for i in numba.prange(order.shape[0]):
-        row = order[i]
-        for c in range(m):
-            values[row, columns[c]] = block[c, i]
+        values[order[i], j] = column[i]
 
 
-def scatter_columns(values: np.ndarray, order: np.ndarray, columns: np.ndarray, block: np.ndarray) -> None:
-    """``values[order, columns[c]] = block[c]`` for every c, in place and in one pass over the rows (each row of
-    ``values`` written once, not once per column): values (N, F) float32, order (N,) int64 a permutation,
-    columns (C,) int64 column indices, block (C, N) float32."""
-    _scatter_columns_kernel(values, np.ascontiguousarray(order, np.int64), np.ascontiguousarray(columns, np.int64),
-                            np.ascontiguousarray(block, np.float32))  # fmt: skip
+def scatter_column(values: np.ndarray, order: np.ndarray, j: int, column: np.ndarray) -> None:
+    """``values[order, j] = column`` in place: values (N, F) float32, order (N,) int64 a permutation, column (N,)."""
+    _scatter_column_kernel(values, np.ascontiguousarray(order, np.int64), int(j),
+                           np.ascontiguousarray(column, np.float32))  # fmt: skip
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
