@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from core.errors import ConfigError
 from core.io.gaussian_ply import read_gaussian_ply
 from data_synth import generate_scene
 from hybridsplat.cli import main
@@ -129,6 +130,13 @@ def test_baseline_checkpoints_are_measured_as_products(project):
     product = metrics["baseline_20"]
     assert not product.get("skipped") and product["c2c"]["count"] == len(checkpoint)
     assert np.isfinite(product["images"]["full"]["psnr"]) and np.isfinite(product["images"]["masked"]["psnr"])
+
+
+def test_baseline_checkpoints_must_lie_inside_the_run():
+    for bad in ((0,), (100,), (50, 150)):
+        with pytest.raises(ConfigError, match="checkpoints"):
+            BaselineStageOptions(iterations=100, checkpoints=bad)
+    assert BaselineStageOptions(iterations=100, checkpoints=(1, 99)).checkpoints == (1, 99)
 
 
 def test_a_baseline_without_checkpoints_is_up_to_date_on_the_next_run(project, tmp_path):
