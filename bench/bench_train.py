@@ -84,15 +84,7 @@ def bench_speed(args: argparse.Namespace) -> None:
         view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat,
                          scene.K, width, height, width * height, None)  # fmt: skip
         modes = (False,)
-    tensors = {
-        "means": scene.means,
-        "quats": scene.quats,
-        "log_scales": scene.log_scales,
-        "logit_opacities": scene.logit_opacities,
-        "sh_dc": scene.sh_coeffs[:, :1],
-        "sh_rest": scene.sh_coeffs[:, 1:],
-    }
-    params = make_parameters(tensors)
+    params = make_parameters(scene.trainable)
     optimizer = make_optimizer(params, {k: 1e-4 for k in params})
     strategy = DefaultStrategy(cap=args.n)  # bookkeeping every step; no refinement before step 500
     state = strategy.initial_state(args.n)

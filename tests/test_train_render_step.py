@@ -16,18 +16,6 @@ from fusion.train.render import project_context, render_step
 from fusion.train.views import TrainView, active_tile_prefix, pixels_within_reach
 
 
-def _trainable(scene) -> dict[str, torch.Tensor]:
-    """The trainable tensors (fusion.train.params names) of a random scene."""
-    return {
-        "means": scene.means,
-        "quats": scene.quats,
-        "log_scales": scene.log_scales,
-        "logit_opacities": scene.logit_opacities,
-        "sh_dc": scene.sh_coeffs[:, :1],
-        "sh_rest": scene.sh_coeffs[:, 1:],
-    }
-
-
 def test_cpu_step_equals_reference_step() -> None:
     w, h = 80, 56
     scene = random_scene(1200, w, h, seed=3, sh_degree=2)
@@ -46,7 +34,7 @@ def test_cpu_step_equals_reference_step() -> None:
                      active_tile_prefix(mask))  # fmt: skip
     cache = project_context(context, view)
     assert cache is not None and 0 < len(cache) < len(context)
-    tensors = _trainable(scene)
+    tensors = scene.trainable
     weights = torch.rand(h, w, 3, generator=torch.Generator().manual_seed(1))
     out = {}
     for backend in ("reference", "cpu"):
@@ -76,7 +64,7 @@ def _masked_scene(w: int = 96, h: int = 64):
     view = TrainView("v", torch.rand(h, w, 3, generator=torch.Generator().manual_seed(2)), torch.from_numpy(mask),
                      torch.zeros((h, w), dtype=torch.bool), scene.viewmat, scene.K, w, h, int(mask.sum()),
                      active_tile_prefix(mask), pixels_within_reach(mask))  # fmt: skip
-    tensors = _trainable(scene)
+    tensors = scene.trainable
     return view, tensors, mask
 
 

@@ -33,6 +33,18 @@ class SplatScene:
         return self.means, self.quats, self.log_scales, self.logit_opacities, self.sh_coeffs
 
     @property
+    def trainable(self) -> dict[str, torch.Tensor]:
+        """The parameter tensors under the trainer's names (fusion.train.params), SH split into DC and rest."""
+        return {
+            "means": self.means,
+            "quats": self.quats,
+            "log_scales": self.log_scales,
+            "logit_opacities": self.logit_opacities,
+            "sh_dc": self.sh_coeffs[:, :1],
+            "sh_rest": self.sh_coeffs[:, 1:],
+        }
+
+    @property
     def camera(self) -> tuple[torch.Tensor, torch.Tensor, int, int]:
         return self.viewmat, self.K, self.width, self.height
 
