@@ -26,7 +26,10 @@ A mask pixel is set (255 in the PNG) where
   terrain; sky and backdrop do not. On tabletop_s1 / aerial_s1 (seed 1, never used for training), with the
   previous default model's classes and the 3-GSD radius, this growth raised the covered share of the
   truly-needs pixels from 0.71 / 0.76 to 0.92 / 0.90 at 10 % / 6 % of the rest (2.5 GSD: 0.93 / 0.915 at
-  12 % / 8 %; ``bench/bench_classify.py``, docs/classify.md);
+  12 % / 8 %; ``bench/bench_classify.py``, docs/classify.md). Pixels at infinity (no parallax between the
+  photo and its neighbours, :func:`at_infinity`: sky, a distant backdrop) outside what the cloud's points
+  enclose are no valid area and GrabCut's certain background; with such a backdrop in view, the area below the
+  envelope outside the hull keeps only what GrabCut puts with the scene;
 - a user mask (the pipeline's ``--splat-masks``) is set.
 
 The union is closed (fills gaps between footprints) and dilated (a safety margin for training). Held-out
@@ -79,7 +82,12 @@ class MaskOptions:
     under which a point's colour matches the photo (best of the 3×3 pixels around its projection; default 0.04)
     (see the module docstring). up: the world's up axis (default +z, data_synth and georeferenced projects).
     min_hole_px: holes smaller than this many pixels are ignored (default 4). min_points_hull: fewer projected
-    points than this in a view give no hull (default 20)."""
+    points than this in a view give no hull (default 20).
+    infinity: pixels that show no parallax between the photo and its neighbours (a backdrop or sky at infinity,
+    :func:`at_infinity`) and that the cloud's points do not enclose are no holes and seed GrabCut's certain
+    background; with a backdrop in view, the area below the envelope outside the hull keeps only what GrabCut
+    puts with the scene (default True; needs the photos). Figures in docs/classify.md.
+    """
 
     footprint: float = 1.5
     hole_footprint: float = 2.5
@@ -99,6 +107,7 @@ class MaskOptions:
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     min_hole_px: int = 4
     min_points_hull: int = 20
+    infinity: bool = True
 
     def __post_init__(self) -> None:
         if not (self.footprint > 0 and self.max_radius_px >= 1 and self.close_px >= 0 and self.dilate_px >= 0):
@@ -238,7 +247,12 @@ def _below_envelope(
 
 
 def _grow_area(
-    photo: np.ndarray, covered: np.ndarray, area: np.ndarray, iterations: int, max_px: int = 640
+    photo: np.ndarray,
+    covered: np.ndarray,
+    area: np.ndarray,
+    iterations: int,
+    max_px: int = 640,
+    background: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W) bool (the shape of ``covered``): the pixels that look like the reconstructed scene.
 
@@ -255,6 +269,8 @@ def _grow_area(
         img = cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA)
     gc = np.full((h, w), cv2.GC_PR_BGD, dtype=np.uint8)
     gc[area] = cv2.GC_PR_FGD
+    if background is not None:
+        gc[background] = cv2.GC_BGD
     gc[covered] = cv2.GC_FGD
     if (sh, sw) != (h, w):
         gc = cv2.resize(gc, (sw, sh), interpolation=cv2.INTER_NEAREST)
@@ -267,6 +283,73 @@ def _grow_area(
     if (sh, sw) != (h, w):
         scene = cv2.resize(scene, (w, h), interpolation=cv2.INTER_NEAREST)
     return scene.astype(bool)
+
+
+def at_infinity(
+    cameras: Cameras,
+    view: View,
+    photo: Callable[[str], np.ndarray],
+    sources: int = 4,
+    max_angle_deg: float = 45.0,
+    tolerance: float = 0.01,
+    window: int = 5,
+    max_px: int = 640,
+) -> np.ndarray:
+    """(H, W) bool: pixels of ``view`` whose colour shows no parallax: they lie at infinity (sky, a distant
+    backdrop), where multi-view stereo finds nothing and no splat is needed.
+
+    A direction seen from two camera positions maps between the photos by the cameras' rotation alone (the
+    "infinite homography") when it is at infinity; a finite surface moves by its parallax (baseline × focal /
+    depth pixels). Each of the ``sources`` nearest other cameras whose optical axis is within ``max_angle_deg``
+    is resampled along the same directions (``cv2.remap``); a pixel is at infinity when one of them agrees with
+    the photo there within ``tolerance`` (mean |ΔRGB| / 255 over a ``window`` × ``window`` box). One is enough:
+    finite objects hide different parts of a backdrop from each camera. A uniform finite region wider than its
+    parallax agrees too (a blank wall seen from close cameras), so callers apply this only outside the
+    reconstructed scene's outline. Runs at most ``max_px`` pixels on the long side. Hand-written: OpenCV warps by
+    a homography but has no parallax test over a block of cameras."""
+    cam = cameras.camera_of(view)
+    h, w = cam.height, cam.width
+    axis, centre = view.rotation[2], view.center  # optical axis: third row of the world-to-camera rotation
+    near = []
+    for other in cameras:
+        dist = float(np.linalg.norm(other.center - centre))
+        if (
+            other.image_id != view.image_id
+            and dist > 0
+            and axis @ other.rotation[2] >= np.cos(np.radians(max_angle_deg))
+        ):
+            near.append((dist, other.image_id, other))
+    chosen = [o for _, _, o in sorted(near, key=lambda c: c[:2])[:sources]]
+    scale = min(1.0, max_px / max(h, w))
+    sh, sw = max(1, round(h * scale)), max(1, round(w * scale))
+
+    def load(v: View) -> np.ndarray:
+        img = np.asarray(photo(v.name))
+        img = img if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
+        img = np.ascontiguousarray(img[..., :3], dtype=np.uint8)
+        return cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA) if img.shape[:2] != (sh, sw) else img
+
+    agree = np.zeros((sh, sw), dtype=bool)
+    if chosen:
+        ref = load(view).astype(np.float32)
+        rows, cols = np.mgrid[0:sh, 0:sw]
+        pix = np.c_[(cols.ravel() + 0.5) / scale, (rows.ravel() + 0.5) / scale]
+        dirs = cam.unproject(pix, 1.0) @ view.rotation  # world directions of the pixels' rays (d_w = Rᵀ d_c)
+    for other in chosen:
+        ocam = cameras.camera_of(other)
+        d_cam = dirs @ other.rotation.T
+        front = d_cam[:, 2] > 1e-6
+        uv = np.full((len(dirs), 2), -1e6)
+        uv[front] = ocam.project(d_cam[front])
+        ox = (uv[:, 0] * (sw / ocam.width) - 0.5).reshape(sh, sw).astype(np.float32)
+        oy = (uv[:, 1] * (sh / ocam.height) - 0.5).reshape(sh, sw).astype(np.float32)
+        inside = ((ox >= 0) & (oy >= 0) & (ox <= sw - 1) & (oy <= sh - 1)).astype(np.uint8)
+        warped = cv2.remap(load(other), ox, oy, cv2.INTER_LINEAR).astype(np.float32)
+        diff = cv2.blur(np.abs(warped - ref).mean(axis=2), (window, window)) / 255.0
+        agree |= cv2.erode(inside, np.ones((window, window), np.uint8)).astype(bool) & (diff < tolerance)
+    if (sh, sw) != (h, w):
+        agree = cv2.resize(agree.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return agree
 
 
 def ground_sample_distance(cameras: Cameras, positions: np.ndarray, names: list[str] | None = None) -> float:
@@ -335,6 +418,7 @@ def photo_mask(
             hole_radius = options.hole_gsd * g * fx / zz
         covered = draw(np.ones(len(idx), dtype=bool), hole_radius)
         area = np.zeros((h, w), dtype=bool)
+        hull_area = np.zeros((h, w), dtype=bool)
         if options.hole_area in ("below", "hull_below"):
             up = np.asarray(options.up, dtype=np.float64)
             area |= _below_envelope(cameras, view, positions[idx], covered, up)
@@ -342,12 +426,26 @@ def photo_mask(
             hull_img = np.zeros((h, w), dtype=np.uint8)
             hull = cv2.convexHull(np.c_[col, row].astype(np.float32))
             cv2.fillPoly(hull_img, [np.round(hull).astype(np.int32).reshape(-1, 2)], 1)
-            area |= hull_img.astype(bool)
+            hull_area = hull_img.astype(bool)
+            area |= hull_area
         if options.hole_area == "enclosed":
             area = ndimage.binary_fill_holes(covered)
-        if options.grow_area > 0 and seen is not None and seen.photo is not None:
-            photo = np.asarray(seen.photo(view.name))
-            area |= _grow_area(photo, covered, area, options.grow_area, options.grow_max_px)
+        photo = None if seen is None or seen.photo is None else seen.photo
+        # Backdrop at infinity, outside what the cloud's points enclose (a blank wall inside the scene is kept).
+        backdrop = np.zeros((h, w), dtype=bool)
+        if options.infinity and photo is not None and (area & ~covered).any():
+            backdrop = at_infinity(cameras, view, photo) & ~ndimage.binary_fill_holes(covered)
+        if options.grow_area > 0 and photo is not None:
+            grown = _grow_area(
+                np.asarray(photo(view.name)), covered, area, options.grow_area, options.grow_max_px, background=backdrop
+            )
+            if backdrop.any() and grown.any():
+                # With a backdrop in view, the area below the cloud's envelope is only a guess outside its hull:
+                # what GrabCut puts with the backdrop there is no hole.
+                area = hull_area | grown
+            else:
+                area |= grown
+        area &= ~backdrop
         if options.explained_by == "seen" and seen is not None:
             covered = draw(seen.explains(view, idx, col, row, (w, h), options.colour_tolerance), hole_radius)
         holes = area & ~covered

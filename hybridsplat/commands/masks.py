@@ -30,6 +30,9 @@ def register(app: typer.Typer) -> None:
         grow_area: int | None = typer.Option(
             None, help="GrabCut iterations growing the hole area by what looks like the scene (default 3; 0 off)."
         ),
+        infinity: bool | None = typer.Option(
+            None, "--infinity/--no-infinity", help="Pixels at infinity (no parallax: sky, backdrop) are no holes."
+        ),
         force: bool = typer.Option(False, "--force", help="Rerun even when up to date."),
     ) -> None:
         """Region masks per registered photo: non-collaborative points, MVS holes and user masks, united."""
@@ -45,5 +48,6 @@ def register(app: typer.Typer) -> None:
             "explained_by": explained_by,
             "hole_gsd": hole_gsd,
             "grow_area": grow_area,
+            "infinity": infinity,
         }
         run_project_stage(project, "masks", overrides, force=force)

@@ -29,6 +29,8 @@ class MasksStageOptions:
     holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
     explained_by: seen | all (seen): which points explain pixels when looking for holes.
     grow_area: GrabCut iterations growing the valid area by what looks like the reconstructed scene (3; 0 = off).
+    infinity: pixels at infinity (no parallax between neighbouring photos: sky, a distant backdrop) outside what
+    the cloud encloses are no holes (True).
     """
 
     footprint: float = 1.5
@@ -42,6 +44,7 @@ class MasksStageOptions:
     hole_area: str = "hull_below"
     explained_by: str = "seen"
     grow_area: int = 3
+    infinity: bool = True
 
     def mask_options(self) -> MaskOptions:
         return MaskOptions(
@@ -56,6 +59,7 @@ class MasksStageOptions:
             hole_area=self.hole_area,
             explained_by=self.explained_by,
             grow_area=self.grow_area,
+            infinity=self.infinity,
         )
 
     def __post_init__(self) -> None:
