@@ -3,9 +3,9 @@
 ``python bench/bench_pipeline.py [--quick] [--out bench_out/pipeline] [--seed 1] [--lpips-weights W.npz]``
 
 For each scene (data_synth ``demo`` = the tabletop at 24 + 4 views of 320×240, ``aerial`` reduced to the same
-size, and ``textured``: the demo tabletop with only collaborative materials, seen from farther) it runs the whole pipeline
-once with the baseline turned on (the *base* project), then sweeps the main knobs on copies of that project, so that
-every stage upstream of the changed one is reused from the copy (the runner finds it up to date):
+size, and ``textured``: the demo tabletop with only collaborative materials, seen from farther) it runs the whole
+pipeline once with the baseline turned on (the *base* project), then sweeps the main knobs on copies of that
+project, so that every stage upstream of the changed one is reused from the copy (the runner finds it up to date):
 
 - the training budget of the hybrid (``train.iterations``);
 - the MVS image size (``mvs.max_image_size``; without the baseline, which trains on the mvs stage's photos) and the
