@@ -246,6 +246,16 @@ def _below_envelope(
     return rr >= env[None, :] if rows_up else rr <= env[None, :]
 
 
+def _reduced_rgb(photo: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The photo ((h, w, 3) or (h, w), any size) as contiguous (H, W, 3) uint8 at ``size`` = (H, W) (area
+    averaging when it is resized)."""
+    img = photo if photo.ndim == 3 else np.repeat(photo[..., None], 3, axis=2)
+    img = np.ascontiguousarray(img[..., :3], dtype=np.uint8)
+    if img.shape[:2] != size:
+        img = cv2.resize(img, (size[1], size[0]), interpolation=cv2.INTER_AREA)
+    return img
+
+
 def _grow_area(
     photo: np.ndarray,
     covered: np.ndarray,
@@ -263,10 +273,7 @@ def _grow_area(
     h, w = covered.shape
     scale = min(1.0, max_px / max(h, w))
     sh, sw = max(1, round(h * scale)), max(1, round(w * scale))
-    img = photo if photo.ndim == 3 else np.repeat(photo[..., None], 3, axis=2)
-    img = np.ascontiguousarray(img[..., :3], dtype=np.uint8)
-    if img.shape[:2] != (sh, sw):
-        img = cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA)
+    img = _reduced_rgb(photo, (sh, sw))
     gc = np.full((h, w), cv2.GC_PR_BGD, dtype=np.uint8)
     gc[area] = cv2.GC_PR_FGD
     if background is not None:
@@ -324,10 +331,7 @@ def at_infinity(
     sh, sw = max(1, round(h * scale)), max(1, round(w * scale))
 
     def load(v: View) -> np.ndarray:
-        img = np.asarray(photo(v.name))
-        img = img if img.ndim == 3 else np.repeat(img[..., None], 3, axis=2)
-        img = np.ascontiguousarray(img[..., :3], dtype=np.uint8)
-        return cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA) if img.shape[:2] != (sh, sw) else img
+        return _reduced_rgb(np.asarray(photo(v.name)), (sh, sw))
 
     agree = np.zeros((sh, sw), dtype=bool)
     if chosen:
@@ -418,10 +422,12 @@ def photo_mask(
             hole_radius = options.hole_gsd * g * fx / zz
         covered = draw(np.ones(len(idx), dtype=bool), hole_radius)
         area = np.zeros((h, w), dtype=bool)
+        below = np.zeros((h, w), dtype=bool)
         hull_area = np.zeros((h, w), dtype=bool)
         if options.hole_area in ("below", "hull_below"):
             up = np.asarray(options.up, dtype=np.float64)
-            area |= _below_envelope(cameras, view, positions[idx], covered, up)
+            below = _below_envelope(cameras, view, positions[idx], covered, up)
+            area |= below
         if options.hole_area in ("hull", "hull_below") and len(idx) >= options.min_points_hull:
             hull_img = np.zeros((h, w), dtype=np.uint8)
             hull = cv2.convexHull(np.c_[col, row].astype(np.float32))
@@ -442,9 +448,8 @@ def photo_mask(
             if backdrop.any() and grown.any():
                 # With a backdrop in view, the area below the cloud's envelope is only a guess outside its hull:
                 # what GrabCut puts with the backdrop there is no hole.
-                area = hull_area | grown
-            else:
-                area |= grown
+                area &= ~(below & ~hull_area)
+            area |= grown
         area &= ~backdrop
         if options.explained_by == "seen" and seen is not None:
             covered = draw(seen.explains(view, idx, col, row, (w, h), options.colour_tolerance), hole_radius)
