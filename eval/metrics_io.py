@@ -178,6 +178,16 @@ def update_metrics(path: str | PathLike[str], name: str, product: ProductMetrics
     return write_json_atomic(path, payload)
 
 
+def record_product(path: str | PathLike[str], name: str, entry: Mapping[str, Any]) -> Path:
+    """Add or replace product ``name`` with an entry already in the file's layout (a stored measurement, see
+    :mod:`eval.cache`), checked like :func:`read_metrics` checks it; atomic."""
+    path = Path(path)
+    _check_product(entry, f"products.{name}", path)
+    payload = read_metrics(path) if path.exists() else {"schema": SCHEMA, "products": {}}
+    payload["products"][name] = dict(entry)
+    return write_json_atomic(path, payload)
+
+
 def read_metrics(path: str | PathLike[str]) -> dict[str, Any]:
     """Read a metrics file as plain JSON data, checked.
 

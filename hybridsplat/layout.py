@@ -216,6 +216,11 @@ class ProjectLayout:
         return self.eval_dir / "masks"
 
     @property
+    def eval_cache_dir(self) -> Path:
+        """Stored measurements of products by content (:mod:`eval.cache`); safe to delete."""
+        return self.root / "cache" / "eval"
+
+    @property
     def report_dir(self) -> Path:
         return self.root / "report"
 
@@ -267,6 +272,7 @@ class ProjectLayout:
             "eval/metrics.json": self.metrics_json,
             "eval/per_material.json": self.per_material_json,
             "eval/masks/": self.eval_masks_dir,
+            "cache/eval/": self.eval_cache_dir,
             "report/": self.report_dir,
             "logs/": self.logs_dir,
         }

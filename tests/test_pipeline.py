@@ -176,6 +176,40 @@ def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(pr
     assert "sfm" not in ran and "convert" in ran and "report" in ran
 
 
+def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_path):
+    from dataclasses import replace
+
+    from core.io.gaussian_ply import write_gaussian_ply
+    from hybridsplat.stages.evaluate import EvalStageOptions
+
+    _, project = project
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy)
+    layout = ProjectLayout(copy)
+    first = json.loads(layout.metrics_json.read_text())
+    measured = sorted(n for n, p in first["products"].items() if not p["skipped"])
+    assert {"mvs", "baseline", "baseline_20", "merged"} <= set(measured)
+
+    again = run_pipeline(copy, load_config(copy), force=["eval"]).stages["eval"]
+    assert again.counts["reused"] == len(measured)  # nothing changed: every measurement restored
+    assert json.loads(layout.metrics_json.read_text()) == first
+    for name in measured:  # with the files they name
+        for rel in first["products"][name]["c2c"]["files"].values():
+            assert (layout.eval_dir / rel).is_file(), rel
+
+    merged = read_gaussian_ply(layout.merged_ply)  # a changed product: the merged set loses half its Gaussians
+    write_gaussian_ply(layout.merged_ply, merged.subset(np.arange(len(merged) // 2)), extra_fields=True)
+    changed = run_pipeline(copy, load_config(copy)).stages["eval"]
+    assert not changed.cached and changed.counts["reused"] == len(measured) - 1
+    images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
+    assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
+
+    config = load_config(copy)
+    config = config.with_stage_options("eval", replace(config.options("eval", EvalStageOptions), cache=False))
+    off = run_pipeline(copy, config).stages["eval"]
+    assert not off.cached and "reused" not in off.counts
+
+
 def test_bad_input_leaves_no_project_behind(tmp_path, capsys):
     empty = tmp_path / "photos"
     empty.mkdir()

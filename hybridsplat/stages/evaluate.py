@@ -7,6 +7,8 @@ masks: the true non-collaborative materials of a data_synth scene.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,16 +27,27 @@ class EvalStageOptions:
     tau_m: the same threshold in metres (used when set, > 0; for real data with a LiDAR reference).
     reference: a reference cloud (PLY/LAS/LAZ/E57) for C2C; default: the input's own (a data_synth scene's LiDAR).
     lpips_weights: LPIPS v0.1 AlexNet weights (.npz); empty = $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips.
+    cache: reuse the stored measurement of a product whose files, evaluation inputs and evaluation code are
+    unchanged (``PROJECT/cache/eval/``, :mod:`eval.cache`): after a retraining only the new products are measured.
     """
 
     tau_gsd: float = 3.0
     tau_m: float = 0.0
     reference: str = ""
     lpips_weights: str = ""
+    cache: bool = True
 
     def __post_init__(self) -> None:
         if self.tau_gsd <= 0 or self.tau_m < 0:
             raise ConfigError(f"tau_gsd must be > 0 and tau_m >= 0, got {self.tau_gsd}, {self.tau_m}")
+
+
+@dataclass(frozen=True)
+class ProductSource:
+    """A product to measure: the files it is read from (its cache key) and how to load it as (cloud, Gaussians)."""
+
+    files: tuple[Path, ...]
+    load: Callable[[], tuple[Any, Any]]
 
 
 @dataclass(frozen=True)
@@ -84,8 +97,11 @@ class EvalStage(Stage):
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.json_io import write_json_atomic
+        from eval.cache import files_in
         from eval.evaluate import ImageInputs, evaluate_product
         from eval.geometry import GeometryOptions
+        from eval.metrics_io import read_metrics, record_product
+        from hybridsplat.manifest import hash_path
 
         opts: EvalStageOptions = ctx.options(self)
         layout, spec = ctx.layout, ctx.source.spec
@@ -100,15 +116,29 @@ class EvalStage(Stage):
             images = ImageInputs(cameras, views, held_out.photos, masks)
         lpips_model = _lpips_or_none(opts.lpips_weights or None)
         products = self._products(ctx)
+        cache = self._cache(ctx, reference, tau, images, lpips_model) if opts.cache else None
         counts: dict[str, Any] = {"lpips": lpips_model is not None, "views": len(images.views) if images else 0}
-        evaluated = {name: p for name, p in products.items() if not isinstance(p, str)}
-        for done, (name, product) in enumerate(products.items()):
+        measured: dict[str, tuple[Any, Any]] = {}
+        stored_tables: dict[str, Any] = {}
+        keys: dict[str, str] = {}
+        written: dict[str, list[str]] = {}
+        for done, (name, source) in enumerate(products.items()):
             ctx.progress("products", done, len(products))
-            if isinstance(product, str):
-                evaluate_product(layout.metrics_json, name, skip_reason=product)
+            if isinstance(source, str):
+                evaluate_product(layout.metrics_json, name, skip_reason=source)
                 continue
-            cloud, gaussians = product
-            result = evaluate_product(
+            if cache is not None:
+                keys[name] = cache.key(name, [hash_path(f) for f in source.files])
+                stored = cache.restore(keys[name], layout.eval_dir)
+                if stored is not None:
+                    record_product(layout.metrics_json, name, stored["metrics"])
+                    stored_tables[name] = stored["per_material"]
+                    counts["reused"] = counts.get("reused", 0) + 1
+                    _count(counts, name, stored["metrics"])
+                    continue
+            before = files_in(layout.eval_dir)
+            cloud, gaussians = source.load()
+            evaluate_product(
                 layout.metrics_json,
                 name,
                 cloud=cloud if reference is not None else None,
@@ -118,19 +148,43 @@ class EvalStage(Stage):
                 geometry=GeometryOptions(tau=tau),
                 lpips_model=lpips_model,
             )
-            if result.c2c is not None:
-                counts[f"{name}_c2c_mean_m"] = result.c2c.stats.mean
-            if result.images is not None:
-                counts[f"{name}_psnr"] = result.images.full.mean.psnr if result.images.full else None
+            after = files_in(layout.eval_dir)
+            written[name] = [r for r, t in after.items() if before.get(r) != t and r != layout.metrics_json.name]
+            measured[name] = (cloud, gaussians)
+            _count(counts, name, read_metrics(layout.metrics_json)["products"][name])
         ctx.progress("products", len(products), len(products))
-        per_material = self._per_material(ctx, evaluated, reference, tau, images)
+        per_material = self._per_material(ctx, measured, stored_tables, reference, tau, images)
         if per_material is not None:
             write_json_atomic(layout.per_material_json, per_material)
             counts["per_material"] = len(per_material["materials"])
+        if cache is not None:
+            entries = read_metrics(layout.metrics_json)["products"]
+            tables = per_material["products"] if per_material is not None else {}
+            for name in measured:
+                cache.store(keys[name], layout.eval_dir, written[name], entries[name], tables.get(name))
         return counts
 
-    def _products(self, ctx: StageContext) -> dict[str, tuple[Any, Any] | str]:
-        """name → (cloud, Gaussians) to measure, or the reason it is not measured (recorded as skipped).
+    def _cache(self, ctx: StageContext, reference: Path | None, tau: float | None, images: Any, lpips: Any) -> Any:
+        """The project's store of measurements, keyed by what every product's measurement depends on."""
+        from eval.cache import ProductCache
+        from hybridsplat.manifest import hash_path
+
+        opts: EvalStageOptions = ctx.options(self)
+        settings: dict[str, Any] = {
+            "tau": tau,
+            "reference": hash_path(reference) if reference is not None else None,
+            "lpips": [lpips is not None, opts.lpips_weights, os.environ.get("HYBRIDSPLAT_LPIPS_WEIGHTS", "")],
+        }
+        if images is not None:
+            settings["views"] = [[v.name, hash_path(Path(images.photos) / v.name)] for v in images.views]
+            settings["poses"] = [[v.quat_wxyz.tolist(), v.translation.tolist()] for v in images.views]
+            intrinsics = (images.cameras.camera_of(v) for v in images.views)
+            settings["intrinsics"] = [[c.model.name, c.width, c.height, c.params.tolist()] for c in intrinsics]
+            settings["masks"] = hash_path(images.masks) if images.masks is not None else None
+        return ProductCache(ctx.layout.eval_cache_dir, settings)
+
+    def _products(self, ctx: StageContext) -> dict[str, ProductSource | str]:
+        """name → the product to measure, or the reason it is not measured (recorded as skipped).
 
         The splats alone are measured for geometry only (their renders without the MVS context mean nothing). The
         baseline's checkpoints (splats/baseline_checkpoints/baseline_<step>.ply) are products ``baseline_<step>``.
@@ -139,28 +193,43 @@ class EvalStage(Stage):
         from fusion.export import gaussians_to_points
         from recon.workspace import read_fused
 
+        def splat_product(path: Path) -> ProductSource:
+            def load() -> tuple[Any, Any]:
+                gaussians = read_gaussian_ply(path)
+                return gaussians_to_points(gaussians), gaussians
+
+            return ProductSource((path,), load)
+
         layout = ctx.layout
-        products: dict[str, tuple[Any, Any] | str] = {
-            "mvs": (read_fused(layout.dense), read_gaussian_ply(layout.mvs_gaussians)),
+        products: dict[str, ProductSource | str] = {
+            "mvs": ProductSource(
+                (layout.fused_ply, layout.mvs_gaussians),
+                lambda: (read_fused(layout.dense), read_gaussian_ply(layout.mvs_gaussians)),
+            ),
         }
         if layout.baseline_splats.is_file():
-            baseline = read_gaussian_ply(layout.baseline_splats)
-            products["baseline"] = (gaussians_to_points(baseline), baseline)
+            products["baseline"] = splat_product(layout.baseline_splats)
         else:
             products["baseline"] = "not trained: the whole-scene baseline is off (run --baseline to compare with it)"
         if layout.baseline_checkpoints_dir.is_dir():
             for path in sorted(layout.baseline_checkpoints_dir.glob("baseline_*.ply")):
-                checkpoint = read_gaussian_ply(path)
-                products[f"baseline_{int(path.stem.split('_')[1])}"] = (gaussians_to_points(checkpoint), checkpoint)
+                products[f"baseline_{int(path.stem.split('_')[1])}"] = splat_product(path)
         if layout.splats_export.is_file():
-            products["splats"] = (gaussians_to_points(read_gaussian_ply(layout.splats_export)), None)
+            products["splats"] = ProductSource(
+                (layout.splats_export,), lambda: (gaussians_to_points(read_gaussian_ply(layout.splats_export)), None)
+            )
         else:
             products["splats"] = "no trained splats: the train stage was skipped or had nothing to train"
-        products["merged"] = (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply))
+        products["merged"] = ProductSource(
+            (layout.merged_points_ply, layout.merged_ply),
+            lambda: (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply)),
+        )
         return products
 
-    def _per_material(self, ctx: StageContext, products, reference, tau, images) -> dict[str, Any] | None:
-        """Accuracy, completeness and held-out PSNR per ground-truth material (data_synth scenes), or None."""
+    def _per_material(self, ctx: StageContext, products, stored, reference, tau, images) -> dict[str, Any] | None:
+        """Accuracy, completeness and held-out PSNR per ground-truth material (data_synth scenes), or None.
+
+        products: name → (cloud, Gaussians) measured now; stored: name → the table restored from the cache."""
         from core.io import read_point_cloud
         from eval.per_material import as_table, geometry_per_material, psnr_per_material
 
@@ -182,6 +251,9 @@ class EvalStage(Stage):
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
+        for name, table in stored.items():
+            if table is not None:
+                result["products"][name] = table
         mesh_points = _mesh_points(ctx.layout.mesh_path("ply"), tau)
         if mesh_points is not None:  # the mesh stage's product: geometry only, from points sampled on its surface
             geometry = geometry_per_material(mesh_points, ref.world_positions, ref.fields["material"], tau)
@@ -203,13 +275,22 @@ class EvalStage(Stage):
         return out
 
     def summary(self, counts: dict[str, Any]) -> str:
-        parts = []
+        parts = [f"{counts['reused']} unchanged product(s) reused"] if counts.get("reused") else []
         for name in ("mvs", "baseline", "merged"):
             if f"{name}_c2c_mean_m" in counts:
                 parts.append(f"{name} C2C mean {counts[f'{name}_c2c_mean_m']:.3g} m")
             if counts.get(f"{name}_psnr") is not None:
                 parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
         return ", ".join(parts)
+
+
+def _count(counts: dict[str, Any], name: str, entry: dict[str, Any]) -> None:
+    """The stage's headline figures of one product (C2C mean, whole-image PSNR) from its metrics entry."""
+    c2c, images = entry.get("c2c"), entry.get("images")
+    if c2c is not None:
+        counts[f"{name}_c2c_mean_m"] = c2c.get("mean")
+    if images is not None:
+        counts[f"{name}_psnr"] = (images.get("full") or {}).get("psnr")
 
 
 def _mesh_points(path: Path, tau: float, max_points: int = 2_000_000) -> np.ndarray | None:

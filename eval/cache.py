@@ -1,0 +1,108 @@
+"""Measurements of products by content, so that an evaluation re-measures only what changed.
+
+The eval stage measures every product each time it runs; after a retraining only the splats and the merged
+product are new, yet the MVS cloud, the whole-scene baseline and its checkpoints took most of the time (about
+two thirds of the stage on the benchmark's aerial scene). A product's measurement is a function of its files,
+the evaluation's inputs (reference cloud, held-out views and their masks, LPIPS weights, τ) and the evaluation
+code, so it is stored under the SHA-256 of all of these and restored when the key comes back.
+
+An entry ``ROOT/<key>/`` holds ``entry.json`` (the product's ``metrics.json`` entry and its per-material table)
+and ``files/``: what the measurement wrote into the eval folder (distance clouds, plots, render panels), under
+the same relative paths, which the entry's ``files`` fields name. Entries are written to a temporary folder and
+renamed, so an interrupted store leaves no half entry. The key covers the evaluation's source files
+(``eval/`` and the renderer ``fusion/render/``) and the library versions: a changed metric or renderer never
+restores an old figure.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import uuid
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from core.io.json_io import read_json, write_json_atomic
+
+ENTRY = "entry.json"
+
+
+def code_digest() -> str:
+    """SHA-256 of the evaluation's and the renderer's source files and of the library versions."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256(json.dumps(_versions(), sort_keys=True).encode())
+    for folder in (root / "eval", root / "fusion" / "render"):
+        for path in sorted(folder.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def _versions() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for name in ("numpy", "scipy", "torch", "numba", "open3d", "opencv-python-headless", "plyfile", "laspy"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "absent"
+    return out
+
+
+def files_in(folder: Path) -> dict[str, int]:
+    """Relative path → modification time (ns) of every file under ``folder`` (empty when it does not exist)."""
+    if not folder.is_dir():
+        return {}
+    return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+class ProductCache:
+    """Stored measurements under ``root``, keyed by :meth:`key`.
+
+    settings: what every product's measurement depends on besides its own files (hashes of the reference cloud,
+    held-out views, masks and weights; τ; the stage's options), JSON-serialisable."""
+
+    def __init__(self, root: Path, settings: Mapping[str, Any]) -> None:
+        self.root = Path(root)
+        self._salt = json.dumps({"settings": settings, "code": code_digest()}, sort_keys=True, default=str)
+
+    def key(self, name: str, file_hashes: Iterable[str]) -> str:
+        """The key of product ``name`` made of files with these content hashes (in a fixed order)."""
+        digest = hashlib.sha256(self._salt.encode())
+        digest.update(json.dumps([name, list(file_hashes)]).encode())
+        return digest.hexdigest()
+
+    def restore(self, key: str, eval_dir: Path) -> dict[str, Any] | None:
+        """Copy entry ``key``'s files into ``eval_dir`` and return its content ({"metrics": ..., "per_material":
+        ...}), or None when there is no complete entry."""
+        entry = self.root / key
+        if not (entry / ENTRY).is_file():
+            return None
+        content = read_json(entry / ENTRY)
+        stored = entry / "files"
+        for rel in content.get("files", []):
+            target = eval_dir / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(stored / rel, target)
+        return content
+
+    def store(
+        self, key: str, eval_dir: Path, written: Iterable[str], metrics: Mapping[str, Any], per_material: Any
+    ) -> None:
+        """Store a product's measurement: its metrics entry, its per-material table (or None) and the files it
+        wrote into ``eval_dir`` (paths relative to it)."""
+        entry = self.root / key
+        if (entry / ENTRY).is_file():
+            return
+        staging = self.root / f".{key}.{uuid.uuid4().hex}"
+        rels = sorted(written)
+        for rel in rels:
+            target = staging / "files" / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(eval_dir / rel, target)
+        write_json_atomic(staging / ENTRY, {"files": rels, "metrics": metrics, "per_material": per_material})
+        shutil.rmtree(entry, ignore_errors=True)
+        staging.rename(entry)
