@@ -7,7 +7,6 @@ masks: the true non-collaborative materials of a data_synth scene.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -167,15 +166,19 @@ class EvalStage(Stage):
     def _cache(self, ctx: StageContext, reference: Path | None, tau: float | None, images: Any, lpips: Any) -> Any:
         """The project's store of measurements, keyed by what every product's measurement depends on."""
         from eval.cache import ProductCache
+        from eval.lpips import find_weights
         from hybridsplat.manifest import hash_path
 
         opts: EvalStageOptions = ctx.options(self)
         settings: dict[str, Any] = {
             "tau": tau,
             "reference": hash_path(reference) if reference is not None else None,
-            "lpips": [lpips is not None, opts.lpips_weights, os.environ.get("HYBRIDSPLAT_LPIPS_WEIGHTS", "")],
+            "lpips": hash_path(find_weights(opts.lpips_weights or None)) if lpips is not None else None,
         }
         if images is not None:
+            from fusion.render.api import resolve_backend
+
+            settings["renderer"] = resolve_backend("auto").value  # gsplat on a GPU, the CPU rasteriser elsewhere
             settings["views"] = [[v.name, hash_path(Path(images.photos) / v.name)] for v in images.views]
             settings["poses"] = [[v.quat_wxyz.tolist(), v.translation.tolist()] for v in images.views]
             intrinsics = (images.cameras.camera_of(v) for v in images.views)
