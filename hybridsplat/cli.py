@@ -153,10 +153,31 @@ def run_cli(argv: list[str] | None = None) -> int:
         _error("out of memory (an input may declare far more data than it holds; run with --debug for details)")
         return EXIT_INTERNAL
     except Exception as err:
+        signalled = _signal_behind(err)
+        if signalled is not None:  # Ctrl-C or SIGTERM inside compiled code, reported by it as its own error
+            if isinstance(signalled, Terminated):
+                print("hybridsplat: terminated", file=sys.stderr)
+                return EXIT_TERMINATED
+            print("hybridsplat: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
         if debug:
             raise
         _error(f"internal error: {type(err).__name__}: {err} (run with --debug for the traceback)")
         return EXIT_INTERNAL
+
+
+def _signal_behind(err: BaseException) -> BaseException | None:
+    """The KeyboardInterrupt or :class:`Terminated` that caused ``err``, if any. A signal that arrives while a numba
+    kernel runs surfaces as ``SystemError: CPUDispatcher(...) returned a result with an exception set`` whose cause
+    is the KeyboardInterrupt."""
+    seen: set[int] = set()
+    link: BaseException | None = err
+    while link is not None and id(link) not in seen:
+        if isinstance(link, (KeyboardInterrupt, Terminated)):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
 
 
 def main(argv: list[str] | None = None) -> None:

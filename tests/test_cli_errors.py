@@ -322,3 +322,31 @@ def test_interrupt_and_terminate(tmp_path, sig, code, word) -> None:
     assert not out.exists()  # the pending output of the transaction was dropped
     assert (tmp_path / "out.txt.cleanup").read_text() == "finally ran"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt.cleanup"]  # no temporary file left
+
+
+_SIGNAL_IN_COMPILED_CODE = """
+from hybridsplat.cli import Terminated, app, main
+
+@app.command("compiled")
+def compiled(which: str) -> None:
+    # What numba's dispatcher raises when a signal's handler fires while a kernel runs
+    cause = KeyboardInterrupt() if which == "int" else Terminated()
+    raise SystemError("CPUDispatcher(<function _bin_kernel>) returned a result with an exception set") from cause
+
+main()
+"""
+
+
+@pytest.mark.parametrize(("which", "code", "word"), [("int", 130, "interrupted"), ("term", 143, "terminated")])
+def test_a_signal_reported_by_compiled_code_is_still_an_interruption(which, code, word) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run(
+        [sys.executable, "-c", _SIGNAL_IN_COMPILED_CODE, "compiled", which],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+    )
+    assert done.returncode == code, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == f"hybridsplat: {word}"
+    assert "internal error" not in done.stderr and "Traceback" not in done.stderr
