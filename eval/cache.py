@@ -24,6 +24,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from core.errors import HybridSplatError
 from core.io.json_io import read_json, write_json_atomic
 
 ENTRY = "entry.json"
@@ -81,12 +82,16 @@ class ProductCache:
         entry = self.root / key
         if not (entry / ENTRY).is_file():
             return None
-        content = read_json(entry / ENTRY)
-        stored = entry / "files"
-        for rel in content.get("files", []):
-            target = eval_dir / rel
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(stored / rel, target)
+        try:
+            content = read_json(entry / ENTRY)
+            if not (isinstance(content, dict) and {"files", "metrics", "per_material"} <= content.keys()):
+                return None
+            for rel in content["files"]:
+                target = eval_dir / rel
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(entry / "files" / rel, target)
+        except (HybridSplatError, OSError, TypeError):
+            return None  # a damaged entry (edited, truncated, files deleted) is measured again, then replaced
         return content
 
     def store(
@@ -95,8 +100,6 @@ class ProductCache:
         """Store a product's measurement: its metrics entry, its per-material table (or None) and the files it
         wrote into ``eval_dir`` (paths relative to it)."""
         entry = self.root / key
-        if (entry / ENTRY).is_file():
-            return
         staging = self.root / f".{key}.{uuid.uuid4().hex}"
         rels = sorted(written)
         for rel in rels:

@@ -70,3 +70,19 @@ def test_missing_or_interrupted_entries_are_not_restored(tmp_path):
     cache.store(key, eval_dir, ["c2c_mvs.ply"], {"skipped": False}, None)
     assert cache.restore(key, tmp_path / "fresh") == {"files": ["c2c_mvs.ply"], "metrics": {"skipped": False},
                                                       "per_material": None}  # fmt: skip
+
+
+def test_a_damaged_entry_is_measured_again_and_replaced(tmp_path):
+    eval_dir = _eval_dir(tmp_path)
+    cache = ProductCache(tmp_path / "cache", {})
+    key = cache.key("mvs", ["a"])
+    cache.store(key, eval_dir, ["c2c_mvs.ply"], {"skipped": False}, None)
+    entry = tmp_path / "cache" / key
+    (entry / "files" / "c2c_mvs.ply").unlink()  # a stored file deleted
+    assert cache.restore(key, tmp_path / "fresh") is None
+    (entry / ENTRY).write_text('{"files": [], "metr')  # truncated
+    assert cache.restore(key, tmp_path / "fresh") is None
+    (entry / ENTRY).write_text('{"files": []}')  # keys missing
+    assert cache.restore(key, tmp_path / "fresh") is None
+    cache.store(key, eval_dir, ["c2c_mvs.ply"], {"skipped": True}, None)  # the new measurement replaces it
+    assert cache.restore(key, tmp_path / "fresh")["metrics"] == {"skipped": True}
