@@ -10,8 +10,8 @@ An entry ``ROOT/<key>/`` holds ``entry.json`` (the product's ``metrics.json`` en
 and ``files/``: what the measurement wrote into the eval folder (distance clouds, plots, render panels), under
 the same relative paths, which the entry's ``files`` fields name. Entries are written to a temporary folder and
 renamed, so an interrupted store leaves no half entry. The key covers the evaluation's source files
-(``eval/`` and the renderer ``fusion/render/``) and the library versions: a changed metric or renderer never
-restores an old figure.
+(``eval/`` and the renderer ``fusion/render/``; the caller adds the library versions to the settings): a changed
+metric or renderer never restores an old figure.
 """
 
 from __future__ import annotations
@@ -31,26 +31,14 @@ ENTRY = "entry.json"
 
 
 def code_digest() -> str:
-    """SHA-256 of the evaluation's and the renderer's source files and of the library versions."""
+    """SHA-256 of the evaluation's and the renderer's source files."""
     root = Path(__file__).resolve().parents[1]
-    digest = hashlib.sha256(json.dumps(_versions(), sort_keys=True).encode())
+    digest = hashlib.sha256()
     for folder in (root / "eval", root / "fusion" / "render"):
         for path in sorted(folder.rglob("*.py")):
             digest.update(str(path.relative_to(root)).encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()
-
-
-def _versions() -> dict[str, str]:
-    from importlib.metadata import PackageNotFoundError, version
-
-    out = {}
-    for name in ("numpy", "scipy", "torch", "numba", "open3d", "opencv-python-headless", "plyfile", "laspy"):
-        try:
-            out[name] = version(name)
-        except PackageNotFoundError:
-            out[name] = "absent"
-    return out
 
 
 def files_in(folder: Path) -> dict[str, int]:
@@ -63,8 +51,8 @@ def files_in(folder: Path) -> dict[str, int]:
 class ProductCache:
     """Stored measurements under ``root``, keyed by :meth:`key`.
 
-    settings: what every product's measurement depends on besides its own files (hashes of the reference cloud,
-    held-out views, masks and weights; τ; the stage's options), JSON-serialisable."""
+    settings: what every product's measurement depends on besides its own files and the evaluation's code (hashes
+    of the reference cloud, held-out views, masks and weights; τ; library versions), JSON-serialisable."""
 
     def __init__(self, root: Path, settings: Mapping[str, Any]) -> None:
         self.root = Path(root)

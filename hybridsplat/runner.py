@@ -41,7 +41,8 @@ def run_stage(
         _remove(outputs)  # outputs of an earlier run that no longer applies are stale
         record = StageRecord(name=stage.name, skipped=True, reason=reason, config=config)
         return manifest.record(record)
-    inputs = {manifest.relative(p): hash_path(p) for p in stage.inputs(ctx)}
+    hashes = {Path(p): hash_path(p) for p in stage.inputs(ctx)}
+    inputs = {manifest.relative(p): h for p, h in hashes.items()}
     previous = manifest.stages.get(stage.name)
     if not force and previous is not None and previous.is_current(inputs, config, manifest.project):
         return manifest.mark_cached(stage.name)
@@ -49,7 +50,7 @@ def run_stage(
     _remove(outputs)
     try:
         with terminal.stage(stage.name, ctx.layout.log(stage.name)) as progress, PeakMemory() as memory:
-            ctx.progress = progress
+            ctx.progress, ctx.input_hashes = progress, hashes
             start = time.perf_counter()
             counts = stage.run(ctx)
             seconds = time.perf_counter() - start
@@ -57,7 +58,7 @@ def run_stage(
         _remove(outputs)
         raise
     finally:
-        ctx.progress = StageContext.progress
+        ctx.progress, ctx.input_hashes = StageContext.progress, {}
     record = StageRecord(
         name=stage.name,
         seconds=round(seconds, 4),

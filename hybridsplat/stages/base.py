@@ -34,15 +34,24 @@ def _no_progress(label: str, done: int, total: int) -> None:
 
 @dataclass
 class StageContext:
-    """Everything a stage may use: the project layout, the configuration, the input, a progress callback."""
+    """Everything a stage may use: the project layout, the configuration, the input, a progress callback, and
+    (while it runs) the content hashes the runner took of its ``inputs``."""
 
     layout: ProjectLayout
     config: ProjectConfig
     source: Source
     progress: ProgressCallback = field(default=_no_progress)
+    input_hashes: dict[Path, str] = field(default_factory=dict)
 
     def options(self, stage: Stage) -> Any:
         return self.config.options(stage.name, stage.Options)
+
+    def content_hash(self, path: Path) -> str:
+        """SHA-256 of a file or folder (``hybridsplat.manifest.hash_path``), the runner's when it hashed it already."""
+        from hybridsplat.manifest import hash_path
+
+        known = self.input_hashes.get(Path(path))
+        return known if known is not None else hash_path(path)
 
 
 class Stage:

@@ -100,7 +100,6 @@ class EvalStage(Stage):
         from eval.evaluate import ImageInputs, evaluate_product
         from eval.geometry import GeometryOptions
         from eval.metrics_io import read_metrics, record_product
-        from hybridsplat.manifest import hash_path
 
         opts: EvalStageOptions = ctx.options(self)
         layout, spec = ctx.layout, ctx.source.spec
@@ -127,7 +126,7 @@ class EvalStage(Stage):
                 evaluate_product(layout.metrics_json, name, skip_reason=source)
                 continue
             if cache is not None:
-                keys[name] = cache.key(name, [hash_path(f) for f in source.files])
+                keys[name] = cache.key(name, [ctx.content_hash(f) for f in source.files])
                 stored = cache.restore(keys[name], layout.eval_dir)
                 if stored is not None:
                     record_product(layout.metrics_json, name, stored["metrics"])
@@ -137,7 +136,7 @@ class EvalStage(Stage):
                     continue
             before = files_in(layout.eval_dir)
             cloud, gaussians = source.load()
-            evaluate_product(
+            result = evaluate_product(
                 layout.metrics_json,
                 name,
                 cloud=cloud if reference is not None else None,
@@ -150,7 +149,7 @@ class EvalStage(Stage):
             after = files_in(layout.eval_dir)
             written[name] = [r for r, t in after.items() if before.get(r) != t and r != layout.metrics_json.name]
             measured[name] = (cloud, gaussians)
-            _count(counts, name, read_metrics(layout.metrics_json)["products"][name])
+            _count(counts, name, result.as_dict())
         ctx.progress("products", len(products), len(products))
         per_material = self._per_material(ctx, measured, stored_tables, reference, tau, images)
         if per_material is not None:
@@ -167,13 +166,14 @@ class EvalStage(Stage):
         """The project's store of measurements, keyed by what every product's measurement depends on."""
         from eval.cache import ProductCache
         from eval.lpips import find_weights
-        from hybridsplat.manifest import hash_path
+        from hybridsplat.manifest import hash_path, package_versions
 
         opts: EvalStageOptions = ctx.options(self)
         settings: dict[str, Any] = {
             "tau": tau,
-            "reference": hash_path(reference) if reference is not None else None,
+            "reference": ctx.content_hash(reference) if reference is not None else None,
             "lpips": hash_path(find_weights(opts.lpips_weights or None)) if lpips is not None else None,
+            "versions": package_versions(),
         }
         if images is not None:
             from fusion.render.api import resolve_backend
