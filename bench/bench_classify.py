@@ -1,19 +1,21 @@
 """Classification benchmark: quality on data_synth scenes and throughput on a 1-million-point cloud.
 
 Quality (``--part score``): models trained on the TRAINING scenes (default: those of the shipped default model,
-``scripts/train_default_classifier.py``, TRAINING_SCENES) are scored on SCORING scenes made with another seed
-(default 1):
+``classify.training.DEFAULT_TRAINING_SCENES``, made by ``scripts/train_default_classifier.py``) with its recipe
+(``classify.training.train_on_scenes``) are scored on SCORING scenes made with another seed (default 1):
 binary needs-splats F1, recall per material kind, mask coverage of the pixels that truly need splats and of
 the rest, a feature ablation (geometric / + radiometric / + multi-view), cross-scene generalisation
-(tabletop → aerial and back) and the no-model fallback. Scenes are reduced (24 views at 320×240) and
-reconstructed beforehand with the scene's known cameras; each folder holds ``scene/`` (``hybridsplat synth``)
-and ``proj/`` (``hybridsplat sfm`` + ``hybridsplat mvs``)::
+(tabletop → aerial and back) and the no-model fallback. Each scene folder ``D/<preset>_s<seed>`` holds ``scene/``
+(``hybridsplat synth``) and ``proj/`` (``hybridsplat sfm`` with the scene's known cameras + ``hybridsplat mvs``),
+made beforehand: the training scenes by the script (with their own sizes), the scoring scenes reduced to 24
+views at 320×240 (docs/classify.md, "Scores of the shipped model")::
 
-    for s in 7 1; do for p in tabletop aerial; do
-      hybridsplat synth --preset $p --seed $s --views 24 --test-views 2 --width 320 --height 240 --out D/${p}_s$s/scene
-      hybridsplat sfm D/${p}_s$s/scene --out D/${p}_s$s/proj && hybridsplat mvs D/${p}_s$s/proj
-    done; done
-    python bench/bench_classify.py --part score --data D
+    python scripts/train_default_classifier.py --data D --out D/default.skops
+    for p in tabletop aerial textured; do
+      hybridsplat synth --preset $p --seed 1 --views 24 --test-views 2 --width 320 --height 240 --out D/${p}_s1/scene
+      hybridsplat sfm D/${p}_s1/scene --out D/${p}_s1/proj && hybridsplat mvs D/${p}_s1/proj --threads 1
+    done
+    python bench/bench_classify.py --part score --data D --mask-scenes textured_s1
 
 Throughput (``--part speed``): geometric + radiometric features + prediction on 1 M points (file I/O
 excluded) with the numba kernel, the numpy twin, pgeof and jakteristics side by side; multi-view features
@@ -28,27 +30,23 @@ import json
 import os
 import resource
 import subprocess
-import sys
 import time
 import tracemalloc
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-
-from train_default_classifier import TRAINING_SCENES  # noqa: E402
-
-from classify.classes import UNLABELLED, load_classes  # noqa: E402
-from classify.fallback import fallback_predict  # noqa: E402
-from classify.features import FeatureGroup, FeatureOptions, FeatureTable  # noqa: E402
-from classify.masks import MaskOptions, SeenInView, region_masks  # noqa: E402
-from classify.model import ForestOptions, predict, scores, train  # noqa: E402
-from classify.scoring import distance_to_cloud, pixel_truth  # noqa: E402
-from classify.synthetic import SceneData, load_scene_data, stack_scenes  # noqa: E402
+from classify.classes import UNLABELLED, load_classes
+from classify.fallback import fallback_predict
+from classify.features import FeatureGroup, FeatureOptions, FeatureTable
+from classify.masks import MaskOptions, SeenInView, region_masks
+from classify.model import ForestOptions, predict, scores, train
+from classify.scoring import distance_to_cloud, pixel_truth
+from classify.synthetic import SceneData, load_scene_data
+from classify.training import DEFAULT_TRAINING_SCENES, train_on_scenes
+from hybridsplat.layout import ProjectLayout
+from recon.workspace import DenseWorkspace
 
 GEO = (FeatureGroup.GEOMETRIC,)
 GEO_RAD = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC)
@@ -56,23 +54,10 @@ ALL = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
 
 
 def load(root: Path, name: str, classes) -> SceneData:
+    """The scene ``root/name/scene``, its reconstruction ``root/name/proj`` and cached features."""
     d = root / name
-    return load_scene_data(d / "scene", d / "proj" / "dense", classes, FeatureOptions(), cache=d / "features.npz")
-
-
-def stack(datas: list[SceneData], groups, by_scene: bool) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
-    """Features of the groups, truth codes and training groups (scenes or spatial blocks) of stacked scenes."""
-    return stack_scenes(datas, FeatureOptions(groups=groups).selected(), by_scene)
-
-
-def fit(datas, groups, classes, forest: ForestOptions = ForestOptions(), by_scene: bool = True):
-    """A forest on the stacked scenes; by_scene: out-of-fold predictions (threshold, report) leave one scene out
-    (when there are at least two scenes), else spatial blocks."""
-    by_scene = by_scene and len(datas) >= 2
-    table, codes, blocks = stack(datas, groups, by_scene)
-    if by_scene:
-        forest = replace(forest, folds=len(datas))
-    return train(table, codes, classes, FeatureOptions(groups=groups), forest, groups=blocks)
+    dense = ProjectLayout(d / "proj").dense
+    return load_scene_data(d / "scene", dense, classes, FeatureOptions(), cache=d / "features.npz")
 
 
 def point_scores(model, data: SceneData, classes) -> dict:
@@ -102,12 +87,12 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
     from core.io.images import read_image
 
     scene = data.scene
-    cams, _ = read_model(data.dense / "sparse")
+    workspace = DenseWorkspace(data.dense)
+    cams, _ = read_model(workspace.sparse)
     spacing = data.table.spacing
     tau = 3.0 * scene.gsd_m
     collab = {m.id for m in scene.materials if m.collaborative}
-    images = data.dense / "images"
-    seen = SeenInView(data.cloud.visibility, data.cloud.colors, lambda name: read_image(images / name))
+    seen = SeenInView(data.cloud.visibility, data.cloud.colors, lambda name: read_image(workspace.images / name))
     masks = region_masks(cams, data.cloud.positions, needs, spacing, options, seen=seen)
     tree = cKDTree(data.cloud.positions)
     tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
@@ -174,7 +159,8 @@ def part_score(args) -> dict:
     for label, (datas, groups, forest) in experiments.items():
         if args.only and not any(o in label for o in args.only):
             continue
-        model, report = fit(datas, groups, classes, forest, by_scene=not args.block_folds)
+        opts = FeatureOptions(groups=groups)
+        model, report = train_on_scenes(datas, classes, opts, forest, by_scene=not args.block_folds)
         if label.startswith("all features ("):
             main_model = model
         res = {"held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"]}
@@ -319,8 +305,9 @@ def multiview_speed(proj: Path, n: int, threads: int) -> dict:
     from classify.features.multiview import multiview_features
     from recon.workspace import read_fused
 
-    cloud = read_fused(proj / "dense")
-    views = views_from_workspace(proj / "dense")
+    dense = ProjectLayout(proj).dense
+    cloud = read_fused(dense)
+    views = views_from_workspace(dense)
     reps = int(np.ceil(n / len(cloud)))
     rng = np.random.default_rng(0)
     pts = np.tile(cloud.positions, (reps, 1))[:n] + rng.normal(0, 1e-4, (reps * len(cloud), 3))[:n]
@@ -341,7 +328,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", choices=("score", "speed", "all"), default="all")
     ap.add_argument("--data", default="/work/data_classify")
-    ap.add_argument("--train", nargs="+", default=[f"{p}_s{s}" for p, s, _ in TRAINING_SCENES])
+    ap.add_argument("--train", nargs="+", default=[s.name for s in DEFAULT_TRAINING_SCENES])
     ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
     ap.add_argument("--mask-scenes", nargs="*", default=[], help="scenes scored for their masks only (textured_s1)")
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")

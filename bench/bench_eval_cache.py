@@ -8,8 +8,9 @@ PROJECT is a finished project with the baseline (e.g. a ``bench/bench_pipeline.p
 1. eval forced, cache off: what every re-evaluation cost before the store (all products measured);
 2. eval forced, cache on and empty: the same work plus hashing and storing (the overhead);
 3. eval forced again: every product restored;
-4. a retraining (``train.iterations`` = ``--iterations``): train, clean, merge and eval rerun; eval measures only
-   the products that changed (splats, merged) — the benchmark's knob sweeps do exactly this on copies of a base;
+4. a retraining (``train.training.iterations`` = ``--iterations``): train, clean, merge and eval rerun; eval
+   measures only the products that changed (splats, merged) — the benchmark's knob sweeps do exactly this on copies
+   of a base;
 5. the same state, eval forced with the cache off: the figure step 4 replaces. The two metrics files must agree.
 
 Prints each step's eval time, products measured / restored, the ratio to the no-cache figure and the machine load.
@@ -30,18 +31,26 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybridsplat.layout import ProjectLayout  # noqa: E402
-from hybridsplat.pipeline import STAGE_OPTIONS, load_config, run_pipeline  # noqa: E402
+from hybridsplat.options import with_option  # noqa: E402
+from hybridsplat.pipeline import load_config, run_pipeline  # noqa: E402
+from hybridsplat.stages import stage_options_types  # noqa: E402
 
 
 def _load() -> str:
     return "load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
 
 
-def _eval(project: Path, cache: bool, force: bool = True, **train: int) -> dict:
+def _eval(project: Path, cache: bool, force: bool = True, train: dict[str, object] | None = None) -> dict:
+    """Run the pipeline on ``project`` with the eval stage's cache on or off (eval forced unless ``force`` is
+    False) and the train stage's options changed by ``train`` ({option path: value}, e.g. training.iterations)."""
     config = load_config(project)
-    config = config.with_stage_options("eval", replace(config.options("eval", STAGE_OPTIONS["eval"]), cache=cache))
+    eval_options = config.options("eval", stage_options_types()["eval"])
+    config = config.with_stage_options("eval", replace(eval_options, cache=cache))
     if train:
-        config = config.with_stage_options("train", replace(config.options("train", STAGE_OPTIONS["train"]), **train))
+        options = config.options("train", stage_options_types()["train"])
+        for key, value in train.items():
+            options = with_option(options, key, value)
+        config = config.with_stage_options("train", options)
     stages = run_pipeline(project, config, force=["eval"] if force else ()).stages
     record = stages["eval"]
     metrics = json.loads(ProjectLayout(project).metrics_json.read_text())["products"]
@@ -69,7 +78,8 @@ def main() -> None:
     rows.append(("1. every product, cache off", _eval(copy, cache=False)))
     rows.append(("2. every product, empty cache (stores)", _eval(copy, cache=True)))
     rows.append(("3. nothing changed (restores)", _eval(copy, cache=True)))
-    rows.append(("4. after a retraining, cache on", _eval(copy, cache=True, force=False, iterations=args.iterations)))
+    retrain = {"training.iterations": args.iterations}
+    rows.append(("4. after a retraining, cache on", _eval(copy, cache=True, force=False, train=retrain)))
     rows.append(("5. same state, cache off", _eval(copy, cache=False)))
     same = rows[3][1]["metrics"] == rows[4][1]["metrics"]
     reference = rows[0][1]["seconds"]

@@ -290,34 +290,18 @@ def screenshot(project: Path, truth: Truth, sfm: Cameras, path: Path, exaggerati
         app.stop()
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scene", type=Path, required=True)
-    ap.add_argument("--project", type=Path, required=True)
-    ap.add_argument("--points", type=int, default=20)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
-    ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
-    ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
-    ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
-    args = ap.parse_args(argv)
+def _picks(cams: Cameras, pixels: dict[str, np.ndarray]) -> list[Pick]:
+    """One pick (σ = ``SIGMA_PX``) per image name → pixel, with the camera and view of ``cams``."""
+    return [Pick(cams.camera_of(cams.by_name(n)), cams.by_name(n), px, SIGMA_PX) for n, px in pixels.items()]
 
-    t0 = time.perf_counter()
-    true_cams, _ = read_model(args.scene / "sparse" / "0")
-    sfm, _ = read_model(ProjectLayout(args.project).sparse)
-    sfm_names = {v.name for v in sfm}
-    truths = sample_truth(args.scene, true_cams, sfm_names, args.points, args.seed)
-    rng = np.random.default_rng(args.seed + 1)
-    noisy = [{n: true_pixel(true_cams, n, t.xyz) + rng.normal(0.0, SIGMA_PX, 2) for n in t.images} for t in truths]
 
-    def picks(cams: Cameras, pixels: dict[str, np.ndarray]) -> list[Pick]:
-        return [Pick(cams.camera_of(cams.by_name(n)), cams.by_name(n), px, SIGMA_PX) for n, px in pixels.items()]
-
-    a0 = [measure(picks(true_cams, px), f"T{i}") for i, px in enumerate(noisy)]
-    a = [measure(picks(sfm, px), f"T{i}") for i, px in enumerate(noisy)]
-
-    renders = render_views(args.project, sfm, {n for t in truths for n in t.images})
-    photos = {n: _gray(args.scene / "images" / n) for n in renders}
+def _refine_in_renders(
+    scene: Path, project: Path, sfm: Cameras, true_cams: Cameras, truths: list[Truth], noisy: list[dict]
+) -> tuple[list[MeasuredPoint | None], list[np.ndarray]]:
+    """Method (b): per truth, the picks found by patch matching in the merged product rendered at the SfM cameras,
+    triangulated (None with fewer than 2 picks); and every pick's error against the true projection (pixels)."""
+    renders = render_views(project, sfm, {n for t in truths for n in t.images})
+    photos = {n: _gray(scene / "images" / n) for n in renders}
     refined, pick_err = [], []
     for i, t in enumerate(truths):
         pixels = {}
@@ -330,7 +314,36 @@ def main(argv: list[str] | None = None) -> None:
             # The render is the pinhole part of the SfM camera: back to its (distorted) pixel coordinates.
             pixels[n] = cam.distort_pixels(found[None])[0] if cam.model.has_distortion else found
             pick_err.append(pixels[n] - true_pixel(true_cams, n, t.xyz))
-        refined.append(measure(picks(sfm, pixels), f"T{i}") if len(pixels) >= 2 else None)
+        refined.append(measure(_picks(sfm, pixels), f"T{i}") if len(pixels) >= 2 else None)
+    return refined, pick_err
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scene", type=Path, required=True)
+    ap.add_argument("--project", type=Path, required=True)
+    ap.add_argument("--points", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
+    ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
+    ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
+    ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
+    return ap.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _parse_args(argv)
+    t0 = time.perf_counter()
+    true_cams, _ = read_model(args.scene / "sparse" / "0")
+    sfm, _ = read_model(ProjectLayout(args.project).sparse)
+    sfm_names = {v.name for v in sfm}
+    truths = sample_truth(args.scene, true_cams, sfm_names, args.points, args.seed)
+    rng = np.random.default_rng(args.seed + 1)
+    noisy = [{n: true_pixel(true_cams, n, t.xyz) + rng.normal(0.0, SIGMA_PX, 2) for n in t.images} for t in truths]
+
+    a0 = [measure(_picks(true_cams, px), f"T{i}") for i, px in enumerate(noisy)]
+    a = [measure(_picks(sfm, px), f"T{i}") for i, px in enumerate(noisy)]
+    refined, pick_err = _refine_in_renders(args.scene, args.project, sfm, true_cams, truths, noisy)
 
     meta = json.loads((args.scene / "scene.json").read_text())
     gsd_mm = 1000 * float(meta.get("gsd_m") or float("nan"))
@@ -341,16 +354,7 @@ def main(argv: list[str] | None = None) -> None:
     ]
     pick_norm = np.linalg.norm(np.asarray(pick_err), axis=1) if pick_err else np.full(1, np.nan)
     pick_rms = float(np.sqrt(np.mean(pick_norm**2)))
-    print(f"scene {args.scene} ({meta.get('preset')}), project {args.project}; GSD {gsd_mm:.3f} mm")
-    print(f"{len(truths)} points, views per point: {[len(t.images) for t in truths]}")
-    print(f"{'method':<34} {'n':>3}  {'RMSE mm':>8}  {'(x, y, z) mm':^22}  {'median':>7} {'max':>7}  {'in 95%':>8}  "
-          f"{'σ3D mm':>7}  {'σ0':>6}")  # fmt: skip
-    for r in rows:
-        print(r.line())
-    print(
-        f"(b) pick error against the true projection: RMS {pick_rms:.3f} px, median {np.median(pick_norm):.3f} px, "
-        f"> 2 px: {100 * np.mean(pick_norm > 2):.0f} % (over {len(pick_err)} picks)"
-    )
+    _print_table(args, meta, gsd_mm, truths, rows, pick_norm, pick_rms, len(pick_err))
     print(f"total {time.perf_counter() - t0:.1f} s")
     if args.out:
         args.out.write_text(
@@ -367,25 +371,55 @@ def main(argv: list[str] | None = None) -> None:
             )
         )
     if args.picks_out:
-        from eval.measure.picks import ImagePick, PicksFile, PointPicks, write_picks
-
-        points = tuple(
-            PointPicks(f"T{i}", tuple(ImagePick(n, float(px[0]), float(px[1]), SIGMA_PX) for n, px in p.items()))
-            for i, p in enumerate(noisy)
-        )
-        write_picks(args.picks_out, PicksFile(points, tuple((f"T{i}", f"T{i + 1}") for i in range(len(points) - 1))))
-        print(f"wrote {args.picks_out}: run `hybridsplat measure {args.picks_out} --project {args.project}`")
+        _write_picks(args.picks_out, noisy, args.project)
     if args.screenshot:
-        # The point whose first two projections are the most central (clear of notifications at the corners).
-        def off_centre(t: Truth) -> float:
-            worst = 0.0
-            for n in t.images[:2]:
-                cam = true_cams.camera_of(true_cams.by_name(n))
-                u, v = true_pixel(true_cams, n, t.xyz)
-                worst = max(worst, abs(u / cam.width - 0.5), abs(v / cam.height - 0.5))
-            return worst
+        truth = min(truths, key=lambda t: _off_centre(true_cams, t))
+        screenshot(args.project, truth, sfm, args.screenshot, args.exaggeration)
 
-        screenshot(args.project, min(truths, key=off_centre), sfm, args.screenshot, args.exaggeration)
+
+def _print_table(
+    args: argparse.Namespace,
+    meta: dict,
+    gsd_mm: float,
+    truths: list[Truth],
+    rows: list[Summary],
+    pick_norm: np.ndarray,
+    pick_rms: float,
+    n_picks: int,
+) -> None:
+    print(f"scene {args.scene} ({meta.get('preset')}), project {args.project}; GSD {gsd_mm:.3f} mm")
+    print(f"{len(truths)} points, views per point: {[len(t.images) for t in truths]}")
+    print(f"{'method':<34} {'n':>3}  {'RMSE mm':>8}  {'(x, y, z) mm':^22}  {'median':>7} {'max':>7}  {'in 95%':>8}  "
+          f"{'σ3D mm':>7}  {'σ0':>6}")  # fmt: skip
+    for r in rows:
+        print(r.line())
+    print(
+        f"(b) pick error against the true projection: RMS {pick_rms:.3f} px, median {np.median(pick_norm):.3f} px, "
+        f"> 2 px: {100 * np.mean(pick_norm > 2):.0f} % (over {n_picks} picks)"
+    )
+
+
+def _write_picks(path: Path, noisy: list[dict], project: Path) -> None:
+    """The (a) picks as a PICKS.json for ``hybridsplat measure`` (consecutive points paired as distances)."""
+    from eval.measure.picks import ImagePick, PicksFile, PointPicks, write_picks
+
+    points = tuple(
+        PointPicks(f"T{i}", tuple(ImagePick(n, float(px[0]), float(px[1]), SIGMA_PX) for n, px in p.items()))
+        for i, p in enumerate(noisy)
+    )
+    write_picks(path, PicksFile(points, tuple((f"T{i}", f"T{i + 1}") for i in range(len(points) - 1))))
+    print(f"wrote {path}: run `hybridsplat measure {path} --project {project}`")
+
+
+def _off_centre(true_cams: Cameras, t: Truth) -> float:
+    """How far from the image centre (share of the image size) the first two projections of ``t`` are, at worst:
+    the screenshot measures the most central point (clear of notifications at the corners)."""
+    worst = 0.0
+    for n in t.images[:2]:
+        cam = true_cams.camera_of(true_cams.by_name(n))
+        u, v = true_pixel(true_cams, n, t.xyz)
+        worst = max(worst, abs(u / cam.width - 0.5), abs(v / cam.height - 0.5))
+    return worst
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from core.cameras import Cameras  # noqa: E402
 from core.gaussians import GaussianSet  # noqa: E402
 from core.io.colmap import read_model  # noqa: E402
 from core.io.gaussian_ply import read_gaussian_ply  # noqa: E402
@@ -59,6 +60,8 @@ from fusion.mesh import (  # noqa: E402
     mesh_from_gaussians,
     mesh_quality,
 )
+from hybridsplat.layout import ProjectLayout  # noqa: E402
+from hybridsplat.project_io import read_project_model  # noqa: E402
 
 
 def load() -> str:
@@ -67,19 +70,28 @@ def load() -> str:
 
 # -- inputs ------------------------------------------------------------------------------------------------------
 def load_merged(project: Path) -> GaussianSet:
-    """export/merged.ply with its ``source`` field (from export/merged_points.ply when the PLY has none)."""
+    """The merge stage's Gaussians with their ``source`` field, read as the mesh stage reads them."""
     from hybridsplat.stages.mesh import load_merged_with_source
 
-    return load_merged_with_source(project / "export" / "merged.ply", project / "export" / "merged_points.ply")
+    layout = ProjectLayout(project)
+    return load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
 
 
 def load_snapshots(project: Path) -> list[GaussianSet]:
-    folder = project / "splats" / "snapshots"
+    """The train stage's snapshots (the mesh stage's order)."""
+    folder = ProjectLayout(project).snapshots_dir
     return [read_gaussian_ply(p) for p in sorted(folder.glob("*.ply"))] if folder.is_dir() else []
 
 
+def project_cameras(project: Path) -> Cameras:
+    """The project's sparse model cameras in world coordinates (the origin the sfm stage recorded)."""
+    layout = ProjectLayout(project)
+    return read_project_model(layout, layout.sparse)[0]
+
+
 def viewpoints(project: Path, origin: np.ndarray) -> np.ndarray:
-    cams, _ = read_model(project / "sparse")
+    """(V, 3) camera centres in the frame of ``origin`` (as the mesh stage orients normals)."""
+    cams = project_cameras(project)
     return np.array([v.center for v in cams]) + cams.origin - origin
 
 
@@ -367,7 +379,7 @@ def coverage_section(merged, snapshots, vp, gt: GroundTruth, tau: float, budget:
 def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float, budget: int) -> dict:
     from fusion.mesh.tsdf import tsdf_mesh
 
-    cams, _ = read_model(project / "sparse")
+    cams = project_cameras(project)
     mvs = merged.subset(merged.fields["source"] == Source.MVS)
     t = time.perf_counter()
     raw = tsdf_mesh(mvs, cams)
@@ -385,12 +397,21 @@ def tsdf_section(project: Path, merged: GaussianSet, gt: GroundTruth, tau: float
 
 
 def demo_section(scene: Path, project: Path) -> dict:
+    """The mesh stage's meshing with the demo's options (``DEMO_STAGES``: 2 k triangles), timed."""
+    from dataclasses import replace
+
+    from hybridsplat.commands.run import DEMO_STAGES
+    from hybridsplat.options import options_with
+    from hybridsplat.stages.mesh import MeshStageOptions
+
+    stage = options_with(MeshStageOptions, DEMO_STAGES["mesh"])
+    options = replace(stage.mesh, budget=stage.budget)  # as the mesh stage passes them
     merged = load_merged(project)
     vp = viewpoints(project, merged.origin)
     before = load()
-    t = time.perf_counter()
-    budget = 2_000  # the demo's budget (hybridsplat.commands.run.DEMO_STAGES)
-    r = mesh_from_gaussians(merged, MeshOptions(budget=budget), snapshots=load_snapshots(project), viewpoints=vp)
+    t = time.perf_counter()  # reading the snapshots included: the stage reads them too
+    snapshots = load_snapshots(project) if options.use_snapshots else []
+    r = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=vp)
     sec = time.perf_counter() - t
     print(
         f"\n== 4. demo scene {scene.name}: {len(merged)} Gaussians -> {r.mesh.num_triangles} triangles "

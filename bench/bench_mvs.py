@@ -25,11 +25,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from core.io.ply import read_ply  # noqa: E402
+from hybridsplat.layout import ProjectLayout  # noqa: E402
 from recon.align import align_reconstruction_to_centers  # noqa: E402
 from recon.model import from_reconstruction, read_reconstruction  # noqa: E402
 from recon.mvs import MvsBackend, MvsOptions, MvsReport, run_mvs  # noqa: E402
 from recon.mvs_cpu import CpuMvsOptions  # noqa: E402
 from recon.sfm import SfmOptions, run_sfm, triangulate_known_poses  # noqa: E402
+from recon.workspace import DenseWorkspace  # noqa: E402
 
 
 @dataclass
@@ -96,7 +98,7 @@ def _ensure_scene(args) -> Path:
     return out
 
 
-def main() -> None:
+def _parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="one size (320 px) only")
     ap.add_argument("--scene", help="data_synth scene folder (default: generate --preset into --cache)")
@@ -108,23 +110,25 @@ def main() -> None:
     ap.add_argument("--work", default="/tmp/hybridsplat_bench/work")
     ap.add_argument("--reuse", action="store_true", help="reuse a known-pose model already in --work")
     ap.add_argument("--no-mvs", action="store_true", help="skip the MVS sizes (with --sfm: SfM only)")
-    args = ap.parse_args()
+    return ap.parse_args()
+
+
+def main() -> None:
+    args = _parse_args()
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
     scene = _ensure_scene(args)
     work = Path(args.work)
-    project = work / "known"
+    project = ProjectLayout(work / "known")  # only its sparse model: the known-pose triangulation
     t0 = time.perf_counter()
     if args.no_mvs:
         pass
-    elif args.reuse and (project / "sparse" / "points3D.bin").is_file():
-        print(f"reusing the known-pose model in {project / 'sparse'}")
+    elif args.reuse and (project.sparse / "points3D.bin").is_file():
+        print(f"reusing the known-pose model in {project.sparse}")
     else:
         known = from_reconstruction(read_reconstruction(scene / "sparse" / "0"))
-        _, rep = triangulate_known_poses(
-            known, scene / "images", project / "sparse", SfmOptions(num_threads=args.threads)
-        )
+        _, rep = triangulate_known_poses(known, scene / "images", project.sparse, SfmOptions(num_threads=args.threads))
         print(
             f"known-pose triangulation: {len(rep.registered)} images, {rep.num_points} points, "
             f"{rep.mean_reprojection_error:.3f} px, {time.perf_counter() - t0:.1f} s"
@@ -134,51 +138,65 @@ def main() -> None:
     gsd = float(json.loads((scene / "scene.json").read_text())["gsd_m"])
     for size in sizes:
         opts = MvsOptions(backend=MvsBackend.CPU, max_image_size=size, num_threads=args.threads, cpu=CpuMvsOptions())
-        report = run_mvs(project / "sparse", scene / "images", work / f"dense_{size}", opts)
-        gsd, scores = evaluate(scene, work / f"dense_{size}" / "fused.ply")
+        dense = DenseWorkspace(work / f"dense_{size}")
+        report = run_mvs(project.sparse, scene / "images", dense.root, opts)
+        gsd, scores = evaluate(scene, dense.fused_ply)
         rows.append((size, report, scores))
-        print(
-            f"\nmax_image_size {size}: {report.num_views} views, {report.megapixels:.2f} MP, "
-            f"depth {report.seconds_depth:.1f} s + geometric {report.seconds_geometric:.1f} s + fusion "
-            f"{report.seconds_fusion:.1f} s -> {report.seconds_per_view:.2f} s/view, "
-            f"{report.seconds_per_megapixel:.2f} s/MP, "
-            f"{report.num_points} points"
-        )
-        print(
-            f"  {'material':<20}{'collab':>7}{'points':>9}{'mesh med':>10}{'c2c med':>9}{'compl@3':>9}"
-            f"   (GSD {gsd * 1000:.2f} mm)"
-        )
-        for s in scores:
-            print(
-                f"  {s.name:<20}{'yes' if s.collaborative else 'no':>7}{s.fused_points:>9}"
-                f"{s.median_mesh_gsd:>10.2f}{s.median_c2c_gsd:>9.2f}{s.completeness:>9.1%}"
-            )
+        _print_size(size, report, scores, gsd)
     if len(rows) > 1:
-        ref_size, ref_rep, ref_scores = rows[-1]
-        print(
-            f"\nratios against max_image_size {ref_size} (time, collaborative completeness, collaborative mesh median):"
-        )
-        ref_c = np.mean([s.completeness for s in ref_scores if s.collaborative])
-        ref_a = np.nanmean([s.median_mesh_gsd for s in ref_scores if s.collaborative])
-        for size, rep_, scores in rows:
-            c = np.mean([s.completeness for s in scores if s.collaborative])
-            a = np.nanmean([s.median_mesh_gsd for s in scores if s.collaborative])
-            t = rep_.seconds_depth + rep_.seconds_geometric
-            tr = ref_rep.seconds_depth + ref_rep.seconds_geometric
-            print(f"  {size:>5}: time x{t / tr:.2f}  completeness x{c / ref_c:.2f}  accuracy x{a / ref_a:.2f}")
+        _print_ratios(rows)
     if args.sfm:
-        t1 = time.perf_counter()
-        rec, srep = run_sfm(scene / "images", work / "full" / "sparse", SfmOptions(num_threads=args.threads))
-        known = from_reconstruction(read_reconstruction(scene / "sparse" / "0"))
-        centers = {v.name: v.center for v in known}
-        extent = float(np.ptp(np.stack(list(centers.values())), axis=0).max())
-        a = align_reconstruction_to_centers(rec, centers, 0.02 * extent, seed=0)
+        _full_sfm(scene, work, args.threads, gsd)
+
+
+def _print_size(size: int, report: MvsReport, scores: list[MaterialScore], gsd: float) -> None:
+    """The timings of one ``max_image_size`` and its per-material table (GSD in metres)."""
+    print(
+        f"\nmax_image_size {size}: {report.num_views} views, {report.megapixels:.2f} MP, "
+        f"depth {report.seconds_depth:.1f} s + geometric {report.seconds_geometric:.1f} s + fusion "
+        f"{report.seconds_fusion:.1f} s -> {report.seconds_per_view:.2f} s/view, "
+        f"{report.seconds_per_megapixel:.2f} s/MP, "
+        f"{report.num_points} points"
+    )
+    print(
+        f"  {'material':<20}{'collab':>7}{'points':>9}{'mesh med':>10}{'c2c med':>9}{'compl@3':>9}"
+        f"   (GSD {gsd * 1000:.2f} mm)"
+    )
+    for s in scores:
         print(
-            f"\nfull SfM: {len(srep.registered)}/{srep.num_images} registered, {srep.num_points} points, "
-            f"{srep.mean_reprojection_error:.3f} px, {time.perf_counter() - t1:.1f} s; aligned centres: "
-            f"median {np.median(a.residuals) / gsd:.3f} GSD, max {a.residuals.max() / gsd:.3f} GSD "
-            f"(rms {a.rms_inliers * 1000:.2f} mm, {a.num_inliers} inliers)"
+            f"  {s.name:<20}{'yes' if s.collaborative else 'no':>7}{s.fused_points:>9}"
+            f"{s.median_mesh_gsd:>10.2f}{s.median_c2c_gsd:>9.2f}{s.completeness:>9.1%}"
         )
+
+
+def _print_ratios(rows: list[tuple[int, MvsReport, list[MaterialScore]]]) -> None:
+    """Time, collaborative completeness and collaborative mesh median of each size against the last (largest)."""
+    ref_size, ref_rep, ref_scores = rows[-1]
+    print(f"\nratios against max_image_size {ref_size} (time, collaborative completeness, collaborative mesh median):")
+    ref_c = np.mean([s.completeness for s in ref_scores if s.collaborative])
+    ref_a = np.nanmean([s.median_mesh_gsd for s in ref_scores if s.collaborative])
+    for size, rep_, scores in rows:
+        c = np.mean([s.completeness for s in scores if s.collaborative])
+        a = np.nanmean([s.median_mesh_gsd for s in scores if s.collaborative])
+        t = rep_.seconds_depth + rep_.seconds_geometric
+        tr = ref_rep.seconds_depth + ref_rep.seconds_geometric
+        print(f"  {size:>5}: time x{t / tr:.2f}  completeness x{c / ref_c:.2f}  accuracy x{a / ref_a:.2f}")
+
+
+def _full_sfm(scene: Path, work: Path, threads: int, gsd: float) -> None:
+    """Full SfM without known poses, aligned to the true camera centres; prints registration and alignment."""
+    t1 = time.perf_counter()
+    rec, srep = run_sfm(scene / "images", ProjectLayout(work / "full").sparse, SfmOptions(num_threads=threads))
+    known = from_reconstruction(read_reconstruction(scene / "sparse" / "0"))
+    centers = {v.name: v.center for v in known}
+    extent = float(np.ptp(np.stack(list(centers.values())), axis=0).max())
+    a = align_reconstruction_to_centers(rec, centers, 0.02 * extent, seed=0)
+    print(
+        f"\nfull SfM: {len(srep.registered)}/{srep.num_images} registered, {srep.num_points} points, "
+        f"{srep.mean_reprojection_error:.3f} px, {time.perf_counter() - t1:.1f} s; aligned centres: "
+        f"median {np.median(a.residuals) / gsd:.3f} GSD, max {a.residuals.max() / gsd:.3f} GSD "
+        f"(rms {a.rms_inliers * 1000:.2f} mm, {a.num_inliers} inliers)"
+    )
 
 
 if __name__ == "__main__":

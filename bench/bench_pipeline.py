@@ -7,7 +7,7 @@ size, and ``textured``: the demo tabletop with only collaborative materials, see
 pipeline once with the baseline turned on (the *base* project), then sweeps the main knobs on copies of that
 project, so that every stage upstream of the changed one is reused from the copy (the runner finds it up to date):
 
-- the training budget of the hybrid (``train.iterations``);
+- the training budget of the hybrid (``train.training.iterations``);
 - the MVS image size (``mvs.max_image_size``; without the baseline, which trains on the mvs stage's photos) and the
   conversion mode (``convert.mode``).
 
@@ -230,16 +230,18 @@ def generate(scene: str, root: Path, seed: int, overrides: dict[str, Any]) -> tu
 
 # -- one scene --------------------------------------------------------------------------------------------
 def bench_scene(scene: str, plan: Plan, out: Path, seed: int, lpips: str) -> dict[str, Any]:
+    from hybridsplat.layout import ProjectLayout
+
     print(f"\n== {scene}  ({load()})")
     root = out / "runs" / scene
     scene_dir, gen_seconds = generate(scene, root, seed, SCENE_OVERRIDES[scene])
     print(f"    scene {scene_dir} ({gen_seconds:.0f} s to generate)")
     eval_opts = {"lpips_weights": lpips}
     base_opts = {
-        "train": {"iterations": plan.train_iterations},
+        "train": {"training.iterations": plan.train_iterations},
         "baseline": {
             "enabled": SCENE_BASELINE[scene],
-            "iterations": plan.baseline_iterations,
+            "training.iterations": plan.baseline_iterations,
             "checkpoints": list(plan.baseline_checkpoints),
         },
         "eval": eval_opts,
@@ -252,7 +254,7 @@ def bench_scene(scene: str, plan: Plan, out: Path, seed: int, lpips: str) -> dic
     sweeps: list[tuple[str, dict[str, dict[str, Any]]]] = []
     if SCENE_BASELINE[scene]:  # textured only checks whether training is skipped
         if "train" not in skipped:
-            sweeps += [(f"train{n}", {"train": {"iterations": n}}) for n in plan.train_sweep]
+            sweeps += [(f"train{n}", {"train": {"training.iterations": n}}) for n in plan.train_sweep]
         # The baseline trains on the undistorted photos of the mvs stage: another MVS size would re-train it at
         # that size (a different product, 320 s on the demo), so the MVS-size variants leave it out.
         no_baseline = {"baseline": {"enabled": False}}
@@ -262,8 +264,8 @@ def bench_scene(scene: str, plan: Plan, out: Path, seed: int, lpips: str) -> dic
         opts = {**base_opts, **{k: {**base_opts.get(k, {}), **v} for k, v in change.items()}}
         project = variant_of(base, name)
         points += points_of(scene, name, project, run_project(scene_dir, project, opts, seed))
-    per_material = json.loads((base / "eval" / "per_material.json").read_text()) if (
-        base / "eval" / "per_material.json").is_file() else None  # fmt: skip
+    per_material_json = ProjectLayout(base).per_material_json
+    per_material = json.loads(per_material_json.read_text()) if per_material_json.is_file() else None
     return {
         "scene": scene,
         "generate_seconds": gen_seconds,
@@ -314,7 +316,7 @@ def bench_scaling(plan: Plan, out: Path, seed: int, lpips: str, demo_stages: dic
         print(f"\n== scaling: {name}  ({load()})")
         root = out / "runs" / name
         scene_dir, _ = generate("demo", root, seed, {"views": views, "width": width, "height": height})
-        opts = {"train": {"iterations": plan.train_iterations}, "eval": {"lpips_weights": lpips}}
+        opts = {"train": {"training.iterations": plan.train_iterations}, "eval": {"lpips_weights": lpips}}
         manifest = run_project(scene_dir, root / "base", opts, seed)
         rows.append({"views": views, "width": width, "height": height,
                      "stages": {n: {"seconds": r["seconds"], "peak_mb": r["peak_mb"], "skipped": r["skipped"]}

@@ -16,23 +16,35 @@
     (``render_step(loss_pixels_only=True)``, the trainer's default), and the ratio of the medians is printed.
 
 ``python bench/bench_train.py tabletop --scene SCENE --project PROJECT [--iterations 2000] ...``
-    The hybrid on a data_synth scene that ``hybridsplat run`` has processed: masks and ``needs_splats`` from the
-    scene's truth (material labels of the training photos; fused points labelled by the nearest LiDAR point's
-    material) until the classify stage exists; MVS Gaussians of trusted points frozen as context; seeds; masked
-    training; cleaning; merge. Then the whole-scene baseline (same trainer, mask = whole image, no context, SfM
-    init, same cap) and the held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole
-    image) of merged, MVS-only and baseline, with times. Every figure is printed with the machine load. Options:
+    The hybrid on a data_synth scene that ``hybridsplat run`` has processed, through the functions the pipeline's
+    stages call, with the stages' options types: ``train`` = fusion.train.masked.train_in_masks (seeds, masked
+    training, MVS Gaussians of trusted points frozen as context), ``clean`` = fusion.clean.clean_splats, ``merge``
+    = fusion.survey.hybrid_products (viewer set and survey points). Their inputs are read as the stages read them
+    (hybridsplat.project_io: the dense workspace's cameras and photos, held-out photos excluded; the MVS Gaussians;
+    the SfM points), except that the classify and masks stages' products come from the scene's truth: training
+    masks = the non-collaborative materials of the label images, and per MVS Gaussian ``needs_splats`` and the
+    class (the shipped class set's class of the material's kind) of the nearest LiDAR point. Options not on the
+    command line are the stages' defaults. Then the whole-scene baseline (the ``baseline`` stage's
+    fusion.train.masked.train_whole_scene: same trainer, mask = whole image, no context, SfM init, same cap) and the
+    held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole image) of merged, MVS-only
+    and baseline, with times. Every figure is printed with the machine load. Options:
     ``--depth-prior/--normal-prior/--prior-border`` (fusion.train.priors; 0 0 = off), ``--hard-views``,
     ``--photometric smoothl1_msssim``; per-material geometry of MVS-only, the splat centres, merged with every splat
-    and the merged survey points (fusion.clean.select_survey_points) is printed and written to geometry.json.
+    and the merged survey points is printed and written to OUT/geometry.json. The products go where a project keeps
+    them (hybridsplat.layout.ProjectLayout of OUT): the merged set, the trained splats and the baseline.
+
+``python bench/bench_train.py score --scene SCENE --project PROJECT [--ply NAME=PLY ...]``
+    Held-out metrics of saved products: the project's MVS Gaussians and each PLY (``merged_from_*``: raw trained
+    splats, merged first as the merge stage merges them, with the truth's ``needs_splats``).
 
 ``python bench/bench_train.py geometry --scene SCENE --project PROJECT [--splats L=PLY ...] [--points L=PLY ...]``
     Where the geometric error comes from, per truth material (the LiDAR's ``material`` field): accuracy (mean
     distance product → truth, by the nearest truth point's material; splat centres opacity-weighted) and
     completeness at τ = 3 GSD (truth → product) of MVS-only, the MVS points kept / dropped (``needs_splats`` from the
-    truth, or ``--needs classified`` with the pipeline's masks), the ``needs_splats`` MVS points and splats that
-    pass the survey-point rule at each ``--rim`` limit, and merged products; ``--points`` measures written point
-    clouds (e.g. a project's export/merged_points.ply) as they are.
+    truth, or ``--needs classified`` with the pipeline's classified cloud and region masks), the ``needs_splats``
+    MVS points and splats that pass the merge stage's survey-point selection (fusion.survey.survey_selections) at
+    each ``--rim`` limit, and merged products; ``--points`` measures written point clouds (e.g. a project's
+    ``ProjectLayout.merged_points_ply``) as they are.
 """
 
 from __future__ import annotations
@@ -43,6 +55,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -55,19 +68,39 @@ def load() -> str:
 
 
 # -- speed -------------------------------------------------------------------------------------------
-def bench_speed(args: argparse.Namespace) -> None:
+PART_NAMES = ("render fwd", "loss fwd", "backward", "adam", "densify stats", "total")
+
+
+@dataclass(frozen=True)
+class SpeedCase:
+    """The speed section's random scene (``random_scene``), its one training view and the render modes to time
+    (``loss_pixels_only`` False, and True too with a mask)."""
+
+    scene: Any
+    view: Any
+    modes: tuple[bool, ...]
+    width: int
+    height: int
+
+
+@dataclass
+class SpeedTimes:
+    """Per render mode: wall and process-CPU seconds of each part (PART_NAMES) per iteration, and the kernel times
+    ((wall, CPU) per iteration, by kernel name) inside them."""
+
+    wall: dict[bool, dict[str, list[float]]]
+    cpu: dict[bool, dict[str, list[float]]]
+    kernels: dict[bool, dict[str, list[tuple[float, float]]]]
+
+
+def speed_case(args: argparse.Namespace) -> SpeedCase:
+    from fusion.render import render
     from fusion.render.synthetic import random_scene
-    from fusion.train.loss import masked_photometric_loss
-    from fusion.train.params import make_optimizer, make_parameters
-    from fusion.train.render import render_step
-    from fusion.train.strategy import DefaultStrategy
     from fusion.train.views import TrainView, active_tile_prefix, pixels_within_reach
 
     width, height = (int(x) for x in args.size.split("x"))
     scene = random_scene(args.n, width, height, seed=0, sh_degree=args.sh_degree)
     truth = random_scene(args.n, width, height, seed=1, sh_degree=0)
-    from fusion.render import render
-
     with torch.no_grad():
         target = render(*truth.params, *truth.camera, backend="cpu").colour.clamp(0, 1)
     if 0 < args.mask_share < 1:
@@ -77,28 +110,35 @@ def bench_speed(args: argparse.Namespace) -> None:
         view = TrainView("bench", target, torch.from_numpy(mask), torch.zeros((height, width), dtype=torch.bool),
                          scene.viewmat, scene.K, width, height, int(mask.sum()), active_tile_prefix(mask),
                          pixels_within_reach(mask))  # fmt: skip
-        modes = (False, True)
         reach = float(view.render_pixels.mean())
         print(f"mask: {mask.mean():.1%} of the pixels, {reach:.1%} within the SSIM reach")
-    else:
-        view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat,
-                         scene.K, width, height, width * height, None)  # fmt: skip
-        modes = (False,)
-    params = make_parameters(scene.trainable)
+        return SpeedCase(scene, view, (False, True), width, height)
+    view = TrainView("bench", target, None, torch.zeros((height, width), dtype=torch.bool), scene.viewmat,
+                     scene.K, width, height, width * height, None)  # fmt: skip
+    return SpeedCase(scene, view, (False,), width, height)
+
+
+def speed_loop(args: argparse.Namespace, case: SpeedCase) -> SpeedTimes:
+    """``args.steps`` timed training iterations after 3 warm-up ones, the render modes side by side."""
+    from fusion.render.threads import kernel_times, record_times
+    from fusion.train.loss import masked_photometric_loss
+    from fusion.train.params import make_optimizer, make_parameters
+    from fusion.train.render import render_step
+    from fusion.train.strategy import DefaultStrategy
+
+    view, modes = case.view, case.modes
+    params = make_parameters(case.scene.trainable)
     optimizer = make_optimizer(params, {k: 1e-4 for k in params})
     strategy = DefaultStrategy(cap=args.n)  # bookkeeping every step; no refinement before step 500
     state = strategy.initial_state(args.n)
     bg = torch.zeros(3)
-    names = ("render fwd", "loss fwd", "backward", "adam", "densify stats", "total")
-    parts = {m: {k: [] for k in names} for m in modes}
-    cpu = {m: {k: [] for k in names} for m in modes}  # process CPU seconds (all threads): less load-sensitive
+    times = SpeedTimes({m: {k: [] for k in PART_NAMES} for m in modes},
+                       {m: {k: [] for k in PART_NAMES} for m in modes},  # process CPU seconds: less load-sensitive
+                       {m: {} for m in modes})  # fmt: skip
 
     def clock() -> tuple[float, float]:
         return time.perf_counter(), time.process_time()
 
-    from fusion.render.threads import kernel_times, record_times
-
-    kernels: dict[bool, dict[str, list[tuple[float, float]]]] = {m: {} for m in modes}
     print(f"before: {load()}")
     for i in range(args.steps + 3):
         if i == 3:
@@ -115,32 +155,37 @@ def bench_speed(args: argparse.Namespace) -> None:
             optimizer.step()
             optimizer.zero_grad(set_to_none=True)
             c4 = clock()
-            strategy.after_backward(state, out.means2d, width, height, i)
+            strategy.after_backward(state, out.means2d, case.width, case.height, i)
             strategy.refine(state, params, optimizer, i + 1, 10**9, 1.0, torch.Generator())
             c5 = clock()
             if i == 0:
                 print(f"first iteration (numba compile or cache load, thread pool): {c5[0] - c0[0]:.2f} s")
             if i >= 3:  # warm-up (kernel compilation, thread pool)
                 spans = ((c0, c1), (c1, c2), (c2, c3), (c3, c4), (c4, c5), (c0, c5))
-                for k, (a, b) in zip(names, spans, strict=True):
-                    parts[only][k].append(b[0] - a[0])
-                    cpu[only][k].append(b[1] - a[1])
+                for k, (a, b) in zip(PART_NAMES, spans, strict=True):
+                    times.wall[only][k].append(b[0] - a[0])
+                    times.cpu[only][k].append(b[1] - a[1])
                 for k, v in kernel_times().items():
-                    kernels[only].setdefault(k, []).append(v)
+                    times.kernels[only].setdefault(k, []).append(v)
     record_times(False)
-    print(f"one training iteration, {args.n} Gaussians, {width}x{height}, SH degree {args.sh_degree}, "
+    return times
+
+
+def print_speed(args: argparse.Namespace, case: SpeedCase, times: SpeedTimes) -> None:
+    print(f"one training iteration, {args.n} Gaussians, {case.width}x{case.height}, SH degree {args.sh_degree}, "
           f"{torch.get_num_threads()} torch threads; after: {load()}")  # fmt: skip
-    for only in modes:
-        if len(modes) > 1:
+    parts, cpu = times.wall, times.cpu
+    for only in case.modes:
+        if len(case.modes) > 1:
             print("compositing " + ("only the loss's pixels" if only else "every pixel of the active tiles"))
         for k, v in parts[only].items():
             print(f"  {k:14s} wall median {1000 * np.median(v):7.1f} ms  min {1000 * np.min(v):7.1f} ms   "
                   f"CPU median {1000 * np.median(cpu[only][k]):7.1f} ms")  # fmt: skip
         print("  kernels inside those parts (median per iteration):")
-        for k, v in kernels[only].items():
+        for k, v in times.kernels[only].items():
             arr = np.array(v)
             print(f"    {k:14s} wall {1000 * np.median(arr[:, 0]):7.2f} ms   CPU {1000 * np.median(arr[:, 1]):7.2f} ms")
-    if len(modes) > 1:
+    if len(case.modes) > 1:
         ratio = {w: np.median(parts[True][w]) / np.median(parts[False][w]) for w in ("render fwd", "backward", "total")}
         cpu_ratio = np.median(cpu[True]["total"]) / np.median(cpu[False]["total"])
         print("  loss pixels only / every active pixel: render fwd {:.2f}, backward {:.2f}, total {:.2f} (CPU {:.2f})"
@@ -152,44 +197,210 @@ def bench_speed(args: argparse.Namespace) -> None:
           f"(target <= 0.100 s)")  # fmt: skip
 
 
-# -- tabletop ----------------------------------------------------------------------------------------
-def truth_inputs(scene: Path, cameras, fused_positions: np.ndarray):
-    """Training masks (name -> bool) from the scene's material labels and needs_splats per fused point."""
+def bench_speed(args: argparse.Namespace) -> None:
+    case = speed_case(args)
+    print_speed(args, case, speed_loop(args, case))
+
+
+# -- the project and the scene's truth -----------------------------------------------------------------
+@dataclass(frozen=True)
+class SceneTruth:
+    """A data_synth scene's truth: its folder (data_synth.layout.SceneLayout), origin (world, metres), GSD (metres),
+    material legend (id → name, id → kind, non-collaborative ids) and LiDAR points (world, float64) with their
+    material id and a KD-tree over them."""
+
+    scene: Any
+    origin: np.ndarray
+    gsd: float
+    names: dict[int, str]
+    kinds: dict[int, str]
+    non_collab: list[int]
+    lidar_world: np.ndarray
+    lidar_material: np.ndarray
+    tree: Any
+
+
+def read_truth(scene: str | Path) -> SceneTruth:
     from scipy.spatial import cKDTree
 
     from core.io import read_point_cloud
+    from data_synth.layout import SceneLayout
+
+    layout = SceneLayout(Path(scene))
+    meta = json.loads(layout.scene_json.read_text())
+    lidar = read_point_cloud(layout.lidar_ply)
+    world = lidar.world_positions
+    return SceneTruth(
+        layout, np.asarray(meta.get("origin", (0.0, 0.0, 0.0)), np.float64), float(meta["gsd_m"]),
+        {int(m["id"]): m["name"] for m in meta["materials"]}, {int(m["id"]): m["kind"] for m in meta["materials"]},
+        [int(m["id"]) for m in meta["materials"] if not m["collaborative"]], world,
+        np.asarray(lidar.fields["material"]).astype(np.int64), cKDTree(world),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ProjectInputs:
+    """What the train, clean, merge and baseline stages read from a finished project, read as they read it:
+    the dense workspace's cameras (world frame at the origin the sfm stage recorded), the SfM points (world), the
+    MVS Gaussians moved to the cameras' origin (one per fused point), the fused cloud and the training photos
+    (undistorted, held-out photos excluded; empty unless asked for)."""
+
+    layout: Any
+    cameras: Any
+    sfm: Any
+    mvs: Any
+    fused: Any
+    images: dict[str, np.ndarray]
+
+
+def read_project(project: str | Path, images: bool) -> ProjectInputs:
+    from core.io import read_point_cloud
+    from core.io.gaussian_ply import read_gaussian_ply
+    from core.io.images import read_image
+    from hybridsplat.layout import ProjectLayout
+    from hybridsplat.pipeline import load_config
+    from hybridsplat.project_io import read_project_model
+    from hybridsplat.source import resolve_source
+
+    layout = ProjectLayout(project)
+    ws = layout.dense_workspace
+    cameras, _ = read_project_model(layout, ws.sparse)
+    _, sfm = read_project_model(layout, layout.sparse)
+    mvs = read_gaussian_ply(layout.mvs_gaussians).with_origin(cameras.origin)
+    photos = {}
+    if images:
+        held_out = set(resolve_source(load_config(layout.root).input).holdout_names)  # never trained on
+        photos = {v.name: read_image(ws.images / v.name) for v in cameras if v.name not in held_out}
+    return ProjectInputs(layout, cameras, sfm, mvs, read_point_cloud(layout.fused_ply), photos)
+
+
+@dataclass(frozen=True)
+class TruthInputs:
+    """The scene's truth in place of the classify and masks stages' products.
+
+    masks: photo name → (H, W) bool at the camera's size, True on non-collaborative materials (the training
+    masks, and the region masks of the merge stage's view tests). needs: (N,) bool per MVS Gaussian, its nearest
+    LiDAR point is non-collaborative. classes: (N,) int64 class code per MVS Gaussian (the shipped class set's class
+    of that point's material kind); class_codes: that set's needs-splats classes, name → code."""
+
+    masks: dict[str, np.ndarray]
+    needs: np.ndarray
+    classes: np.ndarray
+    class_codes: dict[str, int]
+
+
+def truth_inputs(truth: SceneTruth, cameras: Any, mvs: Any) -> TruthInputs:
+    import cv2
+
+    from classify.classes import load_classes
     from core.io.images import read_image
 
-    meta = json.loads((scene / "scene.json").read_text())
-    non_collab = [int(m["id"]) for m in meta["materials"] if not m["collaborative"]]
     masks = {}
     for view in cameras:
-        labels = read_image(scene / "gt" / "labels" / "train" / view.name, grayscale=True)
-        masks[view.name] = np.isin(labels, non_collab)
-    lidar = read_point_cloud(scene / "gt" / "lidar.ply")
-    material = np.asarray(lidar.fields["material"]).astype(np.int64)
-    world = lidar.world_positions
-    _, idx = cKDTree(world).query(fused_positions, k=1, workers=-1)
-    needs = np.isin(material[idx], non_collab)
-    return masks, needs, non_collab
+        labels = read_image(truth.scene.labels("train", view.name), grayscale=True)
+        cam = cameras.camera_of(view)
+        if labels.shape != (cam.height, cam.width):  # the dense workspace's photos may be downscaled
+            labels = cv2.resize(labels, (cam.width, cam.height), interpolation=cv2.INTER_NEAREST)
+        masks[view.name] = np.isin(labels, truth.non_collab)
+    _, idx = truth.tree.query(mvs.world_means, k=1, workers=-1)
+    material = truth.lidar_material[idx]
+    class_set = load_classes()
+    code_of = np.zeros(max(truth.kinds) + 1, np.int64)
+    for m, kind in truth.kinds.items():
+        code_of[m] = class_set.code_of_kind(kind)
+    codes = {c.name: c.code for c in class_set.classes if c.needs_splats}
+    return TruthInputs(masks, np.isin(material, truth.non_collab), code_of[material], codes)
 
 
-def splat_geometry(splats, lidar_world: np.ndarray, material: np.ndarray, non_collab, tau: float) -> dict:
+def merge_products(inputs: ProjectInputs, truth_in: TruthInputs, splats: Any) -> Any:
+    """The merge stage's products (fusion.survey.hybrid_products, its default options) of ``splats`` and the
+    project's MVS Gaussians, with the truth's masks, ``needs_splats`` and classes."""
+    from fusion.merge_options import MergeOptions
+    from fusion.survey import hybrid_products, view_tests
+
+    views = view_tests(inputs.cameras, truth_in.masks, inputs.mvs, truth_in.needs, splats)
+    products = hybrid_products(inputs.mvs, splats, truth_in.needs, views, MergeOptions(), truth_in.classes,
+                               truth_in.class_codes)  # fmt: skip
+    products.counts["trusted_spacing_m"] = views.spacing
+    return products
+
+
+# -- held-out views ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class HeldOut:
+    """The scene's held-out views: their cameras (at the scene's origin, as the eval stage reads them), photos,
+    the folder of their truth masks (non-collaborative materials, ``<stem>.png``) and the LPIPS network (or None)."""
+
+    cameras: Any
+    photos: Path
+    masks: Path
+    lpips: Any
+
+
+def held_out_views(truth: SceneTruth, out: Path, lpips_path: str, lpips_required: bool) -> HeldOut:
+    from core.io.images import read_image, write_image
+    from eval.lpips import LPIPS
+    from hybridsplat.project_io import read_model_at
+
+    cameras, _ = read_model_at(truth.scene.sparse_test, truth.origin)
+    masks = out / "truth_masks_test"
+    masks.mkdir(parents=True, exist_ok=True)
+    for view in cameras:
+        label = truth.scene.labels("test", view.name)
+        if label.is_file():
+            lab = read_image(label, grayscale=True)
+            write_image(masks / f"{Path(view.name).stem}.png", (np.isin(lab, truth.non_collab) * 255).astype(np.uint8))
+    try:
+        lpips = LPIPS.from_path(lpips_path)
+    except Exception as err:  # noqa: BLE001
+        if lpips_required:
+            raise
+        print("LPIPS left out:", err)
+        lpips = None
+    return HeldOut(cameras, truth.scene.test_dir, masks, lpips)
+
+
+def evaluate(name: str, gaussians: Any, held: HeldOut, out_dir: Path) -> Any:
+    from eval.render_eval import evaluate_gaussians
+
+    return evaluate_gaussians(gaussians, held.cameras, list(held.cameras), held.photos, held.masks, held.lpips,
+                              out_dir, name)  # fmt: skip
+
+
+def fmt_scores(s) -> str:
+    if s is None:
+        return "n/a"
+    m = s.mean
+    lp = "n/a" if m.lpips is None else f"{m.lpips:.3f}"
+    return f"PSNR {m.psnr:6.2f} dB  SSIM {m.ssim:.3f}  LPIPS {lp}"
+
+
+def report(results: dict[str, Any], out: Path) -> None:
+    print(f"\nheld-out views, {load()}:")
+    for name, r in results.items():
+        print(f"  {name:12s} masked: {fmt_scores(r.masked)} | whole: {fmt_scores(r.full)}")
+    summary = {
+        name: {"masked": None if r.masked is None else r.masked.as_dict(), "whole": r.full.as_dict()}
+        for name, r in results.items()
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+
+
+# -- geometry against the truth ----------------------------------------------------------------------
+def splat_geometry(splats, truth: SceneTruth, tau: float) -> dict:
     """Opacity-weighted C2C (metres) of splat centres to the LiDAR truth, per nearest material, and the count of
     splats outside the true region (nearest truth point collaborative, or farther than ``tau``)."""
-    from scipy.spatial import cKDTree
-
     if len(splats) == 0:
         return {"outside_true_region": 0, "per_material": {}}
-    d, idx = cKDTree(lidar_world).query(splats.world_means, k=1, workers=-1)
+    d, idx = truth.tree.query(splats.world_means, k=1, workers=-1)
     w = splats.opacities.astype(np.float64)
-    mat = material[idx]
+    mat = truth.lidar_material[idx]
     per = {}
     for m in np.unique(mat):
         sel = mat == m
         per[int(m)] = {"n": int(sel.sum()), "c2c_weighted_mean_m": float((d[sel] * w[sel]).sum() / w[sel].sum()),
                        "c2c_median_m": float(np.median(d[sel]))}  # fmt: skip
-    outside = (~np.isin(mat, non_collab)) | (d > tau)
+    outside = (~np.isin(mat, truth.non_collab)) | (d > tau)
     return {"outside_true_region": int(outside.sum()), "per_material": per}
 
 
@@ -234,6 +445,15 @@ def product_geometry(
     return out
 
 
+def truth_geometry(truth: SceneTruth, tau: float):
+    """``measure(points_world, weights=None)``: :func:`product_geometry` against the scene's LiDAR truth."""
+
+    def measure(points_world: np.ndarray, weights: np.ndarray | None = None) -> dict[int, MaterialGeometry]:
+        return product_geometry(points_world, weights, truth.lidar_world, truth.lidar_material, tau, truth.tree)
+
+    return measure
+
+
 def print_geometry(products: dict[str, dict[int, MaterialGeometry]], names: dict[int, str], tau: float) -> None:
     """One table per measure: rows = products, columns = truth materials."""
     mats = sorted({m for p in products.values() for m in p})
@@ -254,164 +474,181 @@ def print_geometry(products: dict[str, dict[int, MaterialGeometry]], names: dict
             print(f"  {name:24s}{cells}")
 
 
+def write_geometry(path: Path, products: dict[str, dict[int, MaterialGeometry]]) -> None:
+    path.write_text(json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in products.items()}, indent=1))
+
+
+def rim_rule(rim: float, min_opacity: float, needs_mvs: bool = True) -> Any:
+    """The merge stage's options (MergeOptions) with the survey-point rim limit ``rim`` (spacings; 0: no rim test)
+    for splats and ``needs_splats`` MVS points alike, and the splats' opacity floor ``min_opacity``."""
+    from fusion.merge_options import MergeOptions
+    from hybridsplat.options import options_with
+
+    limit = rim if rim > 0 else "none"
+    return options_with(MergeOptions, {"points.max_rim_spacing": limit, "points.min_opacity": min_opacity,
+                                       "needs_mvs_max_rim_spacing": limit, "needs_mvs": needs_mvs},
+                        where="bench_train.py geometry")  # fmt: skip
+
+
+@dataclass
+class GeometryRows:
+    """The geometry section's inputs and rows: the merge stage's view tests (fusion.survey.ViewTests), the MVS
+    Gaussians and their ``needs_splats`` (N,) bool, ``measure`` (truth_geometry) and the rows so far (label →
+    per-material geometry)."""
+
+    views: Any
+    mvs: Any
+    needs: np.ndarray
+    measure: Any
+    products: dict[str, dict[int, MaterialGeometry]]
+
+
+def needs_rows(args: argparse.Namespace, rows: GeometryRows) -> dict[float, np.ndarray]:
+    """Rows of the ``needs_splats`` MVS points that pass the merge stage's selection at each rim limit; returns
+    those points (world) by rim."""
+    from fusion.survey import survey_selections
+
+    mvs, needs = rows.mvs, rows.needs
+    no_splats = mvs.subset(np.zeros(len(mvs), bool))
+    needs_world = mvs.subset(needs).world_means
+    kept = {}
+    for rim in args.rim:
+        _, sel = survey_selections(rows.views, mvs, needs, no_splats, rim_rule(rim, args.min_opacity))
+        kept[rim] = needs_world[sel.keep] if sel is not None else np.zeros((0, 3))
+        print(f"MVS needs points, view rules, rim {rim}: {None if sel is None else sel.counts}")
+        rows.products[f"MVS needs, views, rim {rim:g}"] = rows.measure(kept[rim])
+    return kept
+
+
+def splat_rows(args: argparse.Namespace, rows: GeometryRows, label: str, splats: Any, needs_kept: dict) -> None:
+    """Rows of one set of trained splats: centres, merged with the trusted MVS points, and the splats that pass
+    the merge stage's selection at each rim limit (alone, merged, merged with the kept ``needs_splats`` points)."""
+    from fusion.survey import survey_selections
+
+    measure, products = rows.measure, rows.products
+    trusted = rows.mvs.world_means[~rows.needs]
+    products[f"{label} centres (α-w)"] = measure(splats.world_means, splats.opacities.astype(np.float64))
+    products[f"merged all {label}"] = measure(np.concatenate([trusted, splats.world_means]))
+    for rim in args.rim:
+        rule = rim_rule(rim, args.min_opacity, needs_mvs=False)
+        sel, _ = survey_selections(rows.views, rows.mvs, rows.needs, splats, rule)
+        print(f"survey-point selection of {label}, rim {rim}: {sel.counts}")
+        kept = splats.world_means[sel.keep]
+        products[f"{label} pts rim {rim:g}"] = measure(kept)
+        products[f"merged {label} rim {rim:g}"] = measure(np.concatenate([trusted, kept]))
+        products[f"merged+MVSn {label} rim {rim:g}"] = measure(np.concatenate([trusted, needs_kept[rim], kept]))
+
+
 def bench_geometry(args: argparse.Namespace) -> None:
     """Step 1 of issue 14's geometry: where the error comes from. MVS points kept / dropped, the trained splats'
     centres (opacity-weighted), the survey-point selection and the merged point products, per truth material."""
-    from scipy.spatial import cKDTree
-
     from core.io import read_point_cloud
-    from core.io.colmap import read_model
     from core.io.gaussian_ply import read_gaussian_ply
-    from fusion.clean import SurveyPointOptions, select_survey_points
+    from fusion.survey import view_tests
+    from hybridsplat import project_io
 
-    scene, project = Path(args.scene), Path(args.project)
-    meta = json.loads((scene / "scene.json").read_text())
-    names = {int(m["id"]): m["name"] for m in meta["materials"]}
-    tau = args.tau_gsd * meta["gsd_m"]
-    cameras, _ = read_model(project / "sparse")
-    fused = read_point_cloud(project / "dense" / "fused.ply")
-    masks, needs, _ = truth_inputs(scene, cameras, fused.world_positions)
-    if args.needs == "classified":  # the pipeline's classification and masks instead of the scene's truth
-        from core.io.images import read_image
-
-        cls = read_point_cloud(project / "classify" / "points.ply")
-        needs = np.asarray(cls.fields["needs_splats"]).astype(bool)
-        masks = {}
-        for view in cameras:
-            path = project / "classify" / "masks" / f"{view.name}.png"
-            if path.is_file():
-                masks[view.name] = read_image(path, grayscale=True) > 127
-    lidar = read_point_cloud(scene / "gt" / "lidar.ply")
-    truth = lidar.world_positions
-    material = np.asarray(lidar.fields["material"]).astype(np.int64)
-    tree = cKDTree(truth)
-    spacing = float(np.median(cKDTree(fused.positions[~needs]).query(fused.positions[~needs], k=2)[0][:, 1]))
-    print(f"scene {scene}, project {project}: {len(fused)} fused points, {int(needs.sum())} need splats "
-          f"({args.needs}); tau {tau * 1000:.2f} mm; trusted MVS spacing {spacing * 1000:.2f} mm; "
+    truth = read_truth(args.scene)
+    inputs = read_project(args.project, images=False)
+    mvs, tau = inputs.mvs, args.tau_gsd * truth.gsd
+    if args.needs == "classified":  # the pipeline's classification and region masks instead of the scene's truth
+        needs = project_io.needs_splats_per_gaussian(inputs.layout, mvs)
+        masks = project_io.read_region_masks(inputs.layout, inputs.cameras)
+    else:
+        truth_in = truth_inputs(truth, inputs.cameras, mvs)
+        needs, masks = truth_in.needs, truth_in.masks
+    views = view_tests(inputs.cameras, masks, mvs, needs, mvs.subset(needs))
+    print(f"scene {args.scene}, project {args.project}: {len(inputs.fused)} fused points, {int(needs.sum())} need "
+          f"splats ({args.needs}); tau {tau * 1000:.2f} mm; trusted MVS spacing {views.spacing * 1000:.2f} mm; "
           f"{load()}")  # fmt: skip
-    world = fused.world_positions
-    products = {
-        "MVS-only": product_geometry(world, None, truth, material, tau, tree),
-        "MVS kept (trusted)": product_geometry(world[~needs], None, truth, material, tau, tree),
-        "MVS dropped (needs)": product_geometry(world[needs], None, truth, material, tau, tree),
-    }
-    from dataclasses import replace
-
-    from core.io.gaussian_ply import read_gaussian_ply as _read_gs
-
-    trusted_local = fused.with_origin(cameras.origin).positions[~needs]
-    mvs_gs = _read_gs(project / "export" / "mvs_gaussians.ply")
-    needs_gs = mvs_gs.subset(needs)
-    needs_kept = {}
-    for rim in args.rim:
-        o = replace(SurveyPointOptions(), shape_checks=False, max_rim_spacing=rim if rim > 0 else None)
-        sel = select_survey_points(needs_gs, cameras, masks, trusted_local, spacing, o)
-        needs_kept[rim] = needs_gs.world_means[sel.keep]
-        print(f"MVS needs points, view rules, rim {rim}: {sel.counts}")
-        products[f"MVS needs, views, rim {rim:g}"] = product_geometry(
-            needs_gs.world_means[sel.keep], None, truth, material, tau, tree)  # fmt: skip
-    for spec in args.points:  # point products as written (e.g. a project's export/merged_points.ply)
+    measure = truth_geometry(truth, tau)
+    world = mvs.world_means
+    rows = GeometryRows(views, mvs, needs, measure, {
+        "MVS-only": measure(inputs.fused.world_positions),
+        "MVS kept (trusted)": measure(world[~needs]),
+        "MVS dropped (needs)": measure(world[needs]),
+    })  # fmt: skip
+    needs_kept = needs_rows(args, rows)
+    for spec in args.points:  # point products as written (e.g. a project's ProjectLayout.merged_points_ply)
         label, _, path = spec.partition("=")
-        cloud = read_point_cloud(path)
-        products[label] = product_geometry(cloud.world_positions, None, truth, material, tau, tree)
+        rows.products[label] = measure(read_point_cloud(path).world_positions)
     for spec in args.splats:
         label, _, path = spec.partition("=")
-        splats = read_gaussian_ply(path)
-        w = splats.opacities.astype(np.float64)
-        products[f"{label} centres (α-w)"] = product_geometry(splats.world_means, w, truth, material, tau, tree)
-        products[f"merged all {label}"] = product_geometry(
-            np.concatenate([world[~needs], splats.world_means]), None, truth, material, tau, tree)  # fmt: skip
-        for rim in args.rim:
-            o = replace(SurveyPointOptions(), max_rim_spacing=rim if rim > 0 else None, min_opacity=args.min_opacity)
-            sel = select_survey_points(splats, cameras, masks, trusted_local, spacing, o)
-            print(f"survey-point selection of {label}, rim {rim}: {sel.counts}")
-            kept = splats.world_means[sel.keep]
-            products[f"{label} pts rim {rim:g}"] = product_geometry(kept, None, truth, material, tau, tree)
-            products[f"merged {label} rim {rim:g}"] = product_geometry(
-                np.concatenate([world[~needs], kept]), None, truth, material, tau, tree)  # fmt: skip
-            products[f"merged+MVSn {label} rim {rim:g}"] = product_geometry(
-                np.concatenate([world[~needs], needs_kept[rim], kept]), None, truth, material, tau, tree)  # fmt: skip
-    print_geometry(products, names, tau)
+        splat_rows(args, rows, label, read_gaussian_ply(path), needs_kept)
+    products = rows.products
+    print_geometry(products, truth.names, tau)
     if args.json:
-        Path(args.json).write_text(json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in products.items()},
-                                              indent=1))  # fmt: skip
+        write_geometry(Path(args.json), products)
 
 
-def evaluate(name, gaussians, test_cams, scene: Path, masks_dir: Path, lpips_model, out_dir):
-    from eval.render_eval import evaluate_gaussians
+# -- tabletop ----------------------------------------------------------------------------------------
+def shared_training(args: argparse.Namespace) -> dict[str, Any]:
+    """Options both trainings take from the command line, by their paths in the train and baseline stages'
+    options (config.toml's spelling)."""
+    paths = {
+        "training.downscale": args.downscale,
+        "training.sh_degree": args.sh_degree,
+        "training.lr_sh_dc": args.lr_sh_dc,
+        "training.patience": args.patience,
+        "training.strategy.cap": args.cap,
+        "training.strategy.refine_start": args.refine_start,
+        "training.strategy.refine_every": args.refine_every,
+        "training.strategy.reset_every": args.reset_every,
+    }
+    if args.max_image_size is not None:
+        paths["max_image_size"] = args.max_image_size
+    return paths
 
-    res = evaluate_gaussians(gaussians, test_cams, list(test_cams), scene / "test", masks_dir, lpips_model,
-                             out_dir, name)  # fmt: skip
-    return res
 
+def hybrid_options(args: argparse.Namespace) -> Any:
+    """The train stage's options (fusion.train.masked.MaskedTrainingOptions) of the command line."""
+    from fusion.train.masked import MaskedTrainingOptions
+    from hybridsplat.options import options_with
 
-def fmt_scores(s) -> str:
-    if s is None:
-        return "n/a"
-    m = s.mean
-    lp = "n/a" if m.lpips is None else f"{m.lpips:.3f}"
-    return f"PSNR {m.psnr:6.2f} dB  SSIM {m.ssim:.3f}  LPIPS {lp}"
-
-
-def bench_tabletop(args: argparse.Namespace) -> None:
-    from core.io import read_point_cloud
-    from core.io.colmap import read_model
-    from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
-    from core.io.images import read_image
-    from eval.lpips import LPIPS
-    from fusion.clean import CleanOptions, clean_splats
-    from fusion.merge import merge_hybrid
-    from fusion.train import DefaultStrategy, TrainOptions, train_splats
-    from fusion.train.init import InitOptions, seed_splats
-
-    scene, project = Path(args.scene), Path(args.project)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    cameras, sfm = read_model(project / "sparse")
-    fused = read_point_cloud(project / "dense" / "fused.ply")
-    mvs = read_gaussian_ply(project / "export" / "mvs_gaussians.ply")
-    images = {v.name: read_image(scene / "images" / v.name) for v in cameras}
-    masks, needs, non_collab = truth_inputs(scene, cameras, fused.world_positions)
-    test_cams, _ = read_model(scene / "sparse" / "test")
-    test_masks = out / "truth_masks_test"
-    test_masks.mkdir(exist_ok=True)
-    from core.io.images import write_image
-
-    for label in sorted((scene / "gt" / "labels" / "test").glob("*.png")):
-        lab = read_image(label, grayscale=True)
-        write_image(test_masks / label.name, (np.isin(lab, non_collab) * 255).astype(np.uint8))
-    try:
-        lpips_model = LPIPS.from_path(args.lpips)
-    except Exception as err:  # noqa: BLE001
-        print("LPIPS left out:", err)
-        lpips_model = None
-    print(f"scene {scene}: {len(cameras)} training views, {len(fused)} fused points, {int(needs.sum())} need splats, "
-          f"{sum(int(m.sum()) for m in masks.values())} mask pixels; {load()}")  # fmt: skip
-
-    results = {}
-    if args.only == "baseline":
-        return bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
-    t0 = time.perf_counter()
-    init = seed_splats(cameras, masks, images, fused.positions, fused.colors, needs, sfm.positions, sfm.colors,
-                       InitOptions(rays_per_view=args.rays, seed=args.seed))  # fmt: skip
-    t_init = time.perf_counter() - t0
-    print(f"init: {len(init.gaussians)} seeds (mvs {init.from_mvs}, sfm {init.from_sfm}, rays {init.from_rays}, "
-          f"no depth {init.rays_without_depth}) in {t_init:.1f} s")  # fmt: skip
-    context = mvs.subset(~needs)
-    strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
-                               reset_every=args.reset_every)  # fmt: skip
-    from fusion.train import HardViewOptions, PriorOptions
-
-    priors = None
+    priors: Any = "none"
     if args.depth_prior > 0 or args.normal_prior > 0:
-        priors = PriorOptions(args.depth_prior, args.normal_prior, args.prior_border if args.prior_border > 0 else None)
-    opts = TrainOptions(iterations=args.iterations, downscale=args.downscale, seed=args.seed, strategy=strategy,
-                        sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc, flat=args.flat,
-                        patience=args.patience, priors=priors,
-                        hard_views=HardViewOptions() if args.hard_views else None,
-                        photometric=args.photometric)  # fmt: skip
+        priors = {"depth_weight": args.depth_prior, "normal_weight": args.normal_prior,
+                  "border_px": args.prior_border if args.prior_border > 0 else "none"}  # fmt: skip
+    paths = {
+        **shared_training(args),
+        "training.iterations": args.iterations,
+        "training.flat": args.flat,
+        "training.priors": priors,
+        "training.hard_views": {} if args.hard_views else "none",
+        "training.photometric": args.photometric,
+        "init.rays_per_view": args.rays,
+    }
+    if args.splats_per_mask_pixel is not None:
+        paths["splats_per_mask_pixel"] = args.splats_per_mask_pixel
+    return options_with(MaskedTrainingOptions, paths, where="bench_train.py tabletop")
+
+
+def baseline_options(args: argparse.Namespace) -> Any:
+    """The baseline stage's options (fusion.train.masked.WholeSceneOptions) of the command line."""
+    from fusion.train.masked import WholeSceneOptions
+    from hybridsplat.options import options_with
+
+    paths = {"enabled": True, **shared_training(args)}
+    if args.baseline_iterations > 0:
+        paths["training.iterations"] = args.baseline_iterations
+    return options_with(WholeSceneOptions, paths, where="bench_train.py tabletop")
+
+
+def train_hybrid(args: argparse.Namespace, inputs: ProjectInputs, truth_in: TruthInputs) -> tuple[Any, float]:
+    """The train stage's training (train_in_masks) on the truth's masks; the result and the call's seconds."""
+    from fusion.train.masked import train_in_masks
+
+    opts = hybrid_options(args)
     print(f"training options: {opts}")
-    tr = train_splats(cameras, images, masks, init.gaussians, context, opts)
+    masks = {k: m for k, m in truth_in.masks.items() if k in inputs.images}  # held-out photos: never trained on
+    sfm = inputs.sfm
+    sfm_points = (sfm.world_positions - inputs.cameras.origin, sfm.colors) if len(sfm) else None
+    t0 = time.perf_counter()
+    tr, init, used = train_in_masks(inputs.cameras, inputs.images, masks, inputs.mvs, truth_in.needs, sfm_points,
+                                    opts, args.seed)  # fmt: skip
+    seconds = time.perf_counter() - t0
+    print(f"init: {len(init.gaussians)} seeds (mvs {init.from_mvs}, sfm {init.from_sfm}, rays {init.from_rays}, "
+          f"no depth {init.rays_without_depth}) in {seconds - tr.seconds:.1f} s (the call less the training); "
+          f"downscale {used['downscale']}, cap {used['cap']}")  # fmt: skip
     print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
           f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
           f"early stop {tr.stopped_early}, refine {tr.refine}; {load()}")  # fmt: skip
@@ -419,139 +656,136 @@ def bench_tabletop(args: argparse.Namespace) -> None:
     for c in tr.history:
         print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
               f"{c.seconds:6.1f} s  prior depth {c.prior_depth:.4f}  normal {c.prior_normal:.4f}")  # fmt: skip
-    t1 = time.perf_counter()
-    cleaned = clean_splats(tr.splats, cameras, masks, CleanOptions())
-    t_clean = time.perf_counter() - t1
-    print(f"clean: {cleaned.counts} in {t_clean:.1f} s")
-    from core.io import read_point_cloud as _read
+    return tr, seconds
 
-    lidar = _read(scene / "gt" / "lidar.ply")
-    lmat = np.asarray(lidar.fields["material"]).astype(np.int64)
-    tau = 3 * json.loads((scene / "scene.json").read_text())["gsd_m"]
-    g_before = splat_geometry(tr.splats, lidar.world_positions, lmat, non_collab, tau)
-    g_after = splat_geometry(cleaned.splats, lidar.world_positions, lmat, non_collab, tau)
+
+def clean_hybrid(inputs: ProjectInputs, truth_in: TruthInputs, truth: SceneTruth, trained: Any) -> tuple[Any, float]:
+    """The clean stage's cleaning (clean_splats, its default options) and where the splats lie against the truth;
+    the cleaned splats and the cleaning's seconds."""
+    from fusion.clean import clean_splats
+    from fusion.clean_options import CleanOptions
+
+    t0 = time.perf_counter()
+    cleaned = clean_splats(trained, inputs.cameras, truth_in.masks, CleanOptions())
+    seconds = time.perf_counter() - t0
+    print(f"clean: {cleaned.counts} in {seconds:.1f} s")
+    tau = 3 * truth.gsd
+    g_before = splat_geometry(trained, truth, tau)
+    g_after = splat_geometry(cleaned.splats, truth, tau)
     print(f"splats outside the true region (nearest truth collaborative or > {tau * 1000:.1f} mm): "
-          f"{g_before['outside_true_region']} of {len(tr.splats)} before cleaning, "
+          f"{g_before['outside_true_region']} of {len(trained)} before cleaning, "
           f"{g_after['outside_true_region']} of {len(cleaned.splats)} after")  # fmt: skip
     for m, v in g_after["per_material"].items():
         print(f"   material {m}: {v['n']} splats, opacity-weighted mean C2C {1000 * v['c2c_weighted_mean_m']:.2f} mm, "
               f"median {1000 * v['c2c_median_m']:.2f} mm")  # fmt: skip
-    merged = merge_hybrid(mvs, cleaned.splats, needs).gaussians
-    from scipy.spatial import cKDTree
+    return cleaned.splats, seconds
 
-    from fusion.clean import SurveyPointOptions, select_survey_points
-    from fusion.merge import subset
 
-    trusted = mvs.subset(~needs).with_origin(cameras.origin).means
-    spacing = float(np.median(cKDTree(trusted).query(trusted, k=2)[0][:, 1]))
-    sel = select_survey_points(cleaned.splats, cameras, masks, trusted, spacing, SurveyPointOptions())
-    print(f"survey points from splats: {sel.counts} (trusted MVS spacing {spacing * 1000:.2f} mm)")
-    from dataclasses import replace
-
-    sel_mvs = select_survey_points(mvs.subset(needs), cameras, masks, trusted, spacing,
-                                   replace(SurveyPointOptions(), shape_checks=False))  # fmt: skip
-    print(f"survey points from needs_splats MVS points: {sel_mvs.counts}")
-    needs_left_out = needs.copy()
-    needs_left_out[np.flatnonzero(needs)[sel_mvs.keep]] = False  # as the merge stage does
-    points = merge_hybrid(mvs, subset(cleaned.splats, sel.keep), needs_left_out).gaussians
-    meta = json.loads((scene / "scene.json").read_text())
-    names = {int(m["id"]): m["name"] for m in meta["materials"]}
-    tree = cKDTree(lidar.world_positions)
-    geo = {
-        "MVS-only": product_geometry(fused.world_positions, None, lidar.world_positions, lmat, tau, tree),
-        "splat centres (α-w)": product_geometry(
-            cleaned.splats.world_means, cleaned.splats.opacities, lidar.world_positions, lmat, tau, tree
-        ),  # fmt: skip
-        "merged, every splat": product_geometry(merged.world_means, None, lidar.world_positions, lmat, tau, tree),
-        "merged points": product_geometry(points.world_means, None, lidar.world_positions, lmat, tau, tree),
-    }
-    print_geometry(geo, names, tau)
-    (out / "geometry.json").write_text(
-        json.dumps({k: {str(m): vars(g) for m, g in v.items()} for k, v in geo.items()}, indent=1)
+def merge_hybrid_products(
+    inputs: ProjectInputs, truth_in: TruthInputs, truth: SceneTruth, cleaned: Any, out: Path
+) -> Any:
+    """The merge stage's products of the cleaned splats, their per-material geometry (OUT/geometry.json)."""
+    products = merge_products(inputs, truth_in, cleaned)
+    c = products.counts
+    print(
+        f"survey points from splats: {c['point_splats']} (trusted MVS spacing {c['trusted_spacing_m'] * 1000:.2f} mm)"
     )
-    write_gaussian_ply(out / "merged.ply", merged, extra_fields=True)
-    write_gaussian_ply(out / "splats.ply", tr.splats, extra_fields=True)
-    hybrid_time = t_init + tr.seconds + t_clean
-    results["merged"] = evaluate("merged", merged, test_cams, scene, test_masks, lpips_model, out)
-    results["mvs"] = evaluate("mvs", mvs, test_cams, scene, test_masks, lpips_model, out)
-    results["splats_only"] = evaluate("splats", cleaned.splats, test_cams, scene, test_masks, lpips_model, out)
-    print(f"hybrid time (init + train + clean, MVS excluded): {hybrid_time:.1f} s")
-    if args.only == "both":
-        bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results)
-        return
-    report(results, out, load)
+    print(f"survey points from needs_splats MVS points: {c.get('point_needs_mvs')}")
+    print(f"needs_splats MVS points kept by class: {c['point_needs_mvs_classes']}; "
+          f"mesh-surface splats: {c.get('surface_splats')}")  # fmt: skip
+    tau = 3 * truth.gsd
+    measure = truth_geometry(truth, tau)
+    geo = {
+        "MVS-only": measure(inputs.fused.world_positions),
+        "splat centres (α-w)": measure(cleaned.world_means, cleaned.opacities),
+        "merged, every splat": measure(products.gaussians.world_means),
+        "merged points": measure(products.points.world_means),
+    }
+    print_geometry(geo, truth.names, tau)
+    write_geometry(out / "geometry.json", geo)
+    return products
 
 
-def bench_baseline(args, cameras, sfm, images, test_cams, scene, test_masks, lpips_model, out, results) -> None:
-    """The whole-scene 3DGS baseline: same trainer, mask = whole image, no context, SfM init, same cap."""
+def bench_tabletop(args: argparse.Namespace) -> None:
     from core.io.gaussian_ply import write_gaussian_ply
-    from fusion.train import DefaultStrategy, TrainOptions, train_splats
-    from fusion.train.init import sfm_seeds
+    from hybridsplat.layout import ProjectLayout
 
-    strategy = DefaultStrategy(cap=args.cap, refine_start=args.refine_start, refine_every=args.refine_every,
-                               reset_every=args.reset_every)  # fmt: skip
-    base_init = sfm_seeds(sfm.positions, sfm.colors, cameras.origin)
-    bopts = TrainOptions(iterations=args.baseline_iterations, downscale=args.downscale, seed=args.seed,
-                         strategy=strategy, sh_degree=args.sh_degree, lr_sh_dc=args.lr_sh_dc,
-                         patience=args.patience)  # fmt: skip
-    base = train_splats(cameras, images, None, base_init, None, bopts)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    truth = read_truth(args.scene)
+    inputs = read_project(args.project, images=True)
+    truth_in = truth_inputs(truth, inputs.cameras, inputs.mvs)
+    held = held_out_views(truth, out, args.lpips, lpips_required=False)
+    print(f"scene {args.scene}: {len(inputs.images)} training views, {len(inputs.fused)} fused points, "
+          f"{int(truth_in.needs.sum())} need splats, {sum(int(m.sum()) for m in truth_in.masks.values())} mask "
+          f"pixels; {load()}")  # fmt: skip
+    results: dict[str, Any] = {}
+    if args.only == "baseline":
+        return bench_baseline(args, inputs, held, out, results)
+    trained, t_train = train_hybrid(args, inputs, truth_in)
+    cleaned, t_clean = clean_hybrid(inputs, truth_in, truth, trained.splats)
+    merged = merge_hybrid_products(inputs, truth_in, truth, cleaned, out).gaussians
+    products = ProjectLayout(out)  # the bench's products where a project keeps them
+    products.export_dir.mkdir(exist_ok=True)
+    products.splats_dir.mkdir(exist_ok=True)
+    write_gaussian_ply(products.merged_ply, merged, extra_fields=True)
+    write_gaussian_ply(products.trained_splats, trained.splats, extra_fields=True)
+    results["merged"] = evaluate("merged", merged, held, out)
+    results["mvs"] = evaluate("mvs", inputs.mvs, held, out)
+    results["splats_only"] = evaluate("splats", cleaned, held, out)
+    print(f"hybrid time (init + train + clean, MVS excluded): {t_train + t_clean:.1f} s")
+    if args.only == "both":
+        return bench_baseline(args, inputs, held, out, results)
+    report(results, out)
+
+
+def bench_baseline(args, inputs: ProjectInputs, held: HeldOut, out: Path, results: dict[str, Any]) -> None:
+    """The baseline stage's whole-scene 3DGS (train_whole_scene): same trainer, mask = whole image, no context,
+    SfM init, same cap."""
+    from core.io.gaussian_ply import write_gaussian_ply
+    from fusion.train.masked import train_whole_scene
+    from hybridsplat.layout import ProjectLayout
+
+    opts = baseline_options(args)
+    sfm = inputs.sfm
+    sfm_points = (sfm.world_positions - inputs.cameras.origin, sfm.colors if len(sfm) else None)
+    base, downscale = train_whole_scene(inputs.cameras, inputs.images, sfm_points, opts, args.seed)
     print(f"baseline training: {base.iterations} it in {base.seconds:.1f} s "
-          f"({base.seconds / base.iterations:.3f} s/it), {len(base.splats)} splats; {load()}")  # fmt: skip
+          f"({base.seconds / base.iterations:.3f} s/it), {len(base.splats)} splats, downscale {downscale}; "
+          f"{load()}")  # fmt: skip
     for c in base.history:
         print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
               f"{c.seconds:6.1f} s")  # fmt: skip
-    write_gaussian_ply(out / "baseline.ply", base.splats)
-    results["baseline"] = evaluate("baseline", base.splats, test_cams, scene, test_masks, lpips_model, out)
-    report(results, out, load)
-
-
-def report(results, out: Path, load_fn) -> None:
-    print(f"\nheld-out views, {load_fn()}:")
-    for name, r in results.items():
-        print(f"  {name:12s} masked: {fmt_scores(r.masked)} | whole: {fmt_scores(r.full)}")
-    summary = {
-        name: {"masked": None if r.masked is None else r.masked.as_dict(), "whole": r.full.as_dict()}
-        for name, r in results.items()
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
-    return None
+    path = ProjectLayout(out).baseline_splats
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_gaussian_ply(path, base.splats)
+    results["baseline"] = evaluate("baseline", base.splats, held, out)
+    report(results, out)
 
 
 def bench_score(args: argparse.Namespace) -> None:
     """Held-out metrics of saved products: MVS-only, merged (cleaned / uncleaned splats) and baseline PLYs."""
-    from core.io import read_point_cloud
-    from core.io.colmap import read_model
     from core.io.gaussian_ply import read_gaussian_ply
-    from core.io.images import read_image, write_image
-    from eval.lpips import LPIPS
-    from fusion.merge import merge_hybrid
 
-    scene, project, out = Path(args.scene), Path(args.project), Path(args.out)
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cameras, _ = read_model(project / "sparse")
-    fused = read_point_cloud(project / "dense" / "fused.ply")
-    mvs = read_gaussian_ply(project / "export" / "mvs_gaussians.ply")
-    _, needs, non_collab = truth_inputs(scene, cameras, fused.world_positions)
-    test_cams, _ = read_model(scene / "sparse" / "test")
-    test_masks = out / "truth_masks_test"
-    test_masks.mkdir(exist_ok=True)
-    for label in sorted((scene / "gt" / "labels" / "test").glob("*.png")):
-        lab = read_image(label, grayscale=True)
-        write_image(test_masks / label.name, (np.isin(lab, non_collab) * 255).astype(np.uint8))
-    lpips_model = LPIPS.from_path(args.lpips)
-    products = {"mvs": mvs}
+    truth = read_truth(args.scene)
+    inputs = read_project(args.project, images=False)
+    truth_in = truth_inputs(truth, inputs.cameras, inputs.mvs)
+    held = held_out_views(truth, out, args.lpips, lpips_required=True)
+    products = {"mvs": inputs.mvs}
     for spec in args.ply:
         name, _, path = spec.partition("=")
         gs = read_gaussian_ply(path)
-        if name.startswith("merged_from_"):  # raw trained splats: merge them with the trusted MVS first
-            gs = merge_hybrid(mvs, gs, needs).gaussians
+        if name.startswith("merged_from_"):  # raw trained splats: merged with the MVS Gaussians first
+            gs = merge_products(inputs, truth_in, gs).gaussians
         products[name] = gs
     results = {}
     for name, gs in products.items():
-        results[name] = evaluate(name, gs, test_cams, scene, test_masks, lpips_model, out)
+        results[name] = evaluate(name, gs, held, out)
         print(f"  {name:22s} ({len(gs)} Gaussians) masked: {fmt_scores(results[name].masked)} | "
               f"whole: {fmt_scores(results[name].full)}; {load()}", flush=True)  # fmt: skip
-    report(results, out, load)
+    report(results, out)
 
 
 def main() -> None:
@@ -568,9 +802,11 @@ def main() -> None:
     t.add_argument("--project", required=True)
     t.add_argument("--out", default="bench/out/train_tabletop")
     t.add_argument("--iterations", type=int, default=2000)
-    t.add_argument("--baseline-iterations", type=int, default=0)
-    t.add_argument("--downscale", type=int, default=1)
+    t.add_argument("--baseline-iterations", type=int, default=0, help="0: the baseline stage's default")
+    t.add_argument("--downscale", type=int, default=1, help="at least this (see --max-image-size)")
+    t.add_argument("--max-image-size", type=int, default=None, help="default: the train stage's (0: no limit)")
     t.add_argument("--cap", type=int, default=60_000)
+    t.add_argument("--splats-per-mask-pixel", type=float, default=None, help="default: the train stage's")
     t.add_argument("--rays", type=int, default=400)
     t.add_argument("--refine-start", type=int, default=300)
     t.add_argument("--refine-every", type=int, default=100)

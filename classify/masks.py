@@ -12,8 +12,8 @@ A mask pixel is set (255 in the PNG) where
   matches the photo at their projection (within ``colour_tolerance``); a point hidden behind a surface that MVS
   missed (glass, metal, thin wires in front of it) is neither, so the missed surface becomes a hole.
   ``"all"`` lets every projected point explain its pixels (the hidden ones too). (``hole_gsd = 0``: the older
-  radius of ``hole_footprint`` point spacings, which is ~1.3 τ on tabletop_s1 and ~0.8 τ on aerial_s1, whose
-  MVS clouds are sampled differently.) The valid area (``hole_area``) is by default (``"hull_below"``) the
+  radius of ``hole_footprint`` point spacings, a different multiple of τ on differently sampled clouds; see
+  docs/experiments/2026-11-27-domain-defaults.md.) The valid area (``hole_area``) is by default (``"hull_below"``) the
   convex hull of the cloud's projection united with every pixel below the upper envelope of the cloud's
   projection, "up" being the projection of the world ``up`` axis (sky lies above the scene in upright photos; a
   photo looking along ``up``, e.g. nadir, is all scene), so that unreconstructed surfaces outside the hull count
@@ -23,10 +23,9 @@ A mask pixel is set (255 in the PNG) where
   the photo from colour models of the pixels covered by points (certain scene), the rest of the valid area
   (probably scene) and the pixels outside it (probably not). The far part of a table or terrain seen at a
   grazing angle, which MVS did not reconstruct, lies above the cloud's outline but looks like the table or the
-  terrain; sky and backdrop do not. On tabletop_s1 / aerial_s1 (seed 1, never used for training), with the
-  previous default model's classes and the 3-GSD radius, this growth raised the covered share of the
-  truly-needs pixels from 0.71 / 0.76 to 0.92 / 0.90 at 10 % / 6 % of the rest (2.5 GSD: 0.93 / 0.915 at
-  12 % / 8 %; ``bench/bench_classify.py``, docs/classify.md). Pixels at infinity (no parallax between the
+  terrain; sky and backdrop do not. The growth is on by default because it covers most of the needs-splats
+  pixels the cloud's outline misses at a small cost in the rest (measured on held-out scenes; see
+  docs/experiments/2026-11-27-domain-defaults.md). Pixels at infinity (no parallax between the
   photo and its neighbours, :func:`at_infinity`: sky, a distant backdrop) outside what the cloud's points
   enclose are no valid area and GrabCut's certain background; with such a backdrop in view, the area below the
   envelope outside the hull keeps only what GrabCut puts with the scene;
@@ -40,6 +39,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
 
 import cv2
 import numpy as np
@@ -47,9 +47,27 @@ from scipy import ndimage
 
 from core.cameras import Cameras, View
 from core.errors import ConfigError, DataError
+from core.options import enum_choice
 
-HOLE_AREAS = ("hull_below", "hull", "below", "enclosed")
-EXPLAINED_BY = ("seen", "all")
+
+class HoleArea(str, Enum):
+    """Where MVS holes are looked for (see the module docstring)."""
+
+    HULL_BELOW = "hull_below"
+    HULL = "hull"
+    BELOW = "below"
+    ENCLOSED = "enclosed"
+
+
+class ExplainedBy(str, Enum):
+    """Which points explain pixels when looking for holes (see the module docstring)."""
+
+    SEEN = "seen"
+    ALL = "all"
+
+
+HOLE_AREAS = tuple(a.value for a in HoleArea)
+EXPLAINED_BY = tuple(e.value for e in ExplainedBy)
 
 
 @dataclass(frozen=True)
@@ -57,26 +75,22 @@ class MaskOptions:
     """footprint: a point's radius as a multiple of the point spacing (default 1.5: neighbouring footprints touch).
     hole_gsd: the radius, in ground sample distances at the point's depth, within which a point explains pixels
     when looking for holes (default 2.5, a little under the evaluation's τ = 3 GSD because disks of whole pixels
-    cover slightly more than their radius; chosen on tabletop_s7 / aerial_s7 with their true classes: 0.945 /
-    0.958 of the truly-needs pixels covered at 12 % / 9 % of the rest, against 0.935 / 0.951 at 11 % / 7 % with
-    3 GSD). 0: use ``hole_footprint``, the radius in point spacings (2.5), instead.
+    cover slightly more than their radius; chosen on the tabletop and aerial presets with their true classes, see
+    docs/experiments/2026-11-27-domain-defaults.md). 0: use ``hole_footprint``, the radius in point spacings (2.5),
+    instead.
     grow_area: GrabCut iterations that grow the valid area by what looks like the reconstructed scene (default 3;
     0 = off; needs the photos, see ``SeenInView``); run on the photo reduced to ``grow_max_px`` pixels on its long
     side (default 640).
     max_radius_px: footprint cap (default 12 px). occlusion_tolerance: relative depth under which a point counts as
     in front (default 2 %). close_px / dilate_px: radii (pixels) of the closing and the dilation (defaults 3 / 2).
     dilate_spacings: the dilation radius in point spacings at the view's median depth, when larger than
-    ``dilate_px`` (default 3: ~5 px on tabletop_s1, 3 px on aerial_s1; a margin tied to the sampling, not to the
-    image size; 0 = ``dilate_px`` only).
+    ``dilate_px`` (default 3: a margin tied to the sampling, not to the image size; 0 = ``dilate_px`` only).
     train_margin_spacings: the extra margin of the *training* masks, in point spacings at the view's median depth
     (default 5; 0 = none): recorded per photo as ``train_margin_px`` (:class:`PhotoMask`); the train and clean
     stages dilate the region mask by it (the region masks themselves, what the classification is scored on, stay
-    as they are). Splats at a region's edge then see the photo on both sides of it: on the demo tabletop (seed 1,
-    1500 steps, held-out views, inside the true non-collaborative masks) the merged PSNR was 21.57 dB without a
-    margin, 21.93 with 3 spacings and 22.26 with 5 (the 4000-step whole-scene baseline: 22.16), for the same
-    training time; widening the region masks themselves instead (6 spacings: 22.13 dB) would have covered 25 % of
-    the pixels that need no splats instead of 11 %. On aerial (300 steps): 19.95 dB without, 20.10 with 5
-    (baseline 20.30).
+    as they are). Splats at a region's edge then see the photo on both sides of it; 5 spacings gave the best
+    held-out image quality inside the masks for the same training time, and widening the region masks themselves
+    instead would cover far more pixels that need no splats (see docs/experiments/2026-11-27-domain-defaults.md).
     holes: whether MVS holes are added (default True). hole_area: "hull_below" (default), "hull", "below" or
     "enclosed"; explained_by: "seen" (default) or "all"; colour_tolerance: mean absolute RGB difference (/255)
     under which a point's colour matches the photo (best of the 3×3 pixels around its projection; default 0.04)
@@ -101,8 +115,8 @@ class MaskOptions:
     dilate_spacings: float = 3.0
     train_margin_spacings: float = 5.0
     holes: bool = True
-    hole_area: str = "hull_below"
-    explained_by: str = "seen"
+    hole_area: HoleArea = HoleArea.HULL_BELOW
+    explained_by: ExplainedBy = ExplainedBy.SEEN
     colour_tolerance: float = 0.04
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     min_hole_px: int = 4
@@ -120,10 +134,8 @@ class MaskOptions:
             v = getattr(self, name)
             if not (v >= 0 and np.isfinite(v)):
                 raise ConfigError(f"{name} must be >= 0, got {v}")
-        if self.hole_area not in HOLE_AREAS:
-            raise ConfigError(f"hole_area must be one of {HOLE_AREAS}, got {self.hole_area!r}")
-        if self.explained_by not in EXPLAINED_BY:
-            raise ConfigError(f"explained_by must be one of {EXPLAINED_BY}, got {self.explained_by!r}")
+        object.__setattr__(self, "hole_area", enum_choice(HoleArea, self.hole_area, "hole_area"))
+        object.__setattr__(self, "explained_by", enum_choice(ExplainedBy, self.explained_by, "explained_by"))
 
 
 @dataclass(frozen=True)
@@ -373,6 +385,38 @@ def ground_sample_distance(cameras: Cameras, positions: np.ndarray, names: list[
     return float(np.median(per_view)) if per_view else 0.0
 
 
+@dataclass(frozen=True)
+class _Projected:
+    """The points of one view that project onto its photo padded by ``pad`` pixels (in front of the camera):
+    ``idx`` (M,) int64 indices into the cloud, pixel ``col`` / ``row`` (M,) float64 and depth ``z`` (M,) metres."""
+
+    idx: np.ndarray
+    col: np.ndarray
+    row: np.ndarray
+    z: np.ndarray
+    h: int
+    w: int
+    pad: int
+
+    def draw(self, sel: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
+        """(h, w) bool footprints of the points ``sel`` (M,) bool with radii ``radius_px`` (M,), drawn on the canvas
+        padded by ``pad`` (points just outside the photo still cover its border pixels) and cropped."""
+        h, w, pad = self.h, self.w, self.pad
+        canvas = splat_footprints(
+            (h + 2 * pad, w + 2 * pad), self.col[sel] + pad, self.row[sel] + pad, radius_px[sel], pad
+        )
+        return canvas[pad : pad + h, pad : pad + w]
+
+
+def _project(cameras: Cameras, view: View, positions: np.ndarray, pad: int) -> _Projected:
+    cam = cameras.camera_of(view)
+    h, w = cam.height, cam.width
+    uv, z = cameras.project(view, positions)
+    inside = (z > 0) & (uv[:, 0] >= -pad) & (uv[:, 1] >= -pad) & (uv[:, 0] < w + pad) & (uv[:, 1] < h + pad)
+    idx = np.flatnonzero(inside)
+    return _Projected(idx, uv[idx, 0], uv[idx, 1], z[idx], h, w, pad)
+
+
 def photo_mask(
     cameras: Cameras,
     view: View,
@@ -389,94 +433,19 @@ def photo_mask(
     ``explained_by="seen"``; None: every point explains its pixels)."""
     if spacing <= 0 or not np.isfinite(spacing):
         raise DataError(f"point spacing must be positive, got {spacing}")
-    cam = cameras.camera_of(view)
-    h, w = cam.height, cam.width
-    uv, z = cameras.project(view, positions)
+    fx = cameras.camera_of(view).focal[0]
     # Points projecting just outside the photo still cover its border pixels with their footprints: they are drawn
     # on a canvas padded by the largest footprint, then cropped (else the border reads as a hole).
-    pad = int(options.max_radius_px)
-    inside = (z > 0) & (uv[:, 0] >= -pad) & (uv[:, 1] >= -pad) & (uv[:, 0] < w + pad) & (uv[:, 1] < h + pad)
-    idx = np.flatnonzero(inside)
-    col, row, zz = uv[idx, 0], uv[idx, 1], z[idx]
-    fx = cam.focal[0]
-
-    def draw(sel: np.ndarray, radius_px: np.ndarray) -> np.ndarray:
-        canvas = splat_footprints((h + 2 * pad, w + 2 * pad), col[sel] + pad, row[sel] + pad, radius_px[sel], pad)
-        return canvas[pad : pad + h, pad : pad + w]
-
-    radius = options.footprint * spacing * fx / zz
-    bad = np.asarray(needs_splats, dtype=bool)[idx]
-    # z-buffer of the collaborative points (their nearest depth per pixel, spread over a 3×3 neighbourhood).
-    good = ~bad
-    zbuf = np.full((h + 2 * pad, w + 2 * pad), np.inf)
-    ci, ri = (col + pad).astype(np.int64), (row + pad).astype(np.int64)
-    np.minimum.at(zbuf, (ri[good], ci[good]), zz[good])
-    zbuf = ndimage.minimum_filter(zbuf, size=3)
-    front = bad & (zz <= zbuf[ri, ci] * (1.0 + options.occlusion_tolerance))
-    from_points = draw(front, radius)
+    pr = _project(cameras, view, positions, int(options.max_radius_px))
+    h, w = pr.h, pr.w
+    radius = options.footprint * spacing * fx / pr.z
+    from_points = _front_footprints(pr, np.asarray(needs_splats, dtype=bool)[pr.idx], radius, options)
     holes = np.zeros((h, w), dtype=bool)
-    if options.holes and len(idx):
-        hole_radius = radius * (options.hole_footprint / options.footprint)
-        if options.hole_gsd > 0:
-            g = gsd if gsd is not None and gsd > 0 else float(np.median(zz)) / fx
-            hole_radius = options.hole_gsd * g * fx / zz
-        covered = draw(np.ones(len(idx), dtype=bool), hole_radius)
-        area = np.zeros((h, w), dtype=bool)
-        below = np.zeros((h, w), dtype=bool)
-        hull_area = np.zeros((h, w), dtype=bool)
-        if options.hole_area in ("below", "hull_below"):
-            up = np.asarray(options.up, dtype=np.float64)
-            below = _below_envelope(cameras, view, positions[idx], covered, up)
-            area |= below
-        if options.hole_area in ("hull", "hull_below") and len(idx) >= options.min_points_hull:
-            hull_img = np.zeros((h, w), dtype=np.uint8)
-            hull = cv2.convexHull(np.c_[col, row].astype(np.float32))
-            cv2.fillPoly(hull_img, [np.round(hull).astype(np.int32).reshape(-1, 2)], 1)
-            hull_area = hull_img.astype(bool)
-            area |= hull_area
-        if options.hole_area == "enclosed":
-            area = ndimage.binary_fill_holes(covered)
-        photo = None if seen is None or seen.photo is None else seen.photo
-        # Backdrop at infinity, outside what the cloud's points enclose (a blank wall inside the scene is kept).
-        backdrop = np.zeros((h, w), dtype=bool)
-        if options.infinity and photo is not None and (area & ~covered).any():
-            backdrop = at_infinity(cameras, view, photo) & ~ndimage.binary_fill_holes(covered)
-        if options.grow_area > 0 and photo is not None:
-            grown = _grow_area(
-                np.asarray(photo(view.name)), covered, area, options.grow_area, options.grow_max_px, background=backdrop
-            )
-            if backdrop.any() and grown.any():
-                # With a backdrop in view, the area below the cloud's envelope is only a guess outside its hull:
-                # what GrabCut puts with the backdrop there is no hole.
-                area &= ~(below & ~hull_area)
-            area |= grown
-        area &= ~backdrop
-        if options.explained_by == "seen" and seen is not None:
-            covered = draw(seen.explains(view, idx, col, row, (w, h), options.colour_tolerance), hole_radius)
-        holes = area & ~covered
-        if options.min_hole_px > 1 and holes.any():
-            lab, n = ndimage.label(holes)
-            sizes = np.bincount(lab.ravel(), minlength=n + 1)
-            holes = holes & (sizes[lab] >= options.min_hole_px)
-    user = np.zeros((h, w), dtype=bool)
-    if user_mask is not None:
-        um = np.asarray(user_mask)
-        if um.shape[:2] != (h, w):
-            um = cv2.resize(um.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
-        user = (um[..., 0] if um.ndim == 3 else um) > 0
+    if options.holes and len(pr.idx):
+        holes = _mvs_holes(cameras, view, positions, pr, radius, fx, options, seen, gsd)
+    user = _user_pixels(user_mask, h, w)
     union = (from_points | holes | user).astype(np.uint8)
-    if options.close_px > 0:
-        union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, _disk(options.close_px))
-    dilate = options.dilate_px
-    margin = 0
-    if len(idx):
-        spacing_px = spacing * fx / float(np.median(zz))
-        if options.dilate_spacings > 0:
-            dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
-        margin = min(int(round(options.train_margin_spacings * spacing_px)), 4 * options.max_radius_px)
-    if dilate > 0:
-        union = cv2.dilate(union, _disk(dilate))
-    mask = union.astype(bool)
+    mask, margin = _close_and_dilate(union, pr, spacing, fx, options)
     npx = float(h * w)
     return PhotoMask(
         view.name,
@@ -487,6 +456,121 @@ def photo_mask(
         float(user.sum() / npx),
         margin,
     )
+
+
+def _front_footprints(pr: _Projected, bad: np.ndarray, radius: np.ndarray, options: MaskOptions) -> np.ndarray:
+    """(H, W) bool footprints of the needs-splats points ``bad`` (M,) bool that no collaborative point hides: a
+    z-buffer of the collaborative points (their nearest depth per pixel, spread over a 3×3 neighbourhood)."""
+    good = ~bad
+    zbuf = np.full((pr.h + 2 * pr.pad, pr.w + 2 * pr.pad), np.inf)
+    ci, ri = (pr.col + pr.pad).astype(np.int64), (pr.row + pr.pad).astype(np.int64)
+    np.minimum.at(zbuf, (ri[good], ci[good]), pr.z[good])
+    zbuf = ndimage.minimum_filter(zbuf, size=3)
+    front = bad & (pr.z <= zbuf[ri, ci] * (1.0 + options.occlusion_tolerance))
+    return pr.draw(front, radius)
+
+
+def _mvs_holes(
+    cameras: Cameras,
+    view: View,
+    positions: np.ndarray,
+    pr: _Projected,
+    radius: np.ndarray,
+    fx: float,
+    options: MaskOptions,
+    seen: SeenInView | None,
+    gsd: float | None,
+) -> np.ndarray:
+    """(H, W) bool: pixels of the valid area that no (seen) point explains, without holes under ``min_hole_px``."""
+    hole_radius = radius * (options.hole_footprint / options.footprint)
+    if options.hole_gsd > 0:
+        g = gsd if gsd is not None and gsd > 0 else float(np.median(pr.z)) / fx
+        hole_radius = options.hole_gsd * g * fx / pr.z
+    covered = pr.draw(np.ones(len(pr.idx), dtype=bool), hole_radius)
+    area = _valid_area(cameras, view, positions, pr, covered, options, seen)
+    if options.explained_by == "seen" and seen is not None:
+        explained = seen.explains(view, pr.idx, pr.col, pr.row, (pr.w, pr.h), options.colour_tolerance)
+        covered = pr.draw(explained, hole_radius)
+    holes = area & ~covered
+    if options.min_hole_px > 1 and holes.any():
+        lab, n = ndimage.label(holes)
+        sizes = np.bincount(lab.ravel(), minlength=n + 1)
+        holes = holes & (sizes[lab] >= options.min_hole_px)
+    return holes
+
+
+def _valid_area(
+    cameras: Cameras,
+    view: View,
+    positions: np.ndarray,
+    pr: _Projected,
+    covered: np.ndarray,
+    options: MaskOptions,
+    seen: SeenInView | None,
+) -> np.ndarray:
+    """(H, W) bool: where the scene is (``hole_area``), grown by GrabCut and less the backdrop at infinity."""
+    h, w = pr.h, pr.w
+    area = np.zeros((h, w), dtype=bool)
+    below = np.zeros((h, w), dtype=bool)
+    hull_area = np.zeros((h, w), dtype=bool)
+    if options.hole_area in ("below", "hull_below"):
+        up = np.asarray(options.up, dtype=np.float64)
+        below = _below_envelope(cameras, view, positions[pr.idx], covered, up)
+        area |= below
+    if options.hole_area in ("hull", "hull_below") and len(pr.idx) >= options.min_points_hull:
+        hull_img = np.zeros((h, w), dtype=np.uint8)
+        hull = cv2.convexHull(np.c_[pr.col, pr.row].astype(np.float32))
+        cv2.fillPoly(hull_img, [np.round(hull).astype(np.int32).reshape(-1, 2)], 1)
+        hull_area = hull_img.astype(bool)
+        area |= hull_area
+    if options.hole_area == "enclosed":
+        area = ndimage.binary_fill_holes(covered)
+    photo = None if seen is None or seen.photo is None else seen.photo
+    # Backdrop at infinity, outside what the cloud's points enclose (a blank wall inside the scene is kept).
+    backdrop = np.zeros((h, w), dtype=bool)
+    if options.infinity and photo is not None and (area & ~covered).any():
+        backdrop = at_infinity(cameras, view, photo) & ~ndimage.binary_fill_holes(covered)
+    if options.grow_area > 0 and photo is not None:
+        grown = _grow_area(
+            np.asarray(photo(view.name)), covered, area, options.grow_area, options.grow_max_px, background=backdrop
+        )
+        if backdrop.any() and grown.any():
+            # With a backdrop in view, the area below the cloud's envelope is only a guess outside its hull:
+            # what GrabCut puts with the backdrop there is no hole.
+            area &= ~(below & ~hull_area)
+        area |= grown
+    area &= ~backdrop
+    return area
+
+
+def _user_pixels(user_mask: np.ndarray | None, h: int, w: int) -> np.ndarray:
+    """(h, w) bool: the user mask (any size, (H, W) or (H, W, C), non-zero = set) at the photo's size."""
+    user = np.zeros((h, w), dtype=bool)
+    if user_mask is not None:
+        um = np.asarray(user_mask)
+        if um.shape[:2] != (h, w):
+            um = cv2.resize(um.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+        user = (um[..., 0] if um.ndim == 3 else um) > 0
+    return user
+
+
+def _close_and_dilate(
+    union: np.ndarray, pr: _Projected, spacing: float, fx: float, options: MaskOptions
+) -> tuple[np.ndarray, int]:
+    """The closed and dilated mask (H, W) bool of ``union`` (H, W) uint8, and the training margin in pixels (both
+    radii from the point spacing at the view's median depth, capped at 4 × ``max_radius_px``)."""
+    if options.close_px > 0:
+        union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, _disk(options.close_px))
+    dilate = options.dilate_px
+    margin = 0
+    if len(pr.idx):
+        spacing_px = spacing * fx / float(np.median(pr.z))
+        if options.dilate_spacings > 0:
+            dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
+        margin = min(int(round(options.train_margin_spacings * spacing_px)), 4 * options.max_radius_px)
+    if dilate > 0:
+        union = cv2.dilate(union, _disk(dilate))
+    return union.astype(bool), margin
 
 
 def region_masks(

@@ -29,15 +29,14 @@ MODEL_VERSION = 1
 class ForestOptions:
     """Random-forest hyper-parameters (scikit-learn names). Defaults keep a model under 5 MB.
 
-    n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 5 (10 before the height features;
-    5 gave the better leave-one-scene-out F1 on the default model's training scenes, 0.861 against 0.850).
-    class_weight: "balanced"
-    (classes weighted by inverse frequency; None = unweighted). max_samples_per_class: points per class drawn
-    (seeded) for training, bounding time and size (50 000). n_jobs: threads (-1: all). seed: every random choice.
+    n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 5 (the better leave-one-scene-out F1 on the
+    default model's training scenes; see docs/experiments/2026-11-27-domain-defaults.md). class_weight: "balanced"
+    (classes weighted by inverse frequency; None = unweighted). max_samples_per_class: points per class drawn (seeded)
+    for training, bounding time and size (50 000). n_jobs: threads (-1: all). seed: every random choice.
     smooth_passes: passes of averaging the class probabilities over each point's finest neighbourhood before
     the decision (1; 0 = none). Needs-splats regions are contiguous surfaces: averaging removes isolated false
-    positives and fills gaps (on tabletop_s1 / aerial_s1 it raised the binary F1 by ~0.06; see
-    docs/classify.md). Used only when training has spatial groups and neighbours (else 0 is recorded).
+    positives and fills gaps (chosen on held-out scenes; see docs/experiments/2026-11-27-domain-defaults.md). Used
+    only when training has spatial groups and neighbours (else 0 is recorded).
     folds: grouped folds of the out-of-fold predictions that choose the threshold and make the report (3).
     """
 
@@ -221,73 +220,25 @@ def train(
     (``test_fraction``, stratified, optimistic) and no smoothing. Score across scenes
     (``bench/bench_classify.py``) for the honest figure.
     """
-    from sklearn.model_selection import train_test_split
-
     y = np.asarray(labels, dtype=np.uint8)
-    if len(y) != len(table.values):
-        raise DataError(f"{len(y)} labels for {len(table.values)} points")
-    if groups is not None and len(groups) != len(y):
-        raise DataError(f"{len(groups)} groups for {len(y)} points")
-    unknown = set(np.unique(y).tolist()) - set(classes.codes.tolist()) - {UNLABELLED}
-    if unknown:
-        raise DataError(f"labels use codes {sorted(unknown)} that the class set does not define")
-    rows = np.flatnonzero(y != UNLABELLED)
-    if len(rows) < 10:
-        raise DataError(f"training needs at least 10 labelled points, got {len(rows)}")
+    rows = _labelled_rows(table, y, classes, groups)
     x = table.values
     n_groups = len(np.unique(np.asarray(groups)[rows])) if groups is not None else 0
     grouped = n_groups >= 2
     folds = min(options.folds, n_groups)
     smooth = options.smooth_passes if grouped and table.neighbours is not None else 0
     if grouped:
-        # Out-of-fold probabilities of every row (labelled or not: smoothing reads the neighbours' too).
-        g = np.asarray(groups)
-        ids = np.unique(g, return_inverse=True)[1].reshape(-1)
-        rng = np.random.default_rng(options.seed)
-        fold_of_group = rng.permutation(np.arange(ids.max() + 1) % folds)
-        fold = fold_of_group[ids]
-        proba = np.zeros((len(y), len(classes.codes)), dtype=np.float32)
-        col_of = {int(c): i for i, c in enumerate(classes.codes)}
-        for f in range(folds):
-            fit_rows = rows[fold[rows] != f]
-            fit_rows = fit_rows[_balanced_sample(y[fit_rows], options.max_samples_per_class, options.seed)]
-            forest = _forest(options)
-            forest.fit(x[fit_rows], y[fit_rows])  # type: ignore[attr-defined]
-            out = np.flatnonzero(fold == f)
-            if len(out):
-                cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
-                proba[np.ix_(out, cols)] = forest.predict_proba(x[out])  # type: ignore[attr-defined]
+        proba = _out_of_fold_proba(x, y, rows, np.asarray(groups), folds, classes, options)
         if smooth:
             proba = smooth_probabilities(proba, table.neighbours, smooth)  # type: ignore[arg-type]
         test = rows
         p_test = proba[test]
         n_train = len(rows)
     else:
-        present, counts = np.unique(y[rows], return_counts=True)
-        stratify = y[rows] if counts.min() >= 2 and len(present) > 1 else None
-        tr, te = train_test_split(rows, test_size=test_fraction, random_state=options.seed, stratify=stratify)
-        tr = tr[_balanced_sample(y[tr], options.max_samples_per_class, options.seed)]
-        forest = _forest(options)
-        forest.fit(x[tr], y[tr])  # type: ignore[attr-defined]
-        col_of = {int(c): i for i, c in enumerate(classes.codes)}
-        p_test = np.zeros((len(te), len(classes.codes)), dtype=np.float32)
-        cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
-        p_test[:, cols] = forest.predict_proba(x[te])  # type: ignore[attr-defined]
-        test = te
-        n_train = len(tr)
-    yte = y[test]
-    truth_needs = classes.needs_splats_of(yte)
-    p_needs = p_test[:, classes.needs_splats_of(classes.codes)].sum(axis=1)
+        test, p_test, n_train = _held_out_split(x, y, rows, classes, options, test_fraction)
     # Leave-one-group-out (a fold per group: the groups are projects): each project counts once in the threshold.
     per_project = np.asarray(groups)[test] if grouped and folds == n_groups else None
-    threshold = _best_threshold(p_needs, truth_needs, per_project)
-    pred = classes.codes[p_test.argmax(axis=1)].astype(np.uint8)
-    per_class = tuple(scores(yte == c.code, pred == c.code, c.name) for c in classes.classes)
-    binary = scores(truth_needs, p_needs >= threshold, "needs_splats")
-    pos = {int(c): i for i, c in enumerate(classes.codes)}
-    conf = np.zeros((len(classes.codes), len(classes.codes)), dtype=np.int64)
-    np.add.at(conf, (np.array([pos[int(t)] for t in yte], dtype=np.int64),
-                     np.array([pos[int(q)] for q in pred], dtype=np.int64)), 1)  # fmt: skip
+    threshold, per_class, binary, conf = _held_out_scores(y[test], p_test, classes, per_project)
     every = rows[_balanced_sample(y[rows], options.max_samples_per_class, options.seed)]
     final = _forest(options)
     final.fit(x[every], y[every])  # type: ignore[attr-defined]
@@ -299,6 +250,89 @@ def train(
     model.info["threshold"] = threshold
     model.info["smooth_passes"] = int(smooth)
     return model, report
+
+
+def _labelled_rows(table: FeatureTable, y: np.ndarray, classes: ClassSet, groups: np.ndarray | None) -> np.ndarray:
+    """Indices (int64) of the rows with a label, after checking the labels (N,) uint8 and groups against the table."""
+    if len(y) != len(table.values):
+        raise DataError(f"{len(y)} labels for {len(table.values)} points")
+    if groups is not None and len(groups) != len(y):
+        raise DataError(f"{len(groups)} groups for {len(y)} points")
+    unknown = set(np.unique(y).tolist()) - set(classes.codes.tolist()) - {UNLABELLED}
+    if unknown:
+        raise DataError(f"labels use codes {sorted(unknown)} that the class set does not define")
+    rows = np.flatnonzero(y != UNLABELLED)
+    if len(rows) < 10:
+        raise DataError(f"training needs at least 10 labelled points, got {len(rows)}")
+    return rows
+
+
+def _out_of_fold_proba(
+    x: np.ndarray,
+    y: np.ndarray,
+    rows: np.ndarray,
+    groups: np.ndarray,
+    folds: int,
+    classes: ClassSet,
+    options: ForestOptions,
+) -> np.ndarray:
+    """(N, C) float32 out-of-fold probabilities of every row (labelled or not: smoothing reads the neighbours' too),
+    columns in ``classes.codes`` order: groups are dealt to ``folds`` folds (seeded), and each fold is predicted by
+    a forest fitted on a balanced sample of the other folds' labelled ``rows``."""
+    ids = np.unique(groups, return_inverse=True)[1].reshape(-1)
+    rng = np.random.default_rng(options.seed)
+    fold_of_group = rng.permutation(np.arange(ids.max() + 1) % folds)
+    fold = fold_of_group[ids]
+    proba = np.zeros((len(y), len(classes.codes)), dtype=np.float32)
+    col_of = {int(c): i for i, c in enumerate(classes.codes)}
+    for f in range(folds):
+        fit_rows = rows[fold[rows] != f]
+        fit_rows = fit_rows[_balanced_sample(y[fit_rows], options.max_samples_per_class, options.seed)]
+        forest = _forest(options)
+        forest.fit(x[fit_rows], y[fit_rows])  # type: ignore[attr-defined]
+        out = np.flatnonzero(fold == f)
+        if len(out):
+            cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
+            proba[np.ix_(out, cols)] = forest.predict_proba(x[out])  # type: ignore[attr-defined]
+    return proba
+
+
+def _held_out_split(
+    x: np.ndarray, y: np.ndarray, rows: np.ndarray, classes: ClassSet, options: ForestOptions, test_fraction: float
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """One split of the labelled ``rows`` by point (stratified when every class has 2 rows): the held-out rows, their
+    (M, C) float32 probabilities from a forest fitted on a balanced sample of the rest, and that sample's size."""
+    from sklearn.model_selection import train_test_split
+
+    present, counts = np.unique(y[rows], return_counts=True)
+    stratify = y[rows] if counts.min() >= 2 and len(present) > 1 else None
+    tr, te = train_test_split(rows, test_size=test_fraction, random_state=options.seed, stratify=stratify)
+    tr = tr[_balanced_sample(y[tr], options.max_samples_per_class, options.seed)]
+    forest = _forest(options)
+    forest.fit(x[tr], y[tr])  # type: ignore[attr-defined]
+    col_of = {int(c): i for i, c in enumerate(classes.codes)}
+    p_test = np.zeros((len(te), len(classes.codes)), dtype=np.float32)
+    cols = [col_of[int(c)] for c in forest.classes_]  # type: ignore[attr-defined]
+    p_test[:, cols] = forest.predict_proba(x[te])  # type: ignore[attr-defined]
+    return te, p_test, len(tr)
+
+
+def _held_out_scores(
+    yte: np.ndarray, p_test: np.ndarray, classes: ClassSet, per_project: np.ndarray | None
+) -> tuple[float, tuple[ClassScores, ...], ClassScores, np.ndarray]:
+    """From held-out labels (M,) and probabilities (M, C): the needs-splats threshold, the per-class scores, the
+    binary needs-splats scores at that threshold, and the (C, C) int64 confusion (rows true, columns predicted)."""
+    truth_needs = classes.needs_splats_of(yte)
+    p_needs = p_test[:, classes.needs_splats_of(classes.codes)].sum(axis=1)
+    threshold = _best_threshold(p_needs, truth_needs, per_project)
+    pred = classes.codes[p_test.argmax(axis=1)].astype(np.uint8)
+    per_class = tuple(scores(yte == c.code, pred == c.code, c.name) for c in classes.classes)
+    binary = scores(truth_needs, p_needs >= threshold, "needs_splats")
+    pos = {int(c): i for i, c in enumerate(classes.codes)}
+    conf = np.zeros((len(classes.codes), len(classes.codes)), dtype=np.int64)
+    np.add.at(conf, (np.array([pos[int(t)] for t in yte], dtype=np.int64),
+                     np.array([pos[int(q)] for q in pred], dtype=np.int64)), 1)  # fmt: skip
+    return threshold, per_class, binary, conf
 
 
 def spatial_groups(positions: np.ndarray, block: float, offset: int = 0) -> np.ndarray:

@@ -17,7 +17,7 @@ import numpy as np
 from classify.classes import ClassSet, load_classes
 from classify.fallback import FALLBACK_FEATURES, fallback_predict
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable, compute_features, views_from_workspace
-from classify.masks import MaskOptions, SeenInView, region_masks
+from classify.masks import MaskOptions, PhotoMask, SeenInView, region_masks
 from classify.model import ClassifierModel, Prediction, load_model, predict
 from core.errors import DataError, InputFileError
 from core.pointcloud import PointCloud
@@ -218,7 +218,7 @@ def project_masks(
     workspace whose ``fused.ply.vis`` says which photos fused each point (same order as ``points_ply``).
     """
     from core.io.colmap import read_model
-    from core.io.images import read_image, write_image
+    from core.io.images import read_image
     from core.io.json_io import read_json
     from core.io.ply import read_ply
 
@@ -228,56 +228,16 @@ def project_masks(
     spacing = float(read_json(report_json)["spacing_m"])
     cameras, _ = read_model(sparse_dir)
     names = [v.name for v in cameras if v.name not in (held_out or set())]
-    user: dict[str, np.ndarray] = {}
-    if user_mask_dir is not None:
-        if not Path(user_mask_dir).is_dir():
-            raise InputFileError("splat-mask folder does not exist", user_mask_dir)
-        for n in names:
-            folder = Path(user_mask_dir)
-            for cand in (folder / f"{n}.png", folder / n, folder / f"{Path(n).stem}.png"):
-                if cand.is_file():
-                    user[n] = read_image(cand, grayscale=True)
-                    break
+    user = _read_user_masks(user_mask_dir, names)
     # Local positions of the cloud in the model's frame (the sparse model shares the cloud's origin).
     seen = None
     if options.holes and options.explained_by == "seen" and (dense_dir is not None or image_dir is not None):
-        visibility = None
-        if dense_dir is not None:
-            from recon.workspace import read_fused
-
-            visibility = read_fused(dense_dir).visibility
-            if visibility is not None and len(visibility) != len(cloud):
-                raise DataError(f"fused.ply.vis lists {len(visibility)} points, the classified cloud {len(cloud)}")
-        folder = Path(image_dir) if image_dir is not None else None
-        photo = None
-        if folder is not None:
-            # Each photo is read by the colour test, GrabCut and the parallax test of itself and of its neighbours
-            # (classify.masks.at_infinity): views come in image-id order, whose neighbours are mostly the same
-            # few photos, so a handful of decoded photos in memory saves most reads (7 → ~1.3 per photo).
-            photo = functools.lru_cache(maxsize=8)(lambda name: _read_only(read_image(folder / name)))
-        seen = SeenInView(visibility, cloud.colors, photo)
+        seen = _seen_in_view(cloud, dense_dir, image_dir)
     masks = region_masks(
         cameras, cloud.positions, cloud.fields["needs_splats"] > 0, spacing, options, user, names, seen,
         cloud_downscale=_cloud_downscale(cameras, dense_dir),
     )  # fmt: skip
-    photos = []
-    for i, pm in enumerate(masks):
-        path = mask_path(pm.name)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_image(path, (pm.mask * 255).astype(np.uint8))
-        photos.append(
-            {
-                "name": pm.name,
-                "coverage": pm.coverage,
-                "points": pm.points_px,
-                "holes": pm.holes_px,
-                "user": pm.user_px,
-                "empty": pm.empty,
-                "train_margin_px": pm.train_margin_px,
-            }  # fmt: skip
-        )
-        if progress is not None:
-            progress("masks", i + 1, len(masks))
+    photos = _write_mask_pngs(masks, mask_path, progress)
     empty = sum(p["empty"] for p in photos)
     drawn = None
     if figure is not None and image_dir is not None:
@@ -296,3 +256,71 @@ def project_masks(
         "figure": drawn is not None,
         "per_photo": photos,
     }
+
+
+def _read_user_masks(user_mask_dir: Path | None, names: list[str]) -> dict[str, np.ndarray]:
+    """Image name → (H, W) uint8 user mask, for the photos ``names`` that have ``NAME.png``, ``NAME`` or
+    ``STEM.png`` in ``user_mask_dir`` (first found, in that order); empty without a folder."""
+    from core.io.images import read_image
+
+    user: dict[str, np.ndarray] = {}
+    if user_mask_dir is not None:
+        if not Path(user_mask_dir).is_dir():
+            raise InputFileError("splat-mask folder does not exist", user_mask_dir)
+        for n in names:
+            folder = Path(user_mask_dir)
+            for cand in (folder / f"{n}.png", folder / n, folder / f"{Path(n).stem}.png"):
+                if cand.is_file():
+                    user[n] = read_image(cand, grayscale=True)
+                    break
+    return user
+
+
+def _seen_in_view(cloud: PointCloud, dense_dir: Path | None, image_dir: Path | None) -> SeenInView:
+    """What tells which points each photo sees: the fused cloud's visibility (from ``dense_dir``) and the points'
+    colours against the photos (from ``image_dir``), whichever is given."""
+    from core.io.images import read_image
+
+    visibility = None
+    if dense_dir is not None:
+        from recon.workspace import read_fused
+
+        visibility = read_fused(dense_dir).visibility
+        if visibility is not None and len(visibility) != len(cloud):
+            raise DataError(f"fused.ply.vis lists {len(visibility)} points, the classified cloud {len(cloud)}")
+    folder = Path(image_dir) if image_dir is not None else None
+    photo = None
+    if folder is not None:
+        # Each photo is read by the colour test, GrabCut and the parallax test of itself and of its neighbours
+        # (classify.masks.at_infinity): views come in image-id order, whose neighbours are mostly the same
+        # few photos, so a handful of decoded photos in memory saves most reads (see
+        # docs/experiments/2026-11-27-domain-defaults.md).
+        photo = functools.lru_cache(maxsize=8)(lambda name: _read_only(read_image(folder / name)))
+    return SeenInView(visibility, cloud.colors, photo)
+
+
+def _write_mask_pngs(
+    masks: list[PhotoMask], mask_path: Callable[[str], Path], progress: Callable[[str, int, int], None] | None
+) -> list[dict[str, object]]:
+    """Write each mask as a 0/255 PNG at ``mask_path(name)``; return the per-photo records, in ``masks`` order."""
+    from core.io.images import write_image
+
+    photos = []
+    for i, pm in enumerate(masks):
+        path = mask_path(pm.name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_image(path, (pm.mask * 255).astype(np.uint8))
+        photos.append(
+            {
+                "name": pm.name,
+                "coverage": pm.coverage,
+                "points": pm.points_px,
+                "holes": pm.holes_px,
+                "user": pm.user_px,
+                "empty": pm.empty,
+                "train_margin_px": pm.train_margin_px,
+            }  # fmt: skip
+        )
+        if progress is not None:
+            progress("masks", i + 1, len(masks))
+    return photos

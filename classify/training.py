@@ -1,17 +1,135 @@
-"""Training from reconstructed projects and their labels (what ``hybridsplat classify train`` does)."""
+"""Training from reconstructed projects and their labels (what ``hybridsplat classify train`` does), and the recipe
+of the shipped default model: data_synth scenes, one fold per scene (``scripts/train_default_classifier.py``,
+scored by ``bench/bench_classify.py``).
+
+Nothing here knows the project layout: callers pass the dense workspace folders (``ProjectLayout(p).dense``).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
 
 import numpy as np
 
-from classify.classes import UNLABELLED, load_classes
+from classify.classes import UNLABELLED, ClassSet, load_classes
 from classify.features import FeatureOptions, FeatureTable, compute_features, views_from_workspace
 from classify.labels import labels_from_field, labels_from_masks, scene_point_truth, transfer_labels
-from classify.model import ForestOptions, TrainingReport, save_model, spatial_groups, train
+from classify.model import ClassifierModel, ForestOptions, TrainingReport, save_model, spatial_groups, train
+from classify.synthetic import SceneData, stack_scenes
 from core.errors import ConfigError, DataError, InputFileError
+from core.pointcloud import PointCloud
+
+# -- the default model's training scenes ----------------------------------------------------------------------
+FULL_SIZE: tuple[str, ...] = ("--views", "24", "--test-views", "2", "--width", "320", "--height", "240")
+"""``hybridsplat synth`` size arguments of the full-size training scenes (24 views at 320×240, 2 held out)."""
+SMALL_SIZE: tuple[str, ...] = ("--views", "16", "--test-views", "2", "--width", "288", "--height", "216")
+"""Size arguments of the smaller scenes: 16 requested views (the rigs make 18–20) at 288×216, so that the model
+sees two sampling densities."""
+
+
+@dataclass(frozen=True)
+class SynthTrainingScene:
+    """One data_synth training scene: ``preset``, ``seed`` and the ``hybridsplat synth`` size arguments."""
+
+    preset: str
+    seed: int
+    synth_args: tuple[str, ...]
+
+    @property
+    def name(self) -> str:
+        """The scene's folder in a training data folder: ``<preset>_s<seed>``."""
+        return f"{self.preset}_s{self.seed}"
+
+    def to_dict(self) -> dict[str, object]:
+        """As recorded in a model's ``info["scenes"]``."""
+        return {"preset": self.preset, "seed": self.seed, "synth_args": list(self.synth_args)}
+
+
+DEFAULT_TRAINING_SCENES: tuple[SynthTrainingScene, ...] = (
+    SynthTrainingScene("tabletop", 7, FULL_SIZE),
+    SynthTrainingScene("aerial", 7, FULL_SIZE),
+    SynthTrainingScene("tabletop", 8, SMALL_SIZE),
+    SynthTrainingScene("aerial", 8, SMALL_SIZE),
+    SynthTrainingScene("aerial", 9, SMALL_SIZE),
+    SynthTrainingScene("tabletop", 9, SMALL_SIZE),
+    SynthTrainingScene("aerial", 10, SMALL_SIZE),
+    SynthTrainingScene("aerial", 11, FULL_SIZE),
+)
+"""The scenes the shipped model ``classify/models/default.skops`` is trained on, in order (never seed 1, on which
+it is scored)."""
+
+
+def train_on_scenes(
+    datas: list[SceneData],
+    classes: ClassSet,
+    options: FeatureOptions = FeatureOptions(),
+    forest: ForestOptions = ForestOptions(),
+    info: dict[str, object] | None = None,
+    by_scene: bool = True,
+) -> tuple[ClassifierModel, TrainingReport]:
+    """A forest on the features ``options.selected()`` of several reconstructed scenes with their truth labels.
+
+    by_scene: with at least two scenes, one fold per scene (``forest.folds`` is set to their number): the
+    threshold and the report come from each scene predicted by a forest that never saw it, as a user's new
+    project will be. Otherwise (or with one scene) folds of spatial blocks (:func:`classify.synthetic.stack_scenes`).
+    """
+    by_scene = by_scene and len(datas) >= 2
+    table, codes, groups = stack_scenes(datas, options.selected(), by_scene)
+    if by_scene:
+        forest = replace(forest, folds=len(datas))
+    return train(table, codes, classes, options, forest, info=info, groups=groups)
+
+
+# -- training from the user's projects --------------------------------------------------------------------------
+def _check_label_sources(
+    dense_dirs: list[Path], scenes: list[Path] | None, labels_file: Path | None, label_masks: Path | None
+) -> None:
+    """ConfigError unless exactly one label source is given, and one that fits the number of projects."""
+    sources = sum(x is not None and x != [] for x in (scenes or None, labels_file, label_masks))
+    if sources != 1:
+        raise ConfigError("give exactly one label source: --scene (per project), --labels-file or --label-masks")
+    if scenes and len(scenes) != len(dense_dirs):
+        raise ConfigError(f"{len(scenes)} scenes for {len(dense_dirs)} projects: give one --scene per project")
+    if (labels_file is not None or label_masks is not None) and len(dense_dirs) != 1:
+        raise ConfigError("--labels-file and --label-masks label a single project")
+
+
+def _labels_from_cloud_file(
+    labels_file: Path, field: str, las_codes: bool, classes: ClassSet, cloud: PointCloud, max_distance: float
+) -> np.ndarray:
+    """(N,) uint8 class codes of ``cloud``'s points from the labelled cloud ``labels_file`` (nearest labelled point
+    within ``max_distance`` metres; UNLABELLED beyond)."""
+    from core.io import read_point_cloud
+
+    labelled = read_point_cloud(labels_file)
+    if field not in labelled.fields:
+        raise DataError(f"no field {field!r} (fields: {', '.join(labelled.fields) or 'none'})", labels_file)
+    codes = labels_from_field(labelled.fields[field], classes, las_codes)
+    return transfer_labels(labelled.with_origin(cloud.origin).positions, codes, cloud.positions, max_distance)
+
+
+def _labels_from_mask_folder(label_masks: Path, dense: Path, cloud: PointCloud) -> np.ndarray:
+    """(N,) uint8 class codes of ``cloud``'s points voted by the label images ``NAME.png`` (or ``NAME``, or
+    ``STEM.png``) in ``label_masks`` of the dense workspace's photos."""
+    from core.io.colmap import read_model
+    from core.io.images import read_image
+    from recon.workspace import DenseWorkspace
+
+    if not label_masks.is_dir():
+        raise InputFileError("label-mask folder does not exist", label_masks)
+    cams, _ = read_model(DenseWorkspace(Path(dense)).sparse)
+    masks = {}
+    for v in cams:
+        stem = Path(v.name).stem
+        for cand in (label_masks / f"{v.name}.png", label_masks / v.name, label_masks / f"{stem}.png"):
+            if cand.is_file():
+                masks[v.name] = read_image(cand, grayscale=True)
+                break
+    if not masks:
+        raise InputFileError("no label image matches a photo of the project (NAME.png)", label_masks)
+    return labels_from_masks(cloud.positions, cams, masks, cloud.visibility)
 
 
 def train_from_projects(
@@ -36,18 +154,9 @@ def train_from_projects(
     for a single workspace, transferred to the nearest fused points within ``max_distance`` metres, 0 = twice
     the point spacing), or ``label_masks`` (a folder of per-photo label images, for a single workspace).
     """
-    from core.io import read_point_cloud
-    from core.io.colmap import read_model
-    from core.io.images import read_image
     from recon.workspace import read_fused
 
-    sources = sum(x is not None and x != [] for x in (scenes or None, labels_file, label_masks))
-    if sources != 1:
-        raise ConfigError("give exactly one label source: --scene (per project), --labels-file or --label-masks")
-    if scenes and len(scenes) != len(dense_dirs):
-        raise ConfigError(f"{len(scenes)} scenes for {len(dense_dirs)} projects: give one --scene per project")
-    if (labels_file is not None or label_masks is not None) and len(dense_dirs) != 1:
-        raise ConfigError("--labels-file and --label-masks label a single project")
+    _check_label_sources(dense_dirs, scenes, labels_file, label_masks)
     classes = load_classes(classes_toml)
     options = FeatureOptions(names=feature_names, geometric=FeatureOptions().geometric)
     tables: list[FeatureTable] = []
@@ -61,27 +170,11 @@ def train_from_projects(
 
             y = scene_point_truth(cloud, load_scene(scenes[i]), classes, tau_gsd).codes
         elif labels_file is not None:
-            labelled = read_point_cloud(labels_file)
-            if field not in labelled.fields:
-                raise DataError(f"no field {field!r} (fields: {', '.join(labelled.fields) or 'none'})", labels_file)
-            codes = labels_from_field(labelled.fields[field], classes, las_codes)
             dist = max_distance if max_distance > 0 else 2.0 * table.spacing
-            y = transfer_labels(labelled.with_origin(cloud.origin).positions, codes, cloud.positions, dist)
+            y = _labels_from_cloud_file(labels_file, field, las_codes, classes, cloud, dist)
         else:
-            assert label_masks is not None
-            if not label_masks.is_dir():
-                raise InputFileError("label-mask folder does not exist", label_masks)
-            cams, _ = read_model(Path(dense) / "sparse")
-            masks = {}
-            for v in cams:
-                stem = Path(v.name).stem
-                for cand in (label_masks / f"{v.name}.png", label_masks / v.name, label_masks / f"{stem}.png"):
-                    if cand.is_file():
-                        masks[v.name] = read_image(cand, grayscale=True)
-                        break
-            if not masks:
-                raise InputFileError("no label image matches a photo of the project (NAME.png)", label_masks)
-            y = labels_from_masks(cloud.positions, cams, masks, cloud.visibility)
+            assert label_masks is not None  # exactly one source (checked above)
+            y = _labels_from_mask_folder(label_masks, dense, cloud)
         tables.append(table)
         labels.append(y)
         # Held-out blocks of 16 point spacings, a separate range per project (see classify.model.train).

@@ -27,7 +27,7 @@ import html
 import json
 import math
 import platform
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from importlib import metadata
@@ -41,11 +41,12 @@ from core.errors import DataError, FormatError, InputFileError
 from core.io.atomic import output_transaction, write_text_atomic
 from core.io.json_io import to_jsonable, write_json_atomic
 from core.units import Units
-from eval.metrics_io import read_metrics
+from eval.metrics_io import PRODUCTS, read_metrics
 from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
+from eval.report_options import DEFAULT_MAX_PANELS
 
 SCHEMA = "hybridsplat.report/1"
-REQUIRED_PRODUCTS = ("mvs", "baseline", "splats", "merged")
+REQUIRED_PRODUCTS = PRODUCTS  # always listed, measured or with the reason they were not
 C2C_KEYS = (
     "count", "mean", "std", "median", "rmse", "p90", "p95", "p99", "max", "outlier_count", "outlier_share",
     "tau", "completeness", "precision", "recall", "fscore",
@@ -60,7 +61,6 @@ IMAGE_LABELS = {
     "delta_e": "ΔE",
 }
 STAGE_KEYS = ("seconds", "peak_mb", "skipped", "reason")
-DEFAULT_MAX_PANELS = 4
 THUMBNAIL_MAX_SIDE = 1500  # px, longer side of a render panel thumbnail (a panel is render | photo | error)
 LENGTH_KEYS = ("mean", "std", "median", "rmse", "p90", "p95", "p99", "max", "tau")  # metres in report.json
 _PACKAGES = (
@@ -393,6 +393,7 @@ def to_markdown(report: Mapping[str, Any]) -> str:
         lines.append("|" + "|".join("---" for _ in header) + "|")
         lines += ["| " + " | ".join(cell.replace("|", "\\|") for cell in row) + " |" for row in rows]
         lines.append("")
+    lines += _sections_markdown(report)
     skipped = [(n, p["reason"]) for n, p in report["products"].items() if p["skipped"]]
     if skipped:
         lines += ["## Skipped products", ""] + [f"- **{n}**: {r}" for n, r in skipped] + [""]
@@ -480,45 +481,36 @@ def _panel_views(per_view: Mapping[str, list[Mapping[str, Any]]], max_panels: in
     return ranked[: max(0, int(max_panels))]
 
 
-_CLASSIFY_CAPTIONS = {
-    "classes": "the dense cloud coloured by class (top and side views)",
-    "importances": "the classifier's feature importances",
-    "masks": "photos with their region masks (red: splats are trained there)",
-}
-
-
-def _classification_section(report: Mapping[str, Any]) -> list[str]:
-    """HTML of the classify and masks stages' figures (files named, relative to the project, in their counts
-    under ``figures``) with a line of their counts; [] when neither stage recorded a figure."""
+def _sections_html(report: Mapping[str, Any]) -> list[str]:
+    """HTML of the stages' own sections (``report["sections"]``: title, lines, figures relative to the project, in
+    pipeline order; sections of the same title are shown under one heading)."""
     e = html.escape
-    stages = report.get("stages") or {}
     root = Path(str(report.get("project", ".")))
-    figs, lines = [], []
-    for stage in ("classify", "masks"):
-        counts = (stages.get(stage) or {}).get("counts") or {}
-        for rel in counts.get("figures") or []:
-            kind = Path(str(rel)).stem
-            tag = _thumbnail_tag(root / str(rel), f"{stage} {kind}", max_side=1100)
+    parts: list[str] = []
+    title = None
+    for section in report.get("sections") or []:
+        if section["title"] != title:
+            title = section["title"]
+            parts.append(f"<h2>{e(title)}</h2>")
+        parts += [f"<p>{e(line)}</p>" for line in section.get("lines", [])]
+        for rel, caption in section.get("figures", []):
+            tag = _thumbnail_tag(root / str(rel), caption, max_side=1100)
             if tag:
-                caption = _CLASSIFY_CAPTIONS.get(kind, kind)
-                figs.append(f"<figure style='max-width:1100px'>{tag}<figcaption>{e(caption)}</figcaption></figure>")
-    c = (stages.get("classify") or {}).get("counts") or {}
-    if isinstance(c.get("points"), int) and c["points"] > 0:
-        per = ", ".join(f"{e(str(k))} {v:,}" for k, v in (c.get("per_class") or {}).items())
-        lines.append(f"<p>{c['points']:,} points, {c.get('needs_splats', 0) / c['points']:.1%} need splats "
-                     f"({per}); model {e(Path(str(c.get('model', '?'))).name)}.</p>")  # fmt: skip
-    m = (stages.get("masks") or {}).get("counts") or {}
-    if isinstance(m.get("photos"), int):
-        if m.get("training_needed") is False:
-            lines.append(f"<p>{m['photos']} masks, all empty: no splat training is needed.</p>")
-        else:
-            cov = m.get("mean_coverage")
-            share = f"{cov:.1%}" if isinstance(cov, (int, float)) else "n/a"
-            lines.append(f"<p>{m['photos']} masks, mean coverage {share} of the photo, "
-                         f"{m.get('empty', 0)} empty (skipped by training).</p>")  # fmt: skip
-    if not figs and not lines:
-        return []
-    return ["<h2>Classification and region masks</h2>"] + lines + figs
+                parts.append(f"<figure style='max-width:1100px'>{tag}<figcaption>{e(caption)}</figcaption></figure>")
+    return parts
+
+
+def _sections_markdown(report: Mapping[str, Any]) -> list[str]:
+    """Markdown of the stages' own sections (their lines; figures by path)."""
+    lines: list[str] = []
+    title = None
+    for section in report.get("sections") or []:
+        if section["title"] != title:
+            title = section["title"]
+            lines += [f"## {title}", ""]
+        lines += [*section.get("lines", []), ""]
+        lines += [f"- figure: `{rel}` ({caption})" for rel, caption in section.get("figures", [])]
+    return lines
 
 
 def to_html(
@@ -584,7 +576,7 @@ def to_html(
     if panels:
         parts += [f"<h2>Renders and error maps</h2><p class='note'>The {len(chosen)} held-out view(s) with the "
                   "lowest PSNR (downscaled).</p>"] + panels  # fmt: skip
-    parts += _classification_section(report)
+    parts += _sections_html(report)
     stages = report.get("stages") or {}
     if stages:
         names = list(stages)
@@ -608,8 +600,12 @@ def write_report(
     max_panels: int = DEFAULT_MAX_PANELS,
     units: Units | str | None = None,
     per_material_file: str | PathLike[str] | None = None,
+    sections: Sequence[Mapping[str, Any]] = (),
 ) -> ReportPaths:
     """Build and write the report's JSON, Markdown and HTML files (``paths``) atomically.
+
+    sections: what the pipeline's stages show of themselves (``{"title", "lines", "figures": [[path, caption]]}``
+    each, paths relative to the project), in pipeline order.
 
     Renders and plots referenced by the metrics lie next to ``metrics_file``. max_panels: render panels shown per
     product (the lowest-PSNR views). units: the unit lengths are printed in (default: as recorded in the metrics
@@ -617,6 +613,7 @@ def write_report(
     """
     metrics_file = Path(metrics_file)
     report = build_report(manifest_file, metrics_file, units, per_material_file)
+    report["sections"] = [dict(s) for s in sections]
     eval_dir = metrics_file.parent
     metrics = read_metrics(metrics_file) if metrics_file.is_file() else None
     strict = to_jsonable(json.loads(json.dumps(report, default=str)))  # NaN/inf -> null: report.json stays JSON

@@ -25,6 +25,8 @@ from sklearn.cluster import DBSCAN
 from core.cameras import Cameras
 from core.errors import ConfigError
 from core.gaussians import GaussianSet
+from fusion.clean_options import CleanOptions, SurveyPointOptions, surface_splat_options  # noqa: F401 (re-exported)
+from fusion.mask_projection import project_to_pixels
 from fusion.merge import subset
 from fusion.train.init import points_in_masks, zbuffer_depth
 from fusion.train.trainer import scene_scale
@@ -38,32 +40,6 @@ class Reason(IntEnum):
     LOW_OPACITY = 2
     EXTREME_SCALE = 3
     ISOLATED = 4
-
-
-@dataclass(frozen=True)
-class CleanOptions:
-    """Options of :func:`clean_splats` (see the module docstring); a check is off when its value is None.
-
-    Defaults were chosen on data_synth ``tabletop`` (24 views, 320×240, 1000 steps, 29.9 k splats): stricter ones
-    (σ > 0.05 × scene scale or > 20 median spacings; DBSCAN eps 5 spacings, clusters < 5) removed 59 % of the
-    splats and cost 7.5 dB of held-out PSNR inside the masks — large flat splats on textureless, glass and mirror
-    regions and sparse splats are legitimate there. The defaults remove 11 % for 0.1 dB.
-    """
-
-    mask_dilation_px: int = 2
-    min_opacity: float | None = 0.02
-    max_scale_scene: float | None = 0.2
-    max_scale_spacing: float | None = None
-    cluster_eps_spacing: float | None = 50.0
-    min_cluster_size: int = 3
-
-    def __post_init__(self) -> None:
-        if self.mask_dilation_px < 0 or self.min_cluster_size < 1:
-            raise ConfigError("mask_dilation_px must be >= 0 and min_cluster_size >= 1")
-        for name in ("max_scale_scene", "max_scale_spacing", "cluster_eps_spacing"):
-            v = getattr(self, name)
-            if v is not None and not v > 0:
-                raise ConfigError(f"{name} must be > 0 or None, got {v}")
 
 
 @dataclass(frozen=True)
@@ -164,85 +140,6 @@ class PointReason(IntEnum):
 
 
 @dataclass(frozen=True)
-class SurveyPointOptions:
-    """Rule for the splats whose centres go into the survey point product (``merged_points.ply/.las``).
-
-    A point product must not contain floaters, so a splat's centre is a point only when its geometry is
-    trustworthy; the 3DGS PLY keeps every cleaned splat for rendering. Defaults chosen on data_synth ``tabletop``
-    (24 views 320×240) and ``tiny``, pipeline masks, 500 steps (``bench/bench_train.py geometry``; a scan of rim 0.5 /
-    0.75 / 1, α 0.2 / 0.5, views 2 / 3, share 0.8 / 0.9 / 1): the rim test is what rejects the virtual images MVS and
-    splats place inside mirrors and glass (kept mirror / glass MVS points 22 / 18 mm off without it, 12 / 5 mm with
-    1 spacing); every setting beat MVS-only on tabletop, and rim 0.5 with 3 views and share 0.9 was among the few that
-    also lowered the mean C2C on ``tiny`` (coarse 96×72 photos, splat centres ~12 mm off) while raising completeness.
-    Lengths relative to ``spacing``, the trusted MVS point spacing (metres) passed to :func:`select_survey_points`.
-    A check is off when its value is None.
-
-    min_opacity: α at least this (a faint splat is a colour correction, not a surface).
-    max_thickness_spacing: smallest σ at most this × spacing (thin along its normal: a surface element).
-    max_extent_spacing: largest σ at most this × spacing (a large splat's centre says little about the surface).
-    min_views: the centre lands inside the mask, in front of the trusted MVS surface, in at least this many views.
-    min_mask_share: of the views where the centre lands in the image unoccluded by the trusted MVS surface, the
-        share where it lands inside the mask (visual-hull consistency: a centre seen outside the region from other
-        views floats in front of or beside the real surface).
-    occlusion_tolerance: relative depth margin of the occlusion test (behind the trusted z-buffer by more than this
-        share of its depth = occluded; the view is not counted).
-    max_rim_spacing: the centre must come within this × spacing (metres at its depth) of a mask edge in some view
-        where it lands inside the mask. A point of a surface lies on the silhouette rim of the views that graze it;
-        what MVS or a splat places *inside* a mirror or glass object (virtual images of reflections, refractions)
-        stays inside every visual hull but far from every rim. None turns the test off.
-    max_behind_share: of the views where the centre lands inside the mask unoccluded, the share where it lies
-        behind the trusted MVS surface filled across the hole (:func:`hole_filled_depth`) by more than
-        ``behind_margin_spacing`` × spacing may be at most this. Splats that lie below a table or behind a wall
-        whose MVS has a hole (what training puts there to explain the photos) are rejected; a convex object's
-        virtual images are not (the hole's surroundings lie behind it: the rim test is for them). None: off.
-    behind_margin_spacing: margin of the test above (in spacings).
-    shape_checks: apply the opacity / thickness / extent tests (off for MVS points, whose Gaussians are converted,
-        not trained).
-    """
-
-    min_opacity: float | None = 0.2
-    max_thickness_spacing: float | None = 2.0
-    max_extent_spacing: float | None = 10.0
-    min_views: int = 3
-    min_mask_share: float | None = 0.9
-    occlusion_tolerance: float = 0.02
-    max_rim_spacing: float | None = 0.5
-    max_behind_share: float | None = None
-    behind_margin_spacing: float = 2.0
-    shape_checks: bool = True
-
-    def __post_init__(self) -> None:
-        if self.min_views < 0 or not self.occlusion_tolerance >= 0:
-            raise ConfigError("min_views and occlusion_tolerance must be >= 0")
-        for name in ("min_mask_share", "max_behind_share"):
-            v = getattr(self, name)
-            if v is not None and not 0.0 <= v <= 1.0:
-                raise ConfigError(f"{name} must lie in [0, 1], got {v}")
-        if not (np.isfinite(self.behind_margin_spacing) and self.behind_margin_spacing >= 0):
-            raise ConfigError(f"behind_margin_spacing must be >= 0, got {self.behind_margin_spacing}")
-        for name in ("min_opacity", "max_thickness_spacing", "max_extent_spacing", "max_rim_spacing"):
-            v = getattr(self, name)
-            if v is not None and not v > 0:
-                raise ConfigError(f"{name} must be > 0 or None, got {v}")
-
-
-def surface_splat_options() -> SurveyPointOptions:
-    """The rule for splats whose centres may shape a mesh (the ``surface`` field the merge stage writes): opaque
-    (α ≥ 0.5), seen inside the mask from 3 views and outside it from almost none (visual hull), and not behind the
-    trusted MVS surface filled across its holes (in at most half of the views). No thickness, extent or rim test:
-    those keep a point product exact but drop the large flat splats of textureless surfaces, which are what a mesh
-    needs there. Measured on the demo tabletop (24 views 320×240, 600 training steps, 100 k triangles, τ = 4.4 mm;
-    ``bench/bench_mesh.py --sections 3``): the hybrid mesh from every splat was 16.3 mm mean off the truth
-    (precision at τ 0.467) with completeness 0.712; from the 1 926 of 15 361 splats passing this rule 2.6 mm (0.853)
-    with 0.691 (MVS only: 0.42 mm, 0.986, 0.636), 3.1 mm (0.831) with 0.698 once Poisson trimming followed the local
-    spacing. What stays off: the virtual images inside the mirror ball (17 mm mean on that material)."""
-    return SurveyPointOptions(
-        min_opacity=0.5, max_thickness_spacing=None, max_extent_spacing=None, min_views=3, min_mask_share=0.9,
-        max_rim_spacing=None, max_behind_share=0.5,
-    )  # fmt: skip
-
-
-@dataclass(frozen=True)
 class SurveyPointCounts:
     """How many splats were considered, left out of the point product for each reason, and kept."""
 
@@ -340,11 +237,9 @@ def mask_views(
         mask = masks.get(view.name)
         if mask is None:
             continue
-        uv, z = cameras.project(view, points)
-        col = np.floor(uv[:, 0]).astype(np.int64)
-        row = np.floor(uv[:, 1]).astype(np.int64)
         h, w = mask.shape
-        ok = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        px = project_to_pixels(cameras, view, points, w, h)
+        row, col, z, ok = px.row, px.col, px.z, px.ok.copy()
         if has_trusted:
             zb = closed_zbuffer(cameras, view, trusted)
             front = np.zeros(len(points), bool)

@@ -25,7 +25,7 @@ Every spacing is clamped to [``min_spacing``, ``max_spacing``] before a log is t
 single point (no neighbour: ``fallback_spacing``), collinear points and huge or tiny spacings all give finite values;
 each clamp that changes values emits a :class:`ConversionWarning` with the count.
 
-Neighbour search (``neighbor_backend``): ``"grid"`` (default), the exact column-grid search of :mod:`fusion.knn`
+Neighbour search (``neighbor_backend``): ``"grid"`` (default), the exact column-grid search of :mod:`core.knn`
 (numba kernels on ``numba.get_num_threads()`` Python threads, O(N) memory: a sorted copy of the points and a column
 table), 2–4× faster than the reference ``"kdtree"``: one ``scipy.spatial.cKDTree`` over all points queried in
 chunks of ``chunk_size`` points in the tree's leaf order (4× faster than input order; memory beyond the outputs
@@ -48,9 +48,9 @@ from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
 from core.gaussians import SH_C0, GaussianSet
+from core.knn import drop_self, knn_grid, knn_grid_summary, median_nonzero, run_threads
 from core.pointcloud import PointCloud
 from fusion.convert_options import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, Source
-from fusion.knn import drop_self, knn_grid, knn_grid_summary, median_nonzero, run_threads
 
 
 @dataclass
@@ -296,7 +296,7 @@ def knn_distances(
     """Distances (N, k) float64 (ascending, metres) from each point to its k nearest *other* points.
 
     ``positions``: (N, 3) float64, N > k. With ``return_index`` also the neighbour indices (N, k) int64, else None.
-    Exact duplicates appear as distance 0. ``backend``: ``"grid"`` (:func:`fusion.knn.knn_grid`, exact, ~2× faster
+    Exact duplicates appear as distance 0. ``backend``: ``"grid"`` (:func:`core.knn.knn_grid`, exact, ~2× faster
     on 2 cores) or ``"kdtree"`` (scipy ``cKDTree`` queried in leaf order in chunks of ``chunk_size``).
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)

@@ -44,9 +44,10 @@ class ConvertOptions:
     Defaults: ``opacity_logit_min`` = −5 (α ≈ 0.0067, above the 1/255 export cut, so no point is lost) and
     ``opacity_logit_max`` = 10 (α ≈ 0.99995) leave the paper's log(1/d) untouched for any d between 45 µm and
     148 m; ``min_spacing`` = 1e-5 m and ``max_spacing`` = 1e3 m bound the log-scales; ``fallback_spacing`` is used
-    for a cloud of a single point. Adaptive: ``tangent_scale`` = 0.4 and ``view_saturation`` = 1 gave the best
-    PSNR on data_synth scenes (``bench/bench_convert_quality.py``: 0.3 and 0.6 were worse, so was a saturation of
-    2 views); ``thickness_ratio`` = 0.1 makes flat surfels (isotropic discs of the same size lose ~0.9 dB).
+    for a cloud of a single point. Adaptive: ``tangent_scale`` (surfel σ along the surface, in spacings),
+    ``view_saturation`` (views at which opacity saturates) and ``thickness_ratio`` (σ along the normal as a share of
+    the tangent σ: flat surfels) were chosen on data_synth scenes with ``bench/bench_convert_quality.py``
+    (docs/experiments/2026-11-27-pipeline-defaults.md).
     Execution: ``neighbor_backend`` ``"grid"`` (numba, ``numba.get_num_threads()`` threads, default
     ``NUMBA_NUM_THREADS``) or ``"kdtree"`` (scipy, ``workers`` threads, queried in chunks of ``chunk_size`` points).
     """

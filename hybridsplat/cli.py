@@ -20,14 +20,6 @@ import hybridsplat.commands
 from core.errors import HybridSplatError
 from hybridsplat import __version__
 
-app = typer.Typer(
-    name="hybridsplat",
-    help="Photogrammetry + Gaussian splatting for surveys: reconstruct, classify, fuse, export, evaluate.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-
 _state = {"debug": False}
 
 
@@ -37,7 +29,6 @@ def _version(value: bool) -> None:
         raise typer.Exit()
 
 
-@app.callback()
 def _root(
     debug: bool = typer.Option(False, "--debug", help="Show full tracebacks instead of one-line errors."),
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
@@ -45,16 +36,27 @@ def _root(
     _state["debug"] = debug
 
 
-def _register_commands() -> None:
+def build_app() -> typer.Typer:
+    """The command line: every module of :mod:`hybridsplat.commands` registers its commands (the per-stage ones
+    come from the registered stages' declarations, :mod:`hybridsplat.commands.stages`)."""
+    app = typer.Typer(
+        name="hybridsplat",
+        help="Photogrammetry + Gaussian splatting for surveys: reconstruct, classify, fuse, export, evaluate.",
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+    )
+    app.callback()(_root)
     for info in sorted(pkgutil.iter_modules(hybridsplat.commands.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"hybridsplat.commands.{info.name}")
         register = getattr(module, "register", None)
         if register is not None:
             register(app)
+    return app
 
 
 try:
-    _register_commands()
+    app = build_app()
 except KeyboardInterrupt:  # Ctrl-C while the (heavy) command modules are imported: same exit as later
     print("hybridsplat: interrupted", file=sys.stderr)
     sys.exit(130)
@@ -87,12 +89,13 @@ def _os_error_line(err: OSError) -> str:
     return problem
 
 
-def run_cli(argv: list[str] | None = None) -> int:
+def run_cli(argv: list[str] | None = None, cli: typer.Typer | None = None) -> int:
     """Run the command line and return its exit status (never raises, except with ``--debug``).
 
     Exit statuses: 0 success; 2 bad input or usage (one line ``hybridsplat: error: <file>: <problem>``,
     or a usage line and the error); 1 internal error (one line naming the exception; ``--debug`` shows the
-    traceback); 130 Ctrl-C ("interrupted"); 143 SIGTERM ("terminated"). SIGTERM is converted into the
+    traceback); 130 Ctrl-C ("interrupted"); 143 SIGTERM ("terminated"). ``cli``: an app of :func:`build_app`
+    (default: the one built at import). SIGTERM is converted into the
     :class:`Terminated` exception while the command runs, so ``finally`` blocks run as on Ctrl-C.
     """
     from typer._click import exceptions as click_exc
@@ -104,7 +107,7 @@ def run_cli(argv: list[str] | None = None) -> int:
         previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         try:
-            rv = app(args=args, prog_name="hybridsplat", standalone_mode=False)
+            rv = (cli or app)(args=args, prog_name="hybridsplat", standalone_mode=False)
         finally:
             if previous is not None:
                 signal.signal(signal.SIGTERM, previous)

@@ -1,15 +1,16 @@
 """The project configuration: what ``run`` was given, and every stage's options, as ``PROJECT/config.toml``.
 
-One TOML table per stage (``[mvs]``, ``[convert]``, ...) holds that stage's ``Options`` dataclass; ``[input]`` says
-where the photos and cameras came from; ``seed`` seeds every random choice. The per-stage commands read this file
+One TOML table per stage (``[mvs]``, ``[convert]``, ...) holds that stage's ``Options`` dataclass (sub-tables such as
+``[train.training]`` hold the dataclasses it composes; see :mod:`hybridsplat.options` for the spelling of None, enums
+and lists); ``[input]`` says where the photos and cameras came from; ``seed`` seeds every random choice. A
+config.toml written by hybridsplat 0.2 (flat keys such as ``[train] iterations``) is read through
+:mod:`hybridsplat.config_migration`. The per-stage commands read this file
 back, so ``hybridsplat mvs PROJECT`` runs with the options ``run`` used unless told otherwise.
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
-from enum import Enum
+from dataclasses import dataclass, field, fields, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,10 @@ import tomllib
 
 from core.errors import ConfigError, FormatError
 from core.units import Units
+from hybridsplat.config_migration import migrate_table
+from hybridsplat.options import options_digest, options_from_table
+
+__all__ = ["InputOptions", "ProjectConfig", "options_digest", "options_from_table", "read_config"]
 
 UNITS = tuple(u.value for u in Units)
 
@@ -82,65 +87,14 @@ class ProjectConfig:
         return replace(self, stages={**self.stages, name: options})
 
     def to_toml(self) -> str:
+        from hybridsplat.options import toml_tables
+
         lines = ["# hybridsplat: the effective configuration of this project", f"seed = {self.seed}", ""]
-        lines += _table("input", self.input)
+        lines += toml_tables("input", self.input)
         for name, options in self.stages.items():
             if fields(options):
-                lines += _table(name, options)
+                lines += toml_tables(name, options)
         return "\n".join(lines)
-
-
-def _table(name: str, options: Any) -> list[str]:
-    lines = [f"[{name}]"]
-    for f in fields(options):
-        lines.append(_toml_line(f.name, getattr(options, f.name)))
-    return [*lines, ""]
-
-
-def _toml_line(key: str, value: Any) -> str:
-    if value is None:
-        return f"# {key} = (not set)"
-    if isinstance(value, Enum):
-        value = value.value
-    if isinstance(value, bool):
-        return f"{key} = {'true' if value else 'false'}"
-    if isinstance(value, (int, float)):
-        return f"{key} = {value!r}"
-    if isinstance(value, (tuple, list)):
-        return f"{key} = {json.dumps([v.value if isinstance(v, Enum) else v for v in value])}"
-    return f"{key} = {json.dumps(str(value))}"
-
-
-def options_from_table(options_type: type, table: dict[str, Any], where: Path | str) -> Any:
-    """Build an options dataclass from a TOML table; unknown keys and wrong types are a :class:`ConfigError`."""
-    known = {f.name: f for f in fields(options_type)}
-    unknown = sorted(set(table) - set(known))
-    if unknown:
-        raise ConfigError(f"unknown option(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})", where)
-    defaults = options_type()
-    values = {}
-    for key, value in table.items():
-        default = getattr(defaults, key)
-        if isinstance(default, tuple) and isinstance(value, list):
-            value = tuple(value)
-        if isinstance(default, Enum):
-            try:
-                value = type(default)(value)
-            except ValueError as err:
-                raise ConfigError(f"option {key}: {err}", where) from err
-        elif default is not None and isinstance(default, float) and isinstance(value, int):
-            value = float(value)
-        elif default is not None and type(value) is not type(default):
-            raise ConfigError(
-                f"option {key} must be {type(default).__name__}, got {type(value).__name__} {value!r}", where
-            )
-        values[key] = value
-    try:
-        return options_type(**values)
-    except ConfigError as err:
-        raise ConfigError(err.problem, where) from err
-    except (TypeError, ValueError) as err:
-        raise ConfigError(str(err), where) from err
 
 
 def read_config(path: str | PathLike[str], stage_options: dict[str, type]) -> ProjectConfig:
@@ -164,13 +118,5 @@ def read_config(path: str | PathLike[str], stage_options: dict[str, type]) -> Pr
             raise ConfigError(f"unknown section [{name}] (stages: {', '.join(stage_options)})", path)
         if not isinstance(table, dict):
             raise ConfigError(f"[{name}] must be a table", path)
-        stages[name] = options_from_table(stage_options[name], table, path)
+        stages[name] = options_from_table(stage_options[name], migrate_table(name, table), path)
     return ProjectConfig(input=input_options, seed=seed, stages=stages)
-
-
-def options_digest(options: Any) -> dict[str, Any]:
-    """Options as plain JSON data (enums as values), the form recorded and compared in the manifest."""
-    if options is None:
-        return {}
-    data = asdict(options) if is_dataclass(options) else dict(options)
-    return json.loads(json.dumps(data, default=lambda v: v.value if isinstance(v, Enum) else str(v)))

@@ -1,8 +1,8 @@
 """The pipeline: a project folder, its configuration, and the ordered stages run over it.
 
-``run_pipeline`` resolves the input, writes ``config.toml`` and runs ``STAGES`` through the runner; the per-stage
-commands call ``run_pipeline`` with one stage. See ``hybridsplat.stages`` for the stages and DESIGN.md for the
-data flow.
+``run_pipeline`` resolves the input, writes ``config.toml`` and runs the registered stages through the runner; the
+per-stage commands call ``run_pipeline`` with one stage. See ``hybridsplat.stages`` for the registry of stages and
+DESIGN.md for the data flow.
 """
 
 from __future__ import annotations
@@ -17,25 +17,24 @@ from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest
 from hybridsplat.runner import run_stages
 from hybridsplat.source import resolve_source
-from hybridsplat.stages import STAGES, Stage, StageContext
+from hybridsplat.stages import Stage, StageContext, registered_stages, stage_options_types
 from hybridsplat.terminal import Terminal
-
-STAGE_OPTIONS: dict[str, type] = {stage.name: stage.Options for stage in STAGES}
 
 
 def load_config(project: str | PathLike[str]) -> ProjectConfig:
     """The configuration a project was run with (``PROJECT/config.toml``)."""
-    return read_config(ProjectLayout(project).config, STAGE_OPTIONS)
+    return read_config(ProjectLayout(project).config, stage_options_types())
 
 
 def run_pipeline(
     project: str | PathLike[str],
     config: ProjectConfig,
-    stages: Sequence[Stage] = STAGES,
+    stages: Sequence[Stage] | None = None,
     terminal: Terminal | None = None,
     force: Iterable[str] = (),
 ) -> Manifest:
-    """Run ``stages`` of the project at ``project`` with ``config`` (written to ``config.toml`` first).
+    """Run ``stages`` (default: every registered stage) of the project at ``project`` with ``config`` (written to
+    ``config.toml`` first).
 
     The input is resolved before anything is written, so a bad input leaves no project folder behind.
     """
@@ -46,11 +45,12 @@ def run_pipeline(
     layout.root.mkdir(parents=True, exist_ok=True)
     write_text_atomic(layout.config, _complete(config).to_toml())
     ctx = StageContext(layout=layout, config=config, source=source)
+    stages = registered_stages() if stages is None else stages
     return run_stages(ctx, stages, terminal or Terminal(quiet=True), force)
 
 
 def _complete(config: ProjectConfig) -> ProjectConfig:
     """Every stage's options spelled out (defaults included), so config.toml documents the whole run."""
-    for stage in STAGES:
+    for stage in registered_stages():
         config = config.with_stage_options(stage.name, config.options(stage.name, stage.Options))
     return config

@@ -11,6 +11,7 @@ from __future__ import annotations
 import shutil
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from core.io.json_io import to_jsonable
@@ -44,7 +45,8 @@ def run_stage(
     hashes = {Path(p): hash_path(p) for p in stage.inputs(ctx)}
     inputs = {manifest.relative(p): h for p, h in hashes.items()}
     previous = manifest.stages.get(stage.name)
-    if not force and previous is not None and previous.is_current(inputs, config, manifest.project):
+    if not force and previous is not None and _is_current(previous, stage, inputs, config, manifest.project):
+        previous.config = config  # a record of 0.2 takes the options' 0.3 form (same values)
         return manifest.mark_cached(stage.name)
     manifest.invalidate(stage.name)
     _remove(outputs)
@@ -70,6 +72,26 @@ def run_stage(
         finished_at=time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     )
     return manifest.record(record)
+
+
+def _is_current(previous: StageRecord, stage: Stage, inputs: dict[str, str], config: dict, project: Path) -> bool:
+    """Whether ``previous`` matches: as recorded, or with its options recorded by hybridsplat 0.2 read in their 0.3
+    form (:mod:`hybridsplat.config_migration`), so that a finished project is not re-run because options moved."""
+    if previous.is_current(inputs, config, project):
+        return True
+    recorded = previous.config.get("options")
+    if not isinstance(recorded, dict) or recorded == config["options"]:
+        return False
+    from core.errors import ConfigError
+    from hybridsplat.config_migration import migrate_table
+    from hybridsplat.options import options_from_table
+
+    try:
+        upgraded = options_digest(options_from_table(stage.Options, migrate_table(stage.name, recorded), "manifest"))
+    except ConfigError:
+        return False
+    candidate = {**previous.config, "options": upgraded}
+    return candidate == config and replace(previous, config=candidate).is_current(inputs, config, project)
 
 
 def describe(stage: Stage, record: StageRecord) -> str:

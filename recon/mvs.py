@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import ConfigError, InputFileError, ReconstructionError
+from core.options import enum_choice, runtime_factory
 from recon.colmap_log import native_output_to
 from recon.mvs_colmap import colmap_available, run_patch_match
 from recon.mvs_cpu_options import CpuMvsOptions
@@ -45,13 +46,28 @@ class FusionOptions:
 
 @dataclass(frozen=True)
 class MvsOptions:
+    """Options of :func:`run_mvs` and of the pipeline's ``mvs`` stage.
+
+    backend: auto (COLMAP PatchMatch on CUDA, else the CPU MVS) | cpu | colmap. max_image_size: longer side of the
+    dense images in pixels, -1 = full resolution; 1000 keeps a CPU run of a few dozen photos in minutes (a
+    6-megapixel photo at full size takes over an hour per view on 2 cores). num_threads: torch threads of the CPU
+    backend (None = torch's default, all cores). map_cache: depth maps held in memory during the geometric pass
+    (bounds memory). held_out: image names never used for depth (as reference or source) nor fusion (set by the
+    pipeline from its held-out photos).
+    """
+
     backend: MvsBackend = MvsBackend.AUTO
-    max_image_size: int = -1  # longer side of the dense images in pixels, -1 = full resolution
+    max_image_size: int = 1000
     cpu: CpuMvsOptions = field(default_factory=CpuMvsOptions)
     fusion: FusionOptions = field(default_factory=FusionOptions)
-    num_threads: int | None = None  # torch threads for the CPU backend (None = torch's default)
-    map_cache: int = 16  # depth maps held in memory during the geometric pass (bounds memory)
-    held_out: frozenset[str] = frozenset()  # image names never used for depth (as reference or source) nor fusion
+    num_threads: int | None = None
+    map_cache: int = 16
+    held_out: frozenset[str] = runtime_factory(frozenset)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "backend", enum_choice(MvsBackend, self.backend, "backend"))
+        if self.max_image_size == 0 or self.max_image_size < -1:
+            raise ConfigError(f"max_image_size must be -1 (full size) or a positive size, got {self.max_image_size}")
 
 
 @dataclass

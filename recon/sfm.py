@@ -46,6 +46,7 @@ import numpy as np
 
 from core.cameras import Cameras
 from core.errors import ConfigError, InputFileError, ReconstructionError
+from core.options import enum_choice, runtime_field
 from recon.colmap_log import native_output_to
 from recon.inputs import IMAGE_SUFFIXES
 
@@ -61,8 +62,14 @@ class Matcher(str, Enum):
 
 @dataclass(frozen=True)
 class SfmOptions:
-    """Options of :func:`run_sfm` and :func:`triangulate_known_poses` (defaults suit a set of photos from one
-    camera: one shared SIMPLE_RADIAL camera, exhaustive matching, features at 1600 px, deterministic)."""
+    """Options of :func:`run_sfm` and :func:`triangulate_known_poses`, and of the pipeline's ``sfm`` stage (defaults
+    suit a set of photos from one camera: one shared SIMPLE_RADIAL camera, exhaustive matching, features at 1600 px,
+    deterministic). ``seed`` and ``mask_dir`` are set by the pipeline (its seed, ``--feature-masks``).
+
+    deterministic: byte-identical models run to run (COLMAP on one thread, see the module docstring); False uses
+    ``num_threads`` for feature extraction and matching (faster). align_threshold_m: RANSAC inlier threshold of the
+    alignment to reference camera centres (metres); None = 2 % of their extent (:func:`recon.align.align_to_reference`).
+    """
 
     matcher: Matcher = Matcher.EXHAUSTIVE  # sequential for video-like sequences, vocabtree for > ~500 photos
     max_image_size: int = 1600  # feature extraction works on images downscaled to this longer side (px)
@@ -70,15 +77,23 @@ class SfmOptions:
     camera_model: str = "SIMPLE_RADIAL"  # COLMAP model for unknown cameras (e.g. OPENCV for strong distortion)
     single_camera: bool = True  # one camera shared by all photos (when they all have the same size)
     num_threads: int = -1  # COLMAP threads (-1 = all cores) when deterministic=False; one thread otherwise
-    seed: int = 0  # RANSAC / mapper initialisation / triangulation seed
+    seed: int = runtime_field(0)  # RANSAC / mapper initialisation / triangulation seed
     deterministic: bool = True  # byte-identical models run to run (see the module docstring); False = faster
     vocab_tree_path: str | None = None  # needed by the vocabtree matcher
-    mask_dir: str | None = None  # PNG masks NAME.png (0 = ignore features there), as COLMAP expects
+    mask_dir: str | None = runtime_field(None)  # PNG masks NAME.png (0 = ignore features there), as COLMAP expects
     database_path: str | None = None  # keep the feature database here (default: a temporary folder)
     # Final robust refinement of the full SfM model (see _refine_model): Cauchy loss scale in px (0 = off) and the
     # reprojection error above which observations are dropped between the two robust bundle adjustments.
     refine_loss_px: float = 1.0
     refine_filter_px: float = 2.0
+    align_threshold_m: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "matcher", enum_choice(Matcher, self.matcher, "matcher"))
+        if self.align_threshold_m is not None and not self.align_threshold_m > 0:
+            raise ConfigError(
+                f"align_threshold_m must be > 0 (or none: 2 % of the extent), got {self.align_threshold_m}"
+            )
 
 
 @dataclass

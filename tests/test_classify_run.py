@@ -151,7 +151,14 @@ def test_report_shows_the_classification_figures(workspace, tmp_path):
         "masks": {"counts": {"photos": 3, "empty": 0, "mean_coverage": 0.1, "training_needed": True,
                              "figures": ["fig/masks.png"]}},
     }  # fmt: skip
-    page = to_html(_minimal_report(tmp_path, stages), None, None)
+    from hybridsplat.stages import stage_named
+
+    report_data = _minimal_report(tmp_path, stages)
+    report_data["sections"] = []
+    for name in ("classify", "masks"):  # as the report stage makes them from the recorded counts
+        section = stage_named(name).report_section(stages[name]["counts"])
+        report_data["sections"].append({"title": section.title, "lines": section.lines, "figures": section.figures})
+    page = to_html(report_data, None, None)
     assert "Classification and region masks" in page and page.count("data:image/jpeg;base64,") == 2
     assert "20.0% need splats" in page and "mean coverage 10.0%" in page
     assert "Classification and region masks" not in to_html(_minimal_report(tmp_path, {}), None, None)

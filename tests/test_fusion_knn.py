@@ -1,4 +1,4 @@
-"""fusion.knn: the column-grid k-NN is exact (brute force on small clouds, cKDTree on larger ones)."""
+"""core.knn: the column-grid k-NN is exact (brute force on small clouds, cKDTree on larger ones)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 
 from core.errors import DataError
+from core.knn import grid as knn_grid_module
+from core.knn import knn_grid, knn_grid_summary, knn_kdtree
+from core.knn import search as knn_search
 from core.pointcloud import PointCloud
 from fusion.convert import ConvertOptions, _robust_spacing, knn_distances, points_to_gaussians
-from fusion.knn import knn_grid, knn_grid_summary, knn_kdtree
 
 _rng = np.random.default_rng(0)
 CASES = {
@@ -109,18 +111,16 @@ def test_conversion_is_backend_independent():
 def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
     """Far outliers are clamped into border columns and resolved by the block search; far-apart dense clusters make
     the grid hand the whole cloud to the k-d tree. Both exact (compared with cKDTree), both quick."""
-    from fusion import knn as knn_module
-
     rng = np.random.default_rng(5)
     n = 20_000
     plane = np.c_[rng.random((n, 2)) * 10, 0.01 * rng.random(n)]
     far = np.r_[plane, rng.random((5, 3)) * 1e4 - 5e3]  # 5 points up to 5 km away
     clusters = np.r_[plane, plane[:5000] + [1e5, 0, 0]]
-    grid = knn_module._build(far, 8, 4.0)
+    grid = knn_grid_module._build(far, 8, 4.0)
     assert grid is not None and grid.nx * grid.ny < 4 * len(far)
-    _, _, _, n_far = knn_module._query(grid, 8, False)
+    _, _, _, n_far = knn_search._query(grid, 8, False)
     assert 1 <= n_far < 50  # the outliers (and maybe a few neighbours) take the block search
-    assert knn_module._build(clusters, 8, 4.0) is None
+    assert knn_grid_module._build(clusters, 8, 4.0) is None
     for p in (far, clusters):
         for k in (1, 8):
             d_grid, i_grid = knn_grid(p, k)
@@ -136,14 +136,12 @@ def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
 def test_block_search_alone_equals_brute_force(monkeypatch, k):
     """With no ring budget every point not settled by its first ring of columns takes the block search (the outliers'
     path): still exact on every case, including ties, duplicates, border clamping and huge coordinates."""
-    from fusion import knn as knn_module
-
-    monkeypatch.setattr(knn_module, "_RING_BUDGET", 0)
+    monkeypatch.setattr(knn_search, "_RING_BUDGET", 0)
     total_far = 0
     for name, p in sorted(CASES.items()):
-        grid = knn_module._build(np.ascontiguousarray(p, dtype=np.float64), k, 4.0)
+        grid = knn_grid_module._build(np.ascontiguousarray(p, dtype=np.float64), k, 4.0)
         if grid is not None:
-            total_far += knn_module._query(grid, k, False)[3]
+            total_far += knn_search._query(grid, k, False)[3]
         dist, idx = knn_grid(p, k)
         np.testing.assert_allclose(dist, _brute(p, k), rtol=1e-12, atol=1e-15, err_msg=name)
         np.testing.assert_allclose(np.linalg.norm(p[idx] - p[:, None], axis=2), dist, rtol=1e-12, atol=1e-15)
@@ -156,17 +154,15 @@ def test_block_search_alone_equals_brute_force(monkeypatch, k):
 
 def test_many_outliers_above_a_terrain_equal_kdtree():
     """3 % outliers up to 4 m above and below a wavy terrain (the bench's cloud, denser in outliers): block search."""
-    from fusion import knn as knn_module
-
     rng = np.random.default_rng(7)
     n = 40_000
     uv = rng.random((n, 2)) * 8
     p = np.c_[uv, 2 * np.sin(uv[:, 0] / 2) + 0.002 * rng.normal(size=n)]
     m = n * 3 // 100
     p[:m] = rng.random((m, 3)) * [8, 8, 8] - [0, 0, 4]
-    grid = knn_module._build(p, 8, 4.0)
+    grid = knn_grid_module._build(p, 8, 4.0)
     assert grid is not None and grid.nx * grid.ny < 4 * n  # columns over (x, y): same sums as the k-d tree
-    assert knn_module._query(grid, 8, False)[3] > m // 2
+    assert knn_search._query(grid, 8, False)[3] > m // 2
     for k in (1, 8):
         d_grid, i_grid = knn_grid(p, k)
         d_tree, _ = knn_kdtree(p, k)

@@ -5,8 +5,9 @@ import pytest
 from mesh_shapes import distance_to_mesh, fibonacci_sphere, mesh_surface_samples, sphere_distance, sphere_gaussians
 
 from core.errors import ConfigError, DataError
+from fusion.mesh.graph import triangle_components
 from fusion.mesh.oriented_points import oriented_points_from_gaussians
-from fusion.mesh.poisson import PoissonOptions, poisson_reconstruct, triangle_components, trim_mesh
+from fusion.mesh.poisson import PoissonOptions, poisson_reconstruct, trim_mesh
 from fusion.mesh.quality import mesh_quality
 from fusion.mesh.types import OrientedPoints, TriangleMesh
 

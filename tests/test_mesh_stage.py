@@ -16,6 +16,7 @@ from fusion.mesh import read_mesh
 from hybridsplat.cli import run_cli
 from hybridsplat.config import InputOptions, ProjectConfig
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.options import options_with
 from hybridsplat.pipeline import run_pipeline
 from hybridsplat.stages import stage_named
 from hybridsplat.stages.mesh import MeshStageOptions
@@ -41,7 +42,8 @@ def project(tmp_path_factory):
 
 
 def run_mesh(photos, layout, **options):
-    config = ProjectConfig(input=InputOptions(path=str(photos)), stages={"mesh": MeshStageOptions(**options)})
+    mesh_options = options_with(MeshStageOptions, options)
+    config = ProjectConfig(input=InputOptions(path=str(photos)), stages={"mesh": mesh_options})
     manifest = run_pipeline(layout.root, config, [stage_named("mesh")])
     return json.loads(layout.manifest.read_text())["stages"]["mesh"], manifest
 

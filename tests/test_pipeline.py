@@ -11,18 +11,18 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError
 from core.io.gaussian_ply import read_gaussian_ply
 from data_synth import generate_scene
+from fusion.train.masked import MaskedTrainingOptions, WholeSceneOptions
 from hybridsplat.cli import main
 from hybridsplat.config import InputOptions, ProjectConfig
 from hybridsplat.layout import ProjectLayout
-from hybridsplat.pipeline import STAGE_OPTIONS, load_config, run_pipeline
-from hybridsplat.stages import STAGES
-from hybridsplat.stages.baseline import BaselineStageOptions
-from hybridsplat.stages.train import TrainStageOptions
+from hybridsplat.options import options_with
+from hybridsplat.pipeline import load_config, run_pipeline
+from hybridsplat.stages import STAGES, stage_options_types
 
 # tiny trains its splats (and the whole-scene baseline) for a few dozen steps in tests (the default is thousands)
 FAST_STAGES = {
-    "train": TrainStageOptions(iterations=40, snapshot_iterations=(20,)),
-    "baseline": BaselineStageOptions(enabled=True, iterations=40, checkpoints=(20,)),
+    "train": options_with(MaskedTrainingOptions, {"training.iterations": 40, "snapshot_iterations": [20]}),
+    "baseline": options_with(WholeSceneOptions, {"enabled": True, "training.iterations": 40, "checkpoints": [20]}),
 }
 
 
@@ -71,7 +71,7 @@ def test_config_round_trip_documents_every_stage(project):
     _, project = project
     config = load_config(project)
     assert config.input.path and config.seed == 0
-    for name, options_type in STAGE_OPTIONS.items():
+    for name, options_type in stage_options_types().items():
         assert config.options(name, options_type) == FAST_STAGES.get(name, options_type()), name
 
 
@@ -135,15 +135,16 @@ def test_baseline_checkpoints_are_measured_as_products(project):
 def test_baseline_checkpoints_must_lie_inside_the_run():
     for bad in ((0,), (100,), (50, 150)):
         with pytest.raises(ConfigError, match="checkpoints"):
-            BaselineStageOptions(iterations=100, checkpoints=bad)
-    assert BaselineStageOptions(iterations=100, checkpoints=(1, 99)).checkpoints == (1, 99)
+            options_with(WholeSceneOptions, {"training.iterations": 100, "checkpoints": list(bad)})
+    ok = options_with(WholeSceneOptions, {"training.iterations": 100, "checkpoints": [1, 99]})
+    assert ok.checkpoints == (1, 99)
 
 
 def test_a_baseline_without_checkpoints_is_up_to_date_on_the_next_run(project, tmp_path):
     scene, project = project
     copy = tmp_path / "project"
     shutil.copytree(project, copy)
-    stages = {**FAST_STAGES, "baseline": BaselineStageOptions(enabled=True, iterations=40)}
+    stages = {**FAST_STAGES, "baseline": options_with(WholeSceneOptions, {"enabled": True, "training.iterations": 40})}
     config = ProjectConfig(input=InputOptions(path=str(scene)), stages=stages)
     first = run_pipeline(copy, config).stages
     assert not first["baseline"].cached and not first["eval"].cached  # the checkpoint option changed
@@ -168,8 +169,8 @@ def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(pr
     before = layout.fused_ply.read_bytes()
     main(["mvs", str(project), "--min-num-pixels", "2"])  # an option changed: mvs reruns, and says so
     stages = json.loads(layout.manifest.read_text())["stages"]
-    assert not stages["mvs"]["cached"] and stages["mvs"]["config"]["options"]["min_num_pixels"] == 2
-    assert load_config(project).options("mvs", STAGE_OPTIONS["mvs"]).min_num_pixels == 2
+    assert not stages["mvs"]["cached"] and stages["mvs"]["config"]["options"]["fusion"]["min_num_pixels"] == 2
+    assert load_config(project).options("mvs", stage_options_types()["mvs"]).fusion.min_num_pixels == 2
     assert len(layout.fused_ply.read_bytes()) >= len(before)  # a looser fusion keeps at least as many points
     manifest = run_pipeline(project, load_config(project))
     ran = [n for n, r in manifest.stages.items() if not r.cached and not r.skipped]

@@ -35,10 +35,10 @@ def test_tabletop_known_poses_cpu_mvs_per_material(tabletop: Path, tmp_path: Pat
     from hybridsplat.config import InputOptions, ProjectConfig
     from hybridsplat.pipeline import run_pipeline
     from hybridsplat.stages import stage_named
-    from hybridsplat.stages.mvs import MvsStageOptions
+    from recon.mvs import MvsOptions
 
     config = ProjectConfig(
-        input=InputOptions(path=str(tabletop)), stages={"mvs": MvsStageOptions(backend="cpu", max_image_size=-1)}
+        input=InputOptions(path=str(tabletop)), stages={"mvs": MvsOptions(backend="cpu", max_image_size=-1)}
     )
     manifest = run_pipeline(tmp_path, config, [stage_named("sfm"), stage_named("mvs")])
     assert manifest.stages["mvs"].counts["points"] > 10_000

@@ -204,16 +204,21 @@ def test_stage_records_the_option_and_checks_the_weights_file_first(tmp_path) ->
     from test_train_stages import make_project
 
     from hybridsplat.config import ProjectConfig, read_config
+    from hybridsplat.options import options_with
     from hybridsplat.stages.base import StageContext
-    from hybridsplat.stages.train import TrainStage, TrainStageOptions
+    from hybridsplat.stages.train import MaskedTrainingOptions, TrainStage
 
-    opts = TrainStageOptions(iterations=8, lpips_weight=0.15, lpips_start=0.5, lpips_weights=str(tmp_path / "no.npz"))
+    def train_options(**values):
+        return options_with(MaskedTrainingOptions, values)
+
+    opts = train_options(**{"training.iterations": 8, "training.lpips_weight": 0.15, "training.lpips_start": 0.5,
+                            "lpips_weights": str(tmp_path / "no.npz")})  # fmt: skip
     config = ProjectConfig().with_stage_options("train", opts)
     text = config.to_toml()
-    table = tomllib.loads(text)["train"]
+    table = tomllib.loads(text)["train"]["training"]
     assert table["lpips_weight"] == 0.15 and table["lpips_start"] == 0.5
     (tmp_path / "config.toml").write_text(text)
-    assert read_config(tmp_path / "config.toml", {"train": TrainStageOptions}).stages["train"] == opts
+    assert read_config(tmp_path / "config.toml", {"train": MaskedTrainingOptions}).stages["train"] == opts
     layout, _, _ = make_project(tmp_path / "p")
     ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
     with pytest.raises(InputFileError) as err:
@@ -223,16 +228,17 @@ def test_stage_records_the_option_and_checks_the_weights_file_first(tmp_path) ->
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not an archive")
     ctx = StageContext(layout=layout, config=ProjectConfig().with_stage_options(
-        "train", TrainStageOptions(iterations=8, lpips_weight=0.1, lpips_weights=str(bad))),
+        "train", train_options(**{"training.iterations": 8, "training.lpips_weight": 0.1, "lpips_weights": str(bad)})),
         source=SimpleNamespace(holdout_names=()))  # fmt: skip
     with pytest.raises(FormatError) as err:
         TrainStage().run(ctx)
     assert "bad.npz" in str(err.value)
     with pytest.raises(ConfigError):
-        TrainStageOptions(lpips_weight=-1.0)
+        train_options(**{"training.lpips_weight": -1.0})
     if WEIGHTS is not None:  # the whole wiring: weights resolved, network built, term used, file recorded
-        good = TrainStageOptions(iterations=6, rays_per_view=20, sh_degree=0, lpips_weight=0.1, lpips_start=0.5,
-                                 lpips_weights=str(WEIGHTS))  # fmt: skip
+        good = train_options(**{"training.iterations": 6, "init.rays_per_view": 20, "training.sh_degree": 0,
+                                "training.lpips_weight": 0.1, "training.lpips_start": 0.5,
+                                "lpips_weights": str(WEIGHTS)})  # fmt: skip
         ctx = StageContext(layout=layout, config=ProjectConfig().with_stage_options("train", good),
                            source=SimpleNamespace(holdout_names=()))  # fmt: skip
         counts = TrainStage().run(ctx)

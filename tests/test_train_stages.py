@@ -17,10 +17,11 @@ from core.pointcloud import PointCloud
 from fusion.convert import Source
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.options import options_with
 from hybridsplat.stages.base import StageContext
 from hybridsplat.stages.clean import CleanStage
 from hybridsplat.stages.merge import MergeStage
-from hybridsplat.stages.train import TrainStage, TrainStageOptions
+from hybridsplat.stages.train import MaskedTrainingOptions, TrainStage
 
 
 def make_project(root) -> tuple[ProjectLayout, GaussianSet, np.ndarray]:
@@ -49,8 +50,16 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     layout, truth, needs = make_project(tmp_path / "p")
     config = ProjectConfig().with_stage_options(
         "train",
-        TrainStageOptions(
-            iterations=24, rays_per_view=20, sh_degree=1, snapshot_iterations=(12,), depth_prior=0.2, normal_prior=0.1
+        options_with(
+            MaskedTrainingOptions,
+            {
+                "training.iterations": 24,
+                "init.rays_per_view": 20,
+                "training.sh_degree": 1,
+                "snapshot_iterations": [12],
+                "training.priors.depth_weight": 0.2,
+                "training.priors.normal_weight": 0.1,
+            },
         ),  # fmt: skip
     )
     ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
@@ -93,15 +102,14 @@ def test_training_masks_are_the_region_masks_dilated_by_the_recorded_margin(tmp_
     import cv2
 
     from core.io.json_io import write_json_atomic
-    from hybridsplat.stages.train import read_masks
+    from hybridsplat.project_io import read_region_masks
 
     layout, _, _ = make_project(tmp_path / "p")
-    ctx = StageContext(layout=layout, config=ProjectConfig(), source=SimpleNamespace(holdout_names=()))
     cams = ring_cameras(6)
     names = [v.name for v in cams]
     record = {"per_photo": [{"name": names[0], "train_margin_px": 3}, {"name": names[1], "train_margin_px": 0}]}
     write_json_atomic(layout.record("masks"), record)
-    region, train = read_masks(ctx, cams), read_masks(ctx, cams, training=True)
+    region, train = read_region_masks(layout, cams), read_region_masks(layout, cams, training=True)
     assert region.keys() == train.keys() and region[names[0]].any()
     # scipy's dilation with the disk of radius 3 that the masks stage uses (OpenCV's 7 × 7 ellipse element)
     from scipy import ndimage
@@ -125,7 +133,7 @@ def test_point_product_keeps_the_needs_splats_mvs_points_of_the_chosen_classes(t
     only through the view and rim tests; ``points_needs_mvs_classes = ()`` keeps none by class."""
     import json
 
-    from hybridsplat.stages.merge import MergeStageOptions
+    from fusion.merge_options import MergeOptions
 
     layout, truth, needs = make_project(tmp_path / "p")
     codes = np.zeros(len(truth), np.uint8)
@@ -138,13 +146,14 @@ def test_point_product_keeps_the_needs_splats_mvs_points_of_the_chosen_classes(t
     names = ("collaborative", "reflective", "transparent", "textureless", "thin")
     classes = [{"name": n, "code": c, "needs_splats": c > 0} for c, n in enumerate(names)]
     layout.classify_report.write_text(json.dumps({"classes": {"class": classes}}))
-    config = ProjectConfig().with_stage_options("train", TrainStageOptions(iterations=12, rays_per_view=20))
+    train_options = options_with(MaskedTrainingOptions, {"training.iterations": 12, "init.rays_per_view": 20})
+    config = ProjectConfig().with_stage_options("train", train_options)
     ctx = StageContext(layout=layout, config=config, source=SimpleNamespace(holdout_names=()))
     TrainStage().run(ctx)
     CleanStage().run(ctx)
     products = {}
     for kept in (("textureless", "thin"), ()):
-        ctx.config = config.with_stage_options("merge", MergeStageOptions(points_needs_mvs_classes=kept))
+        ctx.config = config.with_stage_options("merge", MergeOptions(needs_mvs_classes=kept))
         counts = MergeStage().run(ctx)
         products[kept] = (counts, read_point_cloud(layout.merged_points_ply))
     (with_classes, pts_with), (without, pts_without) = products[("textureless", "thin")], products[()]

@@ -101,7 +101,7 @@ def test_bad_options_are_config_errors() -> None:
 
 
 def test_relocation_keeps_a_single_copy_unchanged_and_splits_opacity() -> None:
-    from fusion.train.strategy import _relocation
+    from fusion.train.strategy_ops import relocation as _relocation
 
     op = torch.tensor([0.6, 0.6])
     ls = torch.zeros((2, 3))

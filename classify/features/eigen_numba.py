@@ -1,8 +1,8 @@
 """Covariance eigen analysis of k-NN neighbourhoods as a threaded numba kernel (the fast backend).
 
 Written by hand because the libraries do not fit: pgeof 0.3.4's ``compute_features`` disagrees with LAPACK on
-the middle eigenvalue by up to ~10 % on near-planar neighbourhoods (its λ1 and normal agree; measured in
-``bench/bench_classify.py``), and jakteristics only searches fixed radii (no k-NN lists), ~10× slower here.
+the middle eigenvalue on near-planar neighbourhoods (its λ1 and normal agree), and jakteristics only searches fixed
+radii (no k-NN lists) and is slower here (figures in docs/experiments/2026-11-27-domain-defaults.md).
 The kernel computes each covariance in float64 about the neighbourhood mean, its eigenvalues in closed form
 (trigonometric solution of the characteristic cubic, Smith 1961) and the normal as the eigenvector of the
 smallest eigenvalue (largest cross product of two rows of C − λ3·I). ``eigen_numpy`` is its twin in the tests.

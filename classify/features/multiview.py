@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.cameras import Cameras
+from core.cameras import Camera, Cameras, View
 from core.errors import DataError, InputFileError
 
 MULTIVIEW_NAMES = (
@@ -132,94 +132,164 @@ def multiview_features(
         flat_pts = np.repeat(np.arange(n), counts)
     for start in range(0, n, options.chunk_size):
         stop = min(n, start + options.chunk_size)
-        m = stop - start
         p = pts[start:stop]
-        fused_of: dict[int, np.ndarray] | None = None
-        if visibility is not None:
-            sel = (flat_pts >= start) & (flat_pts < stop)
-            ids, owners = flat_ids[sel], flat_pts[sel] - start
-            order = np.argsort(ids, kind="stable")
-            ids, owners = ids[order], owners[order]
-            bounds = np.searchsorted(ids, [v.image_id for v in view_list] + [np.iinfo(np.int64).max])
-            fused_of = {}
-            for j, v in enumerate(view_list):
-                fused_of[v.image_id] = owners[bounds[j] : bounds[j + 1]] if j + 1 < len(bounds) else owners[:0]
-        n_frustum = np.zeros(m)
-        n_fused = np.zeros(m)
-        agree = np.zeros(m)
-        freespace = np.zeros(m)
-        invalid = np.zeros(m)
-        residual_sum = np.zeros(m)
-        residual_n = np.zeros(m)
-        col_sum = np.zeros((m, 3))
-        col_sq = np.zeros((m, 3))
-        ray_sum = np.zeros((m, 3))
-        patch_sum = np.zeros((m, 9), dtype=np.float32)
-        patch_n = np.zeros(m)
+        fused_of = None if visibility is None else _fused_by_view(flat_ids, flat_pts, start, stop, view_list)
+        acc = _ChunkSums.zeros(stop - start)
         for v in view_list:
-            cam = views.cameras.camera_of(v)
-            uv, z = views.cameras.project(v, p)
-            col, row = uv[:, 0], uv[:, 1]
-            inside = (z > 0) & (col >= 0) & (row >= 0) & (col < cam.width) & (row < cam.height)
-            if not inside.any():
-                continue
-            idx = np.flatnonzero(inside)
-            n_frustum[idx] += 1
-            depth = views.depth(v.name)
-            rel = None
-            if depth is not None:
-                sx, sy = depth.shape[1] / cam.width, depth.shape[0] / cam.height
-                d = _sample_nearest(depth, col[idx] * sx, row[idx] * sy).astype(np.float64)
-                zi = z[idx]
-                rel = (d - zi) / zi
-                valid = d > 0
-                invalid[idx] += ~valid
-                agree[idx] += valid & (np.abs(rel) <= options.depth_tolerance)
-                freespace[idx] += valid & (rel > options.depth_tolerance)
-            if fused_of is not None:
-                fused = fused_of[v.image_id]
-                fused = fused[inside[fused]]
-            elif rel is not None:
-                fused = idx[(d > 0) & (np.abs(rel) <= options.depth_tolerance)]
-            else:
-                fused = idx
-            if len(fused) == 0:
-                continue
-            if rel is not None:
-                # Residuals of the fusing views (positions of `fused` inside `idx`).
-                pos = np.searchsorted(idx, fused)
-                r_abs = np.minimum(np.abs(rel[pos]), 1.0)
-                ok = np.isfinite(r_abs) & (d[pos] > 0)
-                residual_sum[fused[ok]] += r_abs[ok]
-                residual_n[fused[ok]] += 1
-            n_fused[fused] += 1
-            photo = views.image(v.name)
-            sx, sy = photo.shape[1] / cam.width, photo.shape[0] / cam.height
-            fc, fr = col[fused] * sx, row[fused] * sy
-            rgb = _sample_nearest(photo, fc, fr).astype(np.float64) / 255.0
-            col_sum[fused] += rgb
-            col_sq[fused] += rgb**2
-            grey = photo.astype(np.float32).mean(axis=2) / 255.0 if photo.ndim == 3 else photo / 255.0
-            patches = _grey_patches(grey, fc, fr)
-            patch_sum[fused] += patches
-            patch_n[fused] += np.linalg.norm(patches, axis=1) > 0
-            ray = p[fused] - v.center
-            ray_sum[fused] += ray / np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
-        safe_f = np.maximum(n_fused, 1)
-        safe_v = np.maximum(n_frustum, 1)
-        var = np.maximum(col_sq / safe_f[:, None] - (col_sum / safe_f[:, None]) ** 2, 0.0)
-        mean_ray = np.linalg.norm(ray_sum, axis=1) / safe_f
-        sl = slice(start, stop)
-        out["n_views"][sl] = n_fused if visibility is None else counts[sl]
-        out["view_ratio"][sl] = np.minimum(n_fused / safe_v, 1.0)
-        out["triangulation_spread_deg"][sl] = np.where(
-            n_fused > 1, 2.0 * np.degrees(np.arccos(np.clip(mean_ray, 0.0, 1.0))), 0.0
-        )
-        out["color_std_views"][sl] = np.sqrt(var).mean(axis=1)
-        # Mean NCC of each view's normalised patch with the views' mean patch = ||sum of patches|| / n.
-        out["ncc_views"][sl] = np.linalg.norm(patch_sum, axis=1) / np.maximum(patch_n, 1)
-        out["depth_agree"][sl] = agree / safe_v
-        out["depth_freespace"][sl] = freespace / safe_v
-        out["depth_invalid"][sl] = invalid / safe_v
-        out["depth_residual"][sl] = np.where(residual_n > 0, residual_sum / np.maximum(residual_n, 1), 1.0)
+            _accumulate_view(acc, views, v, p, fused_of, options.depth_tolerance)
+        _finish_chunk(out, acc, slice(start, stop), None if visibility is None else counts)
     return out
+
+
+def _fused_by_view(
+    flat_ids: np.ndarray, flat_pts: np.ndarray, start: int, stop: int, view_list: list[View]
+) -> dict[int, np.ndarray]:
+    """Per image id, the chunk-local indices (int64, ascending) of the points of [start, stop) that the view fused.
+
+    ``flat_ids`` / ``flat_pts``: the visibility lists flattened into (image id, point index) pairs."""
+    sel = (flat_pts >= start) & (flat_pts < stop)
+    ids, owners = flat_ids[sel], flat_pts[sel] - start
+    order = np.argsort(ids, kind="stable")
+    ids, owners = ids[order], owners[order]
+    bounds = np.searchsorted(ids, [v.image_id for v in view_list] + [np.iinfo(np.int64).max])
+    fused_of = {}
+    for j, v in enumerate(view_list):
+        fused_of[v.image_id] = owners[bounds[j] : bounds[j + 1]] if j + 1 < len(bounds) else owners[:0]
+    return fused_of
+
+
+@dataclass
+class _ChunkSums:
+    """Per-point sums over the views of one chunk of M points (float64 unless stated)."""
+
+    n_frustum: np.ndarray  # (M,) views whose frustum holds the point
+    n_fused: np.ndarray  # (M,) views that fused the point
+    agree: np.ndarray  # (M,) views whose depth map agrees within the tolerance
+    freespace: np.ndarray  # (M,) views whose depth map sees past the point
+    invalid: np.ndarray  # (M,) views whose depth map is empty at the projection
+    residual_sum: np.ndarray  # (M,) relative depth residuals (capped at 1) of the fusing views
+    residual_n: np.ndarray  # (M,) count of those residuals
+    col_sum: np.ndarray  # (M, 3) photo colour in [0, 1] of the fusing views
+    col_sq: np.ndarray  # (M, 3) its square
+    ray_sum: np.ndarray  # (M, 3) unit viewing rays (camera centre → point) of the fusing views
+    patch_sum: np.ndarray  # (M, 9) float32 normalised 3×3 grey patches of the fusing views
+    patch_n: np.ndarray  # (M,) count of non-flat patches
+
+    @classmethod
+    def zeros(cls, m: int) -> _ChunkSums:
+        return cls(
+            n_frustum=np.zeros(m),
+            n_fused=np.zeros(m),
+            agree=np.zeros(m),
+            freespace=np.zeros(m),
+            invalid=np.zeros(m),
+            residual_sum=np.zeros(m),
+            residual_n=np.zeros(m),
+            col_sum=np.zeros((m, 3)),
+            col_sq=np.zeros((m, 3)),
+            ray_sum=np.zeros((m, 3)),
+            patch_sum=np.zeros((m, 9), dtype=np.float32),
+            patch_n=np.zeros(m),
+        )
+
+
+def _accumulate_view(
+    acc: _ChunkSums,
+    views: ViewData,
+    v: View,
+    p: np.ndarray,
+    fused_of: dict[int, np.ndarray] | None,
+    tolerance: float,
+) -> None:
+    """Add view ``v``'s depth comparison (frustum points) and photo samples (fusing points) for points ``p`` (M, 3)."""
+    cam = views.cameras.camera_of(v)
+    uv, z = views.cameras.project(v, p)
+    col, row = uv[:, 0], uv[:, 1]
+    inside = (z > 0) & (col >= 0) & (row >= 0) & (col < cam.width) & (row < cam.height)
+    if not inside.any():
+        return
+    idx = np.flatnonzero(inside)
+    acc.n_frustum[idx] += 1
+    depth = views.depth(v.name)
+    rel = d = None
+    if depth is not None:
+        rel, d = _compare_depth(acc, depth, cam, col, row, z, idx, tolerance)
+    if fused_of is not None:
+        fused = fused_of[v.image_id]
+        fused = fused[inside[fused]]
+    elif rel is not None:
+        fused = idx[(d > 0) & (np.abs(rel) <= tolerance)]
+    else:
+        fused = idx
+    if len(fused) == 0:
+        return
+    if rel is not None:
+        # Residuals of the fusing views (positions of `fused` inside `idx`).
+        pos = np.searchsorted(idx, fused)
+        r_abs = np.minimum(np.abs(rel[pos]), 1.0)
+        ok = np.isfinite(r_abs) & (d[pos] > 0)
+        acc.residual_sum[fused[ok]] += r_abs[ok]
+        acc.residual_n[fused[ok]] += 1
+    acc.n_fused[fused] += 1
+    _accumulate_photo(acc, views.image(v.name), cam, col[fused], row[fused], fused)
+    ray = p[fused] - v.center
+    acc.ray_sum[fused] += ray / np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+
+
+def _compare_depth(
+    acc: _ChunkSums,
+    depth: np.ndarray,
+    cam: Camera,
+    col: np.ndarray,
+    row: np.ndarray,
+    z: np.ndarray,
+    idx: np.ndarray,
+    tolerance: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Count agree / free-space / invalid for the frustum points ``idx``; returns their relative depth difference
+    (d_map − z) / z and the depth-map value d_map (metres, ≤ 0 invalid), both aligned with ``idx``."""
+    sx, sy = depth.shape[1] / cam.width, depth.shape[0] / cam.height
+    d = _sample_nearest(depth, col[idx] * sx, row[idx] * sy).astype(np.float64)
+    zi = z[idx]
+    rel = (d - zi) / zi
+    valid = d > 0
+    acc.invalid[idx] += ~valid
+    acc.agree[idx] += valid & (np.abs(rel) <= tolerance)
+    acc.freespace[idx] += valid & (rel > tolerance)
+    return rel, d
+
+
+def _accumulate_photo(
+    acc: _ChunkSums, photo: np.ndarray, cam: Camera, col: np.ndarray, row: np.ndarray, fused: np.ndarray
+) -> None:
+    """Add the colour and the normalised grey patch at pixels (col, row) (camera pixels) to the points ``fused``."""
+    sx, sy = photo.shape[1] / cam.width, photo.shape[0] / cam.height
+    fc, fr = col * sx, row * sy
+    rgb = _sample_nearest(photo, fc, fr).astype(np.float64) / 255.0
+    acc.col_sum[fused] += rgb
+    acc.col_sq[fused] += rgb**2
+    grey = photo.astype(np.float32).mean(axis=2) / 255.0 if photo.ndim == 3 else photo / 255.0
+    patches = _grey_patches(grey, fc, fr)
+    acc.patch_sum[fused] += patches
+    acc.patch_n[fused] += np.linalg.norm(patches, axis=1) > 0
+
+
+def _finish_chunk(out: dict[str, np.ndarray], acc: _ChunkSums, sl: slice, counts: np.ndarray | None) -> None:
+    """Write the features of the chunk ``sl`` from its sums; ``counts``: visibility list lengths (N,) or None."""
+    n_fused, n_frustum = acc.n_fused, acc.n_frustum
+    safe_f = np.maximum(n_fused, 1)
+    safe_v = np.maximum(n_frustum, 1)
+    var = np.maximum(acc.col_sq / safe_f[:, None] - (acc.col_sum / safe_f[:, None]) ** 2, 0.0)
+    mean_ray = np.linalg.norm(acc.ray_sum, axis=1) / safe_f
+    out["n_views"][sl] = n_fused if counts is None else counts[sl]
+    out["view_ratio"][sl] = np.minimum(n_fused / safe_v, 1.0)
+    out["triangulation_spread_deg"][sl] = np.where(
+        n_fused > 1, 2.0 * np.degrees(np.arccos(np.clip(mean_ray, 0.0, 1.0))), 0.0
+    )
+    out["color_std_views"][sl] = np.sqrt(var).mean(axis=1)
+    # Mean NCC of each view's normalised patch with the views' mean patch = ||sum of patches|| / n.
+    out["ncc_views"][sl] = np.linalg.norm(acc.patch_sum, axis=1) / np.maximum(acc.patch_n, 1)
+    out["depth_agree"][sl] = acc.agree / safe_v
+    out["depth_freespace"][sl] = acc.freespace / safe_v
+    out["depth_invalid"][sl] = acc.invalid / safe_v
+    out["depth_residual"][sl] = np.where(acc.residual_n > 0, acc.residual_sum / np.maximum(acc.residual_n, 1), 1.0)

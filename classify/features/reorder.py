@@ -1,10 +1,9 @@
 """Threaded numba kernels for the per-point bookkeeping of :func:`classify.features.compute_features`.
 
 Features are computed on the points sorted along a Morton curve and written back in the cloud's order. With numpy
-each of these steps is a one-threaded fancy-index pass that allocates a temporary of the whole array (measured on
-1 M points, 2 cores: Morton codes 0.45 s, gathering positions, normals and colours in that order 0.29 s,
-scattering 42 feature columns 0.85 s, renumbering the (N, 15) neighbour lists 0.43 s); the kernels below do each in
-one threaded pass without temporaries (0.09, 0.06, 0.31 and 0.10 s). ``tests/test_classify_features.py``
+each of these steps is a one-threaded fancy-index pass that allocates a temporary of the whole array; the kernels
+below do each in one threaded pass without temporaries, several times faster (timings in
+docs/experiments/2026-11-27-domain-defaults.md). ``tests/test_classify_features.py``
 compares them with their numpy twins.
 """
 

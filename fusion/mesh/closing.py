@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.errors import DataError
-from fusion.mesh.quality import edge_use_counts
+from fusion.mesh.graph import edge_use_counts
 from fusion.mesh.types import TriangleMesh
 
 # (u axis, v axis) per face (axis k, side s): u × v = outward normal (+e_k for s = 1, −e_k for s = 0)
@@ -135,7 +135,18 @@ def _caps(
     """(vertices with snapped boundary vertices and the used corners appended, number snapped, (C, 3) cap
     triangles, corners added); :class:`_CannotClose` when the boundary does not fit a cube cut."""
     verts = vertices.copy()
-    bv = np.unique(b_dir)
+    planes, snapped = _snap_to_cube(verts, np.unique(b_dir), lo, hi, tol)
+    face_of = _face_of_edges(planes, b_dir, b_third)
+    faces = [_FaceCut(f, lo, hi, verts, b_dir[face_of == f][:, ::-1], planes) for f in range(6)]
+    corner_state = _corner_states(faces)
+    return _assemble_caps(faces, corner_state, verts, lo, hi, snapped)
+
+
+def _snap_to_cube(
+    verts: np.ndarray, bv: np.ndarray, lo: np.ndarray, hi: np.ndarray, tol: float
+) -> tuple[np.ndarray, int]:
+    """Snap the boundary vertices ``bv`` of ``verts`` (V, 3), in place, exactly onto the cube faces within ``tol``
+    metres; returns the (V, 6) bool "vertex on face 2k + s" table and the number of coordinates moved."""
     planes = np.zeros((len(verts), 6), dtype=bool)  # vertex on face 2k + s
     for k in range(3):
         for s, value in ((0, lo[k]), (1, hi[k])):
@@ -150,8 +161,12 @@ def _caps(
         on = np.flatnonzero(planes[:, f])
         snapped += int((verts[on, k] != (hi[k] if s else lo[k])).sum())
         verts[on, k] = hi[k] if s else lo[k]
-    # each boundary edge on the one face both ends share (two shared: an edge along a cube edge, where the face is
-    # the one its triangle's third vertex also lies on, else ambiguous)
+    return planes, snapped
+
+
+def _face_of_edges(planes: np.ndarray, b_dir: np.ndarray, b_third: np.ndarray) -> np.ndarray:
+    """(E,) int64 cube face of each boundary edge: the one face both ends share (two shared: an edge along a cube
+    edge, where the face is the one its triangle's third vertex also lies on, else ambiguous)."""
     shared = planes[b_dir[:, 0]] & planes[b_dir[:, 1]]
     n_shared = shared.sum(axis=1)
     if (n_shared == 0).any():
@@ -162,12 +177,12 @@ def _caps(
         if (third_on.sum(axis=1) != 1).any():
             raise _CannotClose("a boundary edge runs along a cube edge and its face cannot be told")
         shared[two] = third_on
-    face_of = np.argmax(shared, axis=1)
+    return np.argmax(shared, axis=1)
 
-    # cube corners: index by bits (x hi?, y hi?, z hi?)
-    corner_pos = np.array([[hi[0] if c & 1 else lo[0], hi[1] if c & 2 else lo[1], hi[2] if c & 4 else lo[2]]
-                           for c in range(8)])  # fmt: skip
-    faces = [_FaceCut(f, lo, hi, verts, b_dir[face_of == f][:, ::-1], planes) for f in range(6)]
+
+def _corner_states(faces: list[_FaceCut]) -> dict[int, bool]:
+    """Inside (True) or outside of each of the 8 cube corners, from the faces' chain ends, else from the largest
+    loop, spread over faces without chain ends; :class:`_CannotClose` when they contradict or stay unknown."""
     corner_state: dict[int, bool] = {}
     for face in faces:
         for c, state in face.corner_states().items():
@@ -195,7 +210,22 @@ def _caps(
                         changed = True
     if len(corner_state) < 8:
         raise _CannotClose("the inside of the cube's corners cannot be told")
+    return corner_state
 
+
+def _assemble_caps(
+    faces: list[_FaceCut],
+    corner_state: dict[int, bool],
+    verts: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    snapped: int,
+) -> tuple[np.ndarray, int, np.ndarray, int]:
+    """Triangulate every face's cap and give the cube corners they use vertex ids after ``verts`` (in order of first
+    use); returns what :func:`_caps` returns."""
+    # cube corners: index by bits (x hi?, y hi?, z hi?)
+    corner_pos = np.array([[hi[0] if c & 1 else lo[0], hi[1] if c & 2 else lo[1], hi[2] if c & 4 else lo[2]]
+                           for c in range(8)])  # fmt: skip
     corner_vertex: dict[int, int] = {}
     caps: list[np.ndarray] = []
     for face in faces:

@@ -1,19 +1,17 @@
 """Quadric-error decimation to a triangle budget, within a tolerance (default 1 %).
 
 Two maintained decimators, both Garland–Heckbert quadric edge collapse: ``fast-simplification`` (Fast Quadric Mesh
-Simplification, C++) and open3d's ``simplify_quadric_decimation``. Neither promises the exact count (an edge
-collapse removes two triangles, some collapses are refused to keep the mesh valid, and open3d may stop early), so the
-target is corrected from the count obtained, up to ``max_attempts`` runs, until the count lies within
-``tolerance`` of the budget. Degenerate triangles (repeated vertex, zero area), unused vertices and the few edges
-that collapses leave shared by more than two triangles (measured: fast-simplification on a 350 k-triangle Poisson
-mesh) are removed afterwards (:func:`fusion.mesh.poisson.repair_non_manifold_edges`), before the count is judged.
+Simplification, C++) and open3d's ``simplify_quadric_decimation``. Neither promises the exact count (an edge collapse
+removes two triangles, some collapses are refused to keep the mesh valid, and open3d may stop early), so the target is
+corrected from the count obtained, up to ``max_attempts`` runs, until the count lies within ``tolerance`` of the budget.
+Degenerate triangles (repeated vertex, zero area), unused vertices and the few edges that collapses leave shared by more
+than two triangles (fast-simplification leaves a few) are removed afterwards
+(:func:`fusion.mesh.poisson.repair_non_manifold_edges`), before the count is judged.
 
-Measured (bench/bench_mesh.py): fast-simplification is several times faster, but on meshes with many boundary edges
-it can stall above the budget (a 55 k-triangle trimmed Poisson mesh stopped at 1 113 triangles for a budget of 1 000,
-whatever its ``agg``); open3d hit every budget exactly. The default ``auto`` therefore runs fast-simplification and,
-when the count is still outside the tolerance, goes on with open3d from fast-simplification's result (measured on the
-demo's 347 k-triangle hybrid mesh, budget 2 000: fast-simplification stalls at ~4 500; open3d on the whole mesh took
-3.6× as long as both chained, 27.4 s against 7.7 s at load 11); ``DecimationStats.method`` says which made the result
+``fast-simplification`` is several times faster, but on meshes with many boundary edges it can stall above the budget,
+while open3d hits every budget. The default ``auto`` therefore runs fast-simplification and, when the count is still
+outside the tolerance, goes on with open3d from fast-simplification's result (faster than open3d alone; figures in
+docs/experiments/2026-11-27-domain-defaults.md); ``DecimationStats.method`` says which made the result
 ("fast-simplification+open3d" for the chain).
 
 Documented behaviour at the edges: a budget < 1 is a :class:`ConfigError`; a budget at or above the input's

@@ -1,8 +1,7 @@
 """Make a closed triangle mesh edge-manifold without opening it: drop zero-volume pillows, split touching sheets.
 
 Screened Poisson (open3d's PoissonRecon, adaptive octree) emits these defects where its iso-surface is ambiguous
-(measured on the hybrid mesh of the demo scene, 461 k triangles: 911 edges with four triangles; 381 pillows and
-160 flat tetrahedra among them):
+(counts on a demo mesh in docs/experiments/2026-11-27-domain-defaults.md):
 
 - pillows: two triangles with the same three vertices in opposite orders (a zero-volume double layer). Each of
   their edges loses one use in each direction when both go, so a closed mesh stays closed.
@@ -29,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.mesh.quality import edge_use_counts
+from fusion.mesh.graph import edge_use_counts
 from fusion.mesh.types import TriangleMesh
 
 

@@ -134,21 +134,88 @@ def oriented_points_from_gaussians(
     if n0 == 0:
         raise DataError("cannot mesh an empty Gaussian set (0 Gaussians)")
     gaussians.validate("Gaussian set to mesh")
-    alpha = gaussians.opacities.astype(np.float64)
-    if weight_override is not None:
-        weight = np.clip(np.asarray(weight_override, dtype=np.float64).reshape(-1), 0.0, 1.0)
-        if len(weight) != n0:
-            raise DataError(f"weight_override has {len(weight)} entries for {n0} Gaussians")
-        keep = weight > 0
-    else:
-        weight = np.minimum(1.0, alpha / options.full_weight_opacity)
-        keep = alpha >= options.min_opacity
+    weight, keep = _weights(gaussians, options, weight_override)
     dropped_faint = int(n0 - keep.sum())
     idx = np.flatnonzero(keep)
     if len(idx) == 0:
         raise DataError(f"all {n0} Gaussians are fainter than min_opacity {options.min_opacity}: nothing to mesh")
 
     source = np.asarray(gaussians.fields.get("source", np.zeros(n0)), dtype=np.uint8)
+    s = _surfels(gaussians, idx, source, options)
+    dropped_iso = 0
+    if s.isotropic.any() and options.normal_fallback is NormalFallback.ERROR:
+        raise DataError(
+            f"{int(s.isotropic.sum())} of {len(s.idx)} Gaussians are near-isotropic "
+            f"(σ_min > {options.isotropy_ratio}·σ_mid) and carry no normal; convert MVS points in 'adaptive' mode "
+            "or use normal_fallback='estimate'"
+        )
+    if s.isotropic.any() and options.normal_fallback is NormalFallback.DROP:
+        dropped_iso = int(s.isotropic.sum())
+        if not (~s.isotropic).any():
+            raise DataError(f"all {len(s.idx)} Gaussians are near-isotropic and normal_fallback is 'drop'")
+        s = s.without_isotropic()
+
+    centres = gaussians.means[s.idx]
+    estimated = 0
+    if s.isotropic.any():
+        iso = s.isotropic
+        s.normal[iso] = _pca_normals(centres, np.flatnonzero(iso), options.normal_neighbors)
+        # an isotropic Gaussian has no preferred in-surface axes: build a basis around the estimated normal
+        s.axis_a[iso], s.axis_b[iso] = _tangent_basis(s.normal[iso])
+        estimated = int(iso.sum())
+    normal = orient_normals(centres, s.normal, s.trusted, viewpoints, options.normal_neighbors)
+
+    owner, pos, spacing = _sample_ellipses(centres, s, weight[s.idx], options)
+    gi = s.idx[owner]
+    reach = options.footprint_sigmas * s.sig[owner, 2]  # the ellipse's long semi-axis
+    colors = gaussians.base_colors[gi]
+    points = OrientedPoints(pos, normal[owner], colors, source[gi], gi, gaussians.origin.copy(), reach)
+    stats = OrientedPointStats(n0, dropped_faint, dropped_iso, estimated, int(s.trusted.sum()), len(points), spacing)
+    return points, stats
+
+
+def _weights(
+    gaussians: GaussianSet, options: OrientedPointOptions, weight_override: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) float64 sampling weight w_i in [0, 1] and (N,) bool "kept" of every Gaussian (see the module docstring)."""
+    alpha = gaussians.opacities.astype(np.float64)
+    if weight_override is not None:
+        weight = np.clip(np.asarray(weight_override, dtype=np.float64).reshape(-1), 0.0, 1.0)
+        if len(weight) != len(gaussians):
+            raise DataError(f"weight_override has {len(weight)} entries for {len(gaussians)} Gaussians")
+        return weight, weight > 0
+    weight = np.minimum(1.0, alpha / options.full_weight_opacity)
+    return weight, alpha >= options.min_opacity
+
+
+@dataclass
+class _Surfels:
+    """The kept Gaussians ``idx`` (n,) as surfels: σ ascending ``sig`` (n, 3) metres; unit ``normal`` (shortest axis)
+    and in-surface axes ``axis_a`` / ``axis_b`` (middle / longest), (n, 3) local frame; ``isotropic`` (no usable
+    shortest axis) and ``trusted`` (normal sign from MVS) (n,) bool."""
+
+    idx: np.ndarray
+    sig: np.ndarray
+    normal: np.ndarray
+    axis_a: np.ndarray
+    axis_b: np.ndarray
+    isotropic: np.ndarray
+    trusted: np.ndarray
+
+    def without_isotropic(self) -> _Surfels:
+        sel = ~self.isotropic
+        return _Surfels(
+            self.idx[sel],
+            self.sig[sel],
+            self.normal[sel],
+            self.axis_a[sel],
+            self.axis_b[sel],
+            np.zeros(int(sel.sum()), dtype=bool),
+            self.trusted[sel],
+        )
+
+
+def _surfels(gaussians: GaussianSet, idx: np.ndarray, source: np.ndarray, options: OrientedPointOptions) -> _Surfels:
     log_s = gaussians.log_scales[idx].astype(np.float64)
     order = np.argsort(log_s, axis=1)  # axis indices, shortest first
     sig = np.exp(np.take_along_axis(log_s, order, axis=1))  # (n, 3) ascending
@@ -159,42 +226,25 @@ def oriented_points_from_gaussians(
     axis_b = rot[rows, :, order[:, 2]]
     isotropic = sig[:, 0] > options.isotropy_ratio * sig[:, 1]
     trusted = (~isotropic) & (source[idx] == Source.MVS) & (order[:, 0] == 2)
+    return _Surfels(idx, sig, normal, axis_a, axis_b, isotropic, trusted)
 
-    dropped_iso = 0
-    if isotropic.any() and options.normal_fallback is NormalFallback.ERROR:
-        raise DataError(
-            f"{int(isotropic.sum())} of {len(idx)} Gaussians are near-isotropic "
-            f"(σ_min > {options.isotropy_ratio}·σ_mid) and carry no normal; convert MVS points in 'adaptive' mode "
-            "or use normal_fallback='estimate'"
-        )
-    if isotropic.any() and options.normal_fallback is NormalFallback.DROP:
-        dropped_iso = int(isotropic.sum())
-        sel = ~isotropic
-        if not sel.any():
-            raise DataError(f"all {len(idx)} Gaussians are near-isotropic and normal_fallback is 'drop'")
-        idx, sig, normal, trusted = idx[sel], sig[sel], normal[sel], trusted[sel]
-        axis_a, axis_b = axis_a[sel], axis_b[sel]
-        isotropic = np.zeros(len(idx), dtype=bool)
 
-    centres = gaussians.means[idx]
-    estimated = 0
-    if isotropic.any():
-        normal[isotropic] = _pca_normals(centres, np.flatnonzero(isotropic), options.normal_neighbors)
-        # an isotropic Gaussian has no preferred in-surface axes: build a basis around the estimated normal
-        axis_a[isotropic], axis_b[isotropic] = _tangent_basis(normal[isotropic])
-        estimated = int(isotropic.sum())
-    normal = orient_normals(centres, normal, trusted, viewpoints, options.normal_neighbors)
-
+def _sample_ellipses(
+    centres: np.ndarray, s: _Surfels, weight: np.ndarray, options: OrientedPointOptions
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Points in the surfels' ellipses (see the module docstring; seeded): the surfel of each point (P,) int64, the
+    positions (P, 3) float64 local, and the reference spacing s in metres."""
+    sig = s.sig
     footprint = sig[:, 1] * sig[:, 2]
     spacing = options.sample_spacing or float(np.sqrt(np.median(footprint)))
     spacing = max(spacing, 1e-9)
-    expected = weight[idx] * np.maximum(1.0, footprint / spacing**2)
+    expected = weight * np.maximum(1.0, footprint / spacing**2)
     expected = np.minimum(expected, options.max_samples_per_gaussian)
     rng = np.random.default_rng(options.seed)
-    counts = np.floor(expected + rng.random(len(idx))).astype(np.int64)
+    counts = np.floor(expected + rng.random(len(s.idx))).astype(np.int64)
     counts = np.minimum(counts, options.max_samples_per_gaussian)
 
-    owner = np.repeat(np.arange(len(idx)), counts)
+    owner = np.repeat(np.arange(len(s.idx)), counts)
     first = np.zeros(len(owner), dtype=bool)
     starts = np.cumsum(counts) - counts
     first[starts[counts > 0]] = True
@@ -204,13 +254,9 @@ def oriented_points_from_gaussians(
     u, v = r * np.cos(phi), r * np.sin(phi)
     u[first] = 0.0
     v[first] = 0.0
+    axis_a, axis_b = s.axis_a, s.axis_b
     pos = centres[owner] + axis_a[owner] * (u * sig[owner, 1])[:, None] + axis_b[owner] * (v * sig[owner, 2])[:, None]
-    gi = idx[owner]
-    reach = options.footprint_sigmas * sig[owner, 2]  # the ellipse's long semi-axis
-    colors = gaussians.base_colors[gi]
-    points = OrientedPoints(pos, normal[owner], colors, source[gi], gi, gaussians.origin.copy(), reach)
-    stats = OrientedPointStats(n0, dropped_faint, dropped_iso, estimated, int(trusted.sum()), len(points), spacing)
-    return points, stats
+    return owner, pos, spacing
 
 
 def _pca_normals(centres: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:

@@ -177,33 +177,12 @@ def mesh_from_gaussians(
     options = options or MeshOptions()
     timings = MeshTimings()
     t = time.perf_counter()
-    gs = merged
-    off_surface = 0
-    if options.surface_only and "surface" in merged.fields:
-        on = np.asarray(merged.fields["surface"]) > 0.5
-        off_surface = int((~on).sum())
-        if not on.any():
-            raise DataError(f"no Gaussian of the merged set (of {len(merged)}) has surface = 1: nothing to mesh")
-        gs = merged.subset(on)
-    if options.source is MeshSource.MVS:
-        if "source" not in merged.fields:
-            raise DataError("an MVS-only mesh needs the merged set's 'source' field (1 = MVS, 2 = splat)")
-        is_mvs = np.asarray(gs.fields["source"]) == Source.MVS
-        if not is_mvs.any():
-            raise DataError(f"the merged set holds no MVS Gaussians (of {len(merged)}): nothing to mesh MVS-only")
-        gs = gs.subset(is_mvs)
+    gs, off_surface = _gaussians_to_mesh(merged, options)
     points, point_stats = oriented_points_from_gaussians(gs, options.points, viewpoints)
     snap_stats = None
     n_snap = 0
     if snapshots and options.use_snapshots and options.source is MeshSource.ALL:
-        union, snap_stats = snapshot_union(snapshots, gs, options.snapshots)
-        if len(union):
-            extra, _ = oriented_points_from_gaussians(
-                union, options.points, viewpoints, weight_override=np.ones(len(union))
-            )
-            extra.gaussian_index[:] = -1  # indices into the snapshot union, not into ``merged``
-            n_snap = len(extra)
-            points = OrientedPoints.concatenate([points, extra])
+        points, snap_stats, n_snap = _add_snapshot_points(points, snapshots, gs, options, viewpoints)
     dropped_near_mvs = 0
     if options.mvs_priority > 0:
         points, dropped_near_mvs = drop_splat_points_near_mvs(points, options.mvs_priority)
@@ -247,3 +226,44 @@ def mesh_from_gaussians(
         quality=mesh_quality(final),
         timings=timings,
     )
+
+
+def _gaussians_to_mesh(merged: GaussianSet, options: MeshOptions) -> tuple[GaussianSet, int]:
+    """The Gaussians whose geometry is meshed (``surface_only``, ``source``) and how many were off every surface."""
+    gs = merged
+    off_surface = 0
+    if options.surface_only and "surface" in merged.fields:
+        on = np.asarray(merged.fields["surface"]) > 0.5
+        off_surface = int((~on).sum())
+        if not on.any():
+            raise DataError(f"no Gaussian of the merged set (of {len(merged)}) has surface = 1: nothing to mesh")
+        gs = merged.subset(on)
+    if options.source is MeshSource.MVS:
+        if "source" not in merged.fields:
+            raise DataError("an MVS-only mesh needs the merged set's 'source' field (1 = MVS, 2 = splat)")
+        is_mvs = np.asarray(gs.fields["source"]) == Source.MVS
+        if not is_mvs.any():
+            raise DataError(f"the merged set holds no MVS Gaussians (of {len(merged)}): nothing to mesh MVS-only")
+        gs = gs.subset(is_mvs)
+    return gs, off_surface
+
+
+def _add_snapshot_points(
+    points: OrientedPoints,
+    snapshots: Sequence[GaussianSet],
+    gs: GaussianSet,
+    options: MeshOptions,
+    viewpoints: np.ndarray | None,
+) -> tuple[OrientedPoints, SnapshotStats, int]:
+    """``points`` plus the oriented points of the snapshot union in splat regions (full weight), its stats and how
+    many points it added."""
+    union, snap_stats = snapshot_union(snapshots, gs, options.snapshots)
+    n_snap = 0
+    if len(union):
+        extra, _ = oriented_points_from_gaussians(
+            union, options.points, viewpoints, weight_override=np.ones(len(union))
+        )
+        extra.gaussian_index[:] = -1  # indices into the snapshot union, not into ``merged``
+        n_snap = len(extra)
+        points = OrientedPoints.concatenate([points, extra])
+    return points, snap_stats, n_snap

@@ -14,7 +14,7 @@ cannot tell a hole from a well-sampled closed surface, where it would cut the lo
 spacing at a point is the larger of its local spacing (the median nearest-neighbour distance over the point and
 its ``support_neighbors`` nearest others) and that median over all points: a hybrid cloud mixes sparse MVS surfels
 with dense splat and snapshot samples, and one global spacing from the dense part trimmed away most of the MVS
-surface (demo tabletop, 1500-step project: completeness 0.29 instead of 0.69). Edges
+surface (see docs/experiments/2026-11-27-domain-defaults.md). Edges
 shared by more than two triangles (PoissonRecon's iso-surface extraction emits a few at fine depths) are repaired
 with open3d's ``remove_non_manifold_edges`` (drops the smallest of the triangles on such an edge until two are
 left), so the trimmed mesh is edge-manifold. Pieces that are left with fewer triangles than
@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from core.errors import ConfigError, DataError
 from fusion.mesh.closing import ClosingStats, close_at_cube, poisson_cube
+from fusion.mesh.graph import edge_use_counts, triangle_components
 from fusion.mesh.manifold import ManifoldStats, make_edge_manifold
 from fusion.mesh.types import OrientedPoints, TriangleMesh
 
@@ -316,8 +317,6 @@ def repair_non_manifold_edges(mesh: TriangleMesh) -> tuple[TriangleMesh, int]:
     number of triangles removed; the mesh itself when it is already edge-manifold."""
     import open3d as o3d
 
-    from fusion.mesh.quality import edge_use_counts
-
     _, counts = edge_use_counts(mesh.triangles)
     if not (counts > 2).any():
         return mesh, 0
@@ -331,20 +330,3 @@ def repair_non_manifold_edges(mesh: TriangleMesh) -> tuple[TriangleMesh, int]:
     # open3d keeps the vertex array as it is: same indices, so colours still line up
     out = TriangleMesh(mesh.vertices, tris, mesh.origin, mesh.vertex_colors).compact()
     return out, mesh.num_triangles - len(tris)
-
-
-def triangle_components(triangles: np.ndarray, num_vertices: int) -> np.ndarray:
-    """(T,) int64 label per triangle: triangles sharing a vertex are in the same piece (scipy connected components)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    t = len(triangles)
-    if t == 0:
-        return np.zeros(0, dtype=np.int64)
-    # bipartite graph triangles ↔ vertices; the components of its triangle nodes are the pieces
-    rows = np.repeat(np.arange(t), 3)
-    cols = t + triangles.reshape(-1)
-    graph = coo_matrix((np.ones(3 * t, dtype=np.int8), (rows, cols)), shape=(t + num_vertices, t + num_vertices))
-    _, labels = connected_components(graph, directed=False)
-    _, labels = np.unique(labels[:t], return_inverse=True)
-    return labels.astype(np.int64)

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
+from fusion.mesh.graph import edge_use_counts, triangle_components
 from fusion.mesh.types import TriangleMesh
 
 
@@ -43,23 +42,8 @@ class MeshQuality:
         return out
 
 
-def edge_use_counts(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unique undirected edges (E, 2) int64 (sorted vertex pairs) and how many triangles use each (E,)."""
-    t = np.asarray(triangles, dtype=np.int64)
-    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    e.sort(axis=1)
-    if len(e) == 0:
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    base = int(e.max()) + 1
-    # one int64 per edge (a · base + b: exact below 3e9 vertices), far faster than a row-wise unique
-    codes, counts = np.unique(e[:, 0] * base + e[:, 1], return_counts=True)
-    return np.stack([codes // base, codes % base], axis=1), counts
-
-
 def mesh_quality(mesh: TriangleMesh) -> MeshQuality:
     """The counts of :class:`MeshQuality` for ``mesh``."""
-    from fusion.mesh.poisson import triangle_components
-
     t = mesh.triangles
     if len(t) == 0:
         return MeshQuality(len(mesh.vertices), 0, 0, 0, 0, 0, 0, 0.0)

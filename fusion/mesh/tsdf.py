@@ -9,8 +9,8 @@ seen by fewer views). The legacy ``ScalableTSDFVolume`` of open3d 0.20 integrate
 checks, hence the tensor API. Compared with screened Poisson, TSDF
 only builds surface where some view saw it (no bridging of holes), and it follows what the splats *render*, so
 semi-transparent splats contribute wherever they reach ``min_alpha``. Its accuracy is bounded by the renderer's
-depth: the alpha-blended depth of the Gaussians' *means* lies behind a convex surface by a fraction of σ (measured:
-median 9 mm outside a 0.5 m sphere of σ = 2.7 cm surfels, for the back-projected depth and the TSDF mesh alike).
+depth: the alpha-blended depth of the Gaussians' *means* lies behind a convex surface by a fraction of σ (see
+docs/experiments/2026-11-27-domain-defaults.md).
 
 Frames: the volume lives in the Gaussians' local frame; camera poses (given relative to ``cameras.origin``) are moved
 there in float64. open3d puts pixel centres at integer coordinates, COLMAP at +0.5: the principal point is shifted by

@@ -6,14 +6,15 @@
 - :func:`render_gaussian_set` — a :class:`core.GaussianSet` at a COLMAP camera/view, large-coordinate safe.
 - :func:`render_brute_force` — the float64 per-pixel oracle used by the tests.
 
-The names are imported lazily (module-level ``__getattr__``): ``import fusion.render`` or a torch-free
+The names are imported lazily (:func:`core.lazy.lazy_exports`): ``import fusion.render`` or a torch-free
 submodule does not load torch; the first use of a name imports its submodule.
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from core.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from fusion.render.api import render, resolve_backend
@@ -53,14 +54,4 @@ __all__ = [
     "sh_to_colour",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

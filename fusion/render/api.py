@@ -105,24 +105,11 @@ def render(
 
     if means.device.type != "cpu":
         raise ConfigError(f"render: backend {chosen.value!r} runs on CPU tensors, got {means.device}; use 'gsplat'")
+    inputs = (means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree)
     if chosen is Backend.CPU:
-        sp = project_splats_cpu(
-            means, quats, log_scales, logit_opacities, sh_coeffs[:, :1], sh_coeffs[:, 1:], viewmat, K, width, height,
-            degree, near_plane=near_plane,
-        )  # fmt: skip
-        means2d, depths, extents, visible = sp.means2d, sp.depths, sp.extents, sp.visible
-        features = torch.cat([sp.colours, depths[:, None]], dim=1)  # (N, 4): RGB, z; alpha is appended
-        image = rasterize_cpu(means2d, sp.conics, sp.opacities, features, extents, depths, visible, width, height,
-                              tile_size)  # fmt: skip
+        image, means2d, depths, extents, visible = _rasterize_cpu(*inputs, near_plane, tile_size)
     else:
-        proj = project_gaussians(means, quats, log_scales, viewmat, K, width, height, near_plane=near_plane)
-        centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
-        colours = sh_to_colour(sh_coeffs, means - centre, degree)
-        features = torch.cat([colours, proj.depths[:, None]], dim=1)
-        opacities = torch.sigmoid(logit_opacities)
-        means2d, depths, extents, visible = proj.means2d, proj.depths, proj.extents, proj.visible
-        image = rasterize_reference(means2d, proj.conics, opacities, features, extents, depths, visible, width,
-                                    height, tile_size)  # fmt: skip
+        image, means2d, depths, extents, visible = _rasterize_reference(*inputs, near_plane, tile_size)
     alpha = image[..., 4]
     colour = image[..., :3] + (1 - alpha)[..., None] * bg
     depth = image[..., 3] / alpha.clamp_min(1e-10)
@@ -137,3 +124,38 @@ def render(
         depths=depths,
         backend=chosen,
     )
+
+
+_Raster = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+"""(H, W, 5) image (premultiplied RGB, alpha-weighted z, alpha: the last channel), and per Gaussian the (N, 2) pixel
+means, (N,) camera z (metres), (N, 2) pixel extents and (N,) bool visible."""
+
+
+def _rasterize_cpu(
+    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size
+) -> _Raster:
+    """The ``cpu`` backend: numba projection with SH evaluation, then the numba tile rasteriser."""
+    sp = project_splats_cpu(
+        means, quats, log_scales, logit_opacities, sh_coeffs[:, :1], sh_coeffs[:, 1:], viewmat, K, width, height,
+        degree, near_plane=near_plane,
+    )  # fmt: skip
+    means2d, depths, extents, visible = sp.means2d, sp.depths, sp.extents, sp.visible
+    features = torch.cat([sp.colours, depths[:, None]], dim=1)  # (N, 4): RGB, z; alpha is appended
+    image = rasterize_cpu(means2d, sp.conics, sp.opacities, features, extents, depths, visible, width, height,
+                          tile_size)  # fmt: skip
+    return image, means2d, depths, extents, visible
+
+
+def _rasterize_reference(
+    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size
+) -> _Raster:
+    """The ``reference`` backend: plain torch projection, SH evaluation and rasterisation (autograd gradients)."""
+    proj = project_gaussians(means, quats, log_scales, viewmat, K, width, height, near_plane=near_plane)
+    centre = -viewmat[:3, :3].T @ viewmat[:3, 3]
+    colours = sh_to_colour(sh_coeffs, means - centre, degree)
+    features = torch.cat([colours, proj.depths[:, None]], dim=1)
+    opacities = torch.sigmoid(logit_opacities)
+    means2d, depths, extents, visible = proj.means2d, proj.depths, proj.extents, proj.visible
+    image = rasterize_reference(means2d, proj.conics, opacities, features, extents, depths, visible, width,
+                                height, tile_size)  # fmt: skip
+    return image, means2d, depths, extents, visible

@@ -1,44 +1,42 @@
 """fusion.train: splats trained inside masks next to frozen MVS Gaussians (and the whole-scene baseline).
 
-- :func:`train_splats` / :class:`TrainOptions` / :class:`TrainResult` — the trainer (:mod:`fusion.train.trainer`).
+- :func:`train_splats` / :class:`TrainResult` — the trainer loop (:mod:`fusion.train.trainer`), composed of a
+  state (:mod:`~fusion.train.state`), a step (:mod:`~fusion.train.step`), a schedule (:mod:`~fusion.train.schedule`),
+  early stopping (:mod:`~fusion.train.early_stop`) and a view sampler (:mod:`~fusion.train.sampler`).
+- :class:`TrainOptions` / :class:`PriorOptions` / :class:`HardViewOptions` — its options (:mod:`fusion.train.options`).
 - :class:`DefaultStrategy` / :class:`MCMCStrategy` — capped densification (:mod:`fusion.train.strategy`).
 - :func:`masked_photometric_loss` — 0.8 · L1 + 0.2 · (1 − SSIM) over mask pixels (:mod:`fusion.train.loss`).
 
-The names are imported lazily (module-level ``__getattr__``): ``import fusion.train`` or a torch-free
-submodule (e.g. :mod:`fusion.train.init`) does not load torch; the first use of a name imports its submodule.
+The names are imported lazily (:func:`core.lazy.lazy_exports`): ``import fusion.train`` or a torch-free
+submodule (:mod:`fusion.train.init`, :mod:`fusion.train.options`, :mod:`fusion.train.strategy`) does not load torch;
+the first use of a name imports its submodule (the options and strategies without torch).
 """
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from core.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from fusion.train.loss import masked_photometric_loss, ssim_map
-    from fusion.train.priors import PriorOptions
+    from fusion.train.options import HardViewOptions, PriorOptions, TrainOptions
+    from fusion.train.state import scene_scale
     from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
-    from fusion.train.trainer import (
-        HardViewOptions,
-        StepInfo,
-        TrainOptions,
-        TrainResult,
-        scene_scale,
-        splat_normals,
-        train_splats,
-    )
+    from fusion.train.trainer import StepInfo, TrainResult, splat_normals, train_splats
 
 #: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
 _EXPORTS: dict[str, str] = {
     "DefaultStrategy": "strategy",
-    "HardViewOptions": "trainer",
+    "HardViewOptions": "options",
     "MCMCStrategy": "strategy",
-    "PriorOptions": "priors",
+    "PriorOptions": "options",
     "RefineCounts": "strategy",
     "StepInfo": "trainer",
-    "TrainOptions": "trainer",
+    "TrainOptions": "options",
     "TrainResult": "trainer",
     "masked_photometric_loss": "loss",
-    "scene_scale": "trainer",
+    "scene_scale": "state",
     "splat_normals": "trainer",
     "ssim_map": "loss",
     "train_splats": "trainer",
@@ -60,14 +58,4 @@ __all__ = [
     "train_splats",
 ]
 
-
-def __getattr__(name: str) -> Any:
-    if name in _EXPORTS:
-        value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

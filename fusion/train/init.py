@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from core.cameras import Cameras
 from core.errors import ConfigError, DataError
 from core.gaussians import SH_C0, GaussianSet, logit
+from fusion.mask_projection import project_to_pixels
 
 
 @dataclass(frozen=True)
@@ -79,26 +80,18 @@ def points_in_masks(
         mask = masks.get(view.name)
         if mask is None or not mask.any():
             continue
-        uv, z = cameras.project(view, points)
-        col = np.floor(uv[:, 0]).astype(np.int64)
-        row = np.floor(uv[:, 1]).astype(np.int64)
         h, w = mask.shape
-        ok = (z > 0) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        inside = np.zeros(len(points), bool)
-        inside[ok] = mask[row[ok], col[ok]]
-        hits += inside
+        hits += project_to_pixels(cameras, view, points, w, h).lookup(mask)
     return hits >= min_views
 
 
 def zbuffer_depth(cameras: Cameras, view, points: np.ndarray) -> np.ndarray:
     """(H, W) float64 z-depth of the nearest of ``points`` (N, 3, local frame) per pixel; 0 where none projects."""
     cam = cameras.camera_of(view)
-    uv, z = cameras.project(view, points)
-    col = np.floor(uv[:, 0]).astype(np.int64)
-    row = np.floor(uv[:, 1]).astype(np.int64)
-    ok = (z > 0) & (col >= 0) & (col < cam.width) & (row >= 0) & (row < cam.height)
+    px = project_to_pixels(cameras, view, points, cam.width, cam.height)
+    ok = px.ok
     depth = np.full(cam.height * cam.width, np.inf)
-    np.minimum.at(depth, row[ok] * cam.width + col[ok], z[ok])
+    np.minimum.at(depth, px.row[ok] * cam.width + px.col[ok], px.z[ok])
     depth[~np.isfinite(depth)] = 0.0
     return depth.reshape(cam.height, cam.width)
 

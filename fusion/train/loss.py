@@ -10,7 +10,8 @@ tensors; :func:`masked_photometric_loss_reference` is its readable PyTorch autog
 by the tests). In the twin, the five local statistics SSIM needs (μx, μy, E[x²], E[y²], E[xy]) of all channels are
 blurred together as one (15, H, W) stack by two matrix products with banded (H, H) and (W, W) Gaussian matrices (zero
 padding is built into the band). Written here rather than taken from a package because the masked average is the
-point (the ones in pytorch-msssim / torchmetrics average over the whole image).
+point (the ones in pytorch-msssim / torchmetrics average over the whole image). The window and constants live in
+:mod:`fusion.train.ssim_window`, shared with the kernels (this module imports them; they never import it).
 """
 
 from __future__ import annotations
@@ -19,22 +20,10 @@ from dataclasses import dataclass
 
 import torch
 
-SSIM_WINDOW = 11
-SSIM_SIGMA = 1.5
-SSIM_C1 = 0.01**2
-SSIM_C2 = 0.03**2
+from fusion.train.loss_cpu import masked_photometric_cpu
+from fusion.train.ssim_window import SSIM_C1, SSIM_C2, SSIM_WINDOW, gaussian_taps
 
-_TAPS: dict[torch.dtype, torch.Tensor] = {}
 _BANDS: dict[tuple[int, torch.dtype], torch.Tensor] = {}
-
-
-def gaussian_taps(dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """The normalised 1-D Gaussian window (11,) with σ 1.5 used by SSIM."""
-    if dtype not in _TAPS:
-        x = torch.arange(SSIM_WINDOW, dtype=torch.float64) - SSIM_WINDOW // 2
-        g = torch.exp(-(x**2) / (2 * SSIM_SIGMA**2))
-        _TAPS[dtype] = (g / g.sum()).to(dtype)
-    return _TAPS[dtype]
 
 
 def blur_matrix(n: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
@@ -88,8 +77,6 @@ def masked_photometric_loss(
     """
     if rendered.device.type != "cpu" or ssim_lambda <= 0 or target.requires_grad:
         return masked_photometric_loss_reference(rendered, target, mask, ssim_lambda)
-    from fusion.train.loss_cpu import masked_photometric_cpu
-
     if mask is None:
         key = (rendered.shape[0], rendered.shape[1], rendered.dtype)
         if key not in _ONES:

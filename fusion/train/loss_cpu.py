@@ -23,9 +23,7 @@ from numba import njit
 from torch.autograd.function import once_differentiable
 
 from fusion.render.threads import n_threads, run_threads
-
-SSIM_C1 = 0.01**2
-SSIM_C2 = 0.03**2
+from fusion.train.ssim_window import SSIM_C1, SSIM_C2, gaussian_taps
 
 
 @njit(inline="always", cache=True, fastmath=True, error_model="numpy")
@@ -152,8 +150,7 @@ _TAPS: dict[np.dtype, np.ndarray] = {}
 
 
 def _taps(dtype: np.dtype) -> np.ndarray:
-    from fusion.train.loss import gaussian_taps
-
+    """The SSIM window (11,) as a NumPy array of ``dtype`` (from the float64 taps)."""
     if dtype not in _TAPS:
         _TAPS[dtype] = gaussian_taps(torch.float64).numpy().astype(dtype)
     return _TAPS[dtype]

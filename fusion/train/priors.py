@@ -40,48 +40,9 @@ import cv2
 import numpy as np
 import torch
 
-from core.errors import ConfigError
 from fusion.render.projection import quat_to_rotmat
+from fusion.train.options import PriorOptions
 from fusion.train.views import TrainView
-
-
-@dataclass(frozen=True)
-class PriorOptions:
-    """Options of the depth / normal priors (weights relative to the photometric loss, which is ~0.05–0.3).
-
-    depth_weight: weight of the edge-aware log-L1 depth term (DN-Splatter: 0.2; 0 disables it).
-    normal_weight: weight of the normal-consistency term (DN-Splatter: 0.1 on normals; 0 disables it).
-    border_px: decay length (px at the training resolution) of the prior's weight from the mask's edge inwards;
-        None applies it with weight 1 over the whole mask.
-    band_px: width (px) of the band around the mask whose trusted MVS depths are interpolated.
-    edge_scale: image-gradient magnitude (colour units per px, [0, 1] images) at which the edge-aware weight has
-        fallen to 1/e; None disables edge awareness.
-    hull_share: keep the prior only where its surface point lands inside the masks of at least this share of the
-        other views that see it (:func:`hull_consistent`); None disables the test.
-    """
-
-    depth_weight: float = 0.2
-    normal_weight: float = 0.1
-    border_px: float | None = 8.0
-    band_px: int = 6
-    edge_scale: float | None = 0.1
-    hull_share: float | None = 0.8
-
-    def __post_init__(self) -> None:
-        if self.depth_weight < 0 or self.normal_weight < 0:
-            raise ConfigError(f"prior weights must be >= 0, got {self.depth_weight}, {self.normal_weight}")
-        if self.border_px is not None and not self.border_px > 0:
-            raise ConfigError(f"border_px must be > 0 or None, got {self.border_px}")
-        if self.band_px < 1:
-            raise ConfigError(f"band_px must be >= 1, got {self.band_px}")
-        if self.edge_scale is not None and not self.edge_scale > 0:
-            raise ConfigError(f"edge_scale must be > 0 or None, got {self.edge_scale}")
-        if self.hull_share is not None and not 0.0 <= self.hull_share <= 1.0:
-            raise ConfigError(f"hull_share must lie in [0, 1] or be None, got {self.hull_share}")
-
-    @property
-    def active(self) -> bool:
-        return self.depth_weight > 0 or self.normal_weight > 0
 
 
 @dataclass(frozen=True)

@@ -12,19 +12,26 @@ budget allows, the ones with the largest gradients win. The count never exceeds 
 Statistics are only gathered from Gaussians that received a gradient, i.e. touched a loss pixel: in masked
 training, seeing a Gaussian outside the mask does not dilute its mean gradient.
 
-A strategy is a frozen dataclass of hyper-parameters; its mutable state is an explicit :class:`DefaultState`.
+A strategy is a frozen dataclass of hyper-parameters; its mutable state is an explicit :class:`DefaultState`
+(:class:`MCMCState`). What the trainer asks of a strategy is the :class:`Strategy` protocol: ``initial_state``, an
+extra loss term (``regularisation``), statistics after each backward pass (``after_backward``) and the refinement
+after each optimiser step (``refine``), as in gsplat's ``Strategy`` (``step_pre_backward`` / ``step_post_backward``).
+
+This module decides *when* and *how much*; the tensor work is in :mod:`fusion.train.strategy_ops` (gsplat's
+``strategy/ops.py``), imported on first use: the strategies can be named, built and checked without torch (the
+pipeline's configuration reads :class:`fusion.train.options.TrainOptions` that way).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-
-import torch
+from types import ModuleType
+from typing import TYPE_CHECKING, Protocol
 
 from core.errors import ConfigError
-from fusion.render.projection import quat_to_rotmat
-from fusion.train.params import update_parameters
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass
@@ -53,8 +60,61 @@ class DefaultState:
     totals: RefineCounts = field(default_factory=RefineCounts)
 
 
-def _select(t: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-    return t[keep]
+class StrategyState(Protocol):
+    """The running state of a strategy: at least the initial count and the run totals."""
+
+    n_initial: int
+    totals: RefineCounts
+
+
+class Strategy(Protocol):
+    """The interface between the trainer and a densification strategy (:class:`DefaultStrategy`,
+    :class:`MCMCStrategy`). Steps count iterations; ``refine`` gets the 1-based count of finished steps."""
+
+    @property
+    def cap(self) -> int:
+        """The largest trainable count the strategy ever allows."""
+        ...
+
+    @property
+    def refine_start(self) -> int: ...
+
+    @property
+    def refine_stop(self) -> int: ...
+
+    def initial_state(self, n: int) -> StrategyState:
+        """A fresh state for ``n`` initial Gaussians."""
+        ...
+
+    def regularisation(self, params: dict[str, torch.Tensor]) -> torch.Tensor:
+        """A 0-d loss term the strategy adds to every step's loss (a zero tensor when none)."""
+        ...
+
+    def after_backward(self, state, means2d: torch.Tensor, width: int, height: int, step: int) -> None:
+        """Gather statistics from the gradients of the projected means (N, 2, px) of a ``width`` × ``height`` view."""
+        ...
+
+    def refine(
+        self,
+        state,
+        params: dict[str, torch.nn.Parameter],
+        optimizer: torch.optim.Adam,
+        step: int,
+        total_steps: int,
+        scene_scale: float,
+        generator: torch.Generator,
+        lr_means: float = 0.0,
+    ) -> RefineCounts:
+        """Change the trainable set (and its Adam moments) after the optimiser step; ``lr_means`` is the means'
+        learning rate of the step just taken, ``scene_scale`` in metres."""
+        ...
+
+
+def _ops() -> ModuleType:
+    """:mod:`fusion.train.strategy_ops` (torch), imported on first use."""
+    from fusion.train import strategy_ops
+
+    return strategy_ops
 
 
 @dataclass(frozen=True)
@@ -82,11 +142,11 @@ class DefaultStrategy:
             raise ConfigError(f"budget_ramp must lie in (0, 1], got {self.budget_ramp}")
 
     def initial_state(self, n: int) -> DefaultState:
-        return DefaultState(torch.zeros(n), torch.zeros(n, dtype=torch.int32), n)
+        return _ops().zero_accumulators(n)
 
     def regularisation(self, params: dict[str, torch.Tensor]) -> torch.Tensor:
         """Extra loss terms the strategy needs (none)."""
-        return torch.zeros(())
+        return _ops().no_regularisation()
 
     def after_backward(
         self, state: DefaultState, means2d: torch.Tensor, width: int, height: int, step: int, **_: object
@@ -94,11 +154,7 @@ class DefaultStrategy:
         """Accumulate the NDC-scaled screen-space gradient norms of Gaussians that received a gradient."""
         if step >= self.refine_stop or means2d.grad is None:
             return
-        g = means2d.grad.detach()
-        norm = torch.sqrt((g[:, 0] * (width / 2)) ** 2 + (g[:, 1] * (height / 2)) ** 2)
-        touched = norm > 0
-        state.grad2d += torch.where(touched, norm, torch.zeros_like(norm))
-        state.count += touched.to(torch.int32)
+        _ops().accumulate_grad2d(state, means2d.grad, width, height)
 
     def budget(self, state: DefaultState, step: int, total_steps: int) -> int:
         """The largest count allowed after the refinement at ``step`` (clipped coarse-to-fine growth)."""
@@ -122,107 +178,15 @@ class DefaultStrategy:
         """Grow, prune and reset as the schedule says at ``step`` (1-based count of finished steps)."""
         counts = RefineCounts()
         if self.refine_start <= step < self.refine_stop and step % self.refine_every == 0 and step > 0:
-            counts.add(self._grow(state, params, optimizer, step, total_steps, scene_scale, generator))
-            counts.add(self._prune(state, params, optimizer, step, scene_scale))
-            state.grad2d.zero_()
-            state.count.zero_()
+            ops = _ops()
+            counts.add(ops.grow(self, state, params, optimizer, step, total_steps, scene_scale, generator))
+            counts.add(ops.prune(self, state, params, optimizer, step, scene_scale))
+            ops.reset_accumulators(state)
         if self.reset_every > 0 and step % self.reset_every == 0 and 0 < step < self.refine_stop:
-            self._reset_opacity(params, optimizer)
+            _ops().reset_opacity(params, optimizer, self.prune_opa)
             counts.resets += 1
         state.totals.add(counts)
         return counts
-
-    # -- operations ----------------------------------------------------------------------------
-    def _grow(self, state, params, optimizer, step, total_steps, scene_scale, generator) -> RefineCounts:
-        counts = RefineCounts()
-        n = params["means"].shape[0]
-        avg = state.grad2d / state.count.clamp_min(1).to(state.grad2d.dtype)
-        candidates = torch.nonzero(avg > self.grow_grad2d).squeeze(1)
-        room = max(0, self.budget(state, step, total_steps) - n)
-        if len(candidates) > room:
-            order = torch.argsort(avg[candidates], descending=True, stable=True)
-            counts.clipped = int(len(candidates) - room)
-            candidates = candidates[order[:room]]
-        if len(candidates) == 0:
-            return counts
-        big = params["log_scales"].detach()[candidates].exp().amax(dim=1) > self.grow_scale3d * scene_scale
-        split_ids = candidates[big]
-        clone_ids = candidates[~big]
-        if len(clone_ids):
-            self._duplicate(state, params, optimizer, clone_ids)
-            counts.cloned = int(len(clone_ids))
-        if len(split_ids):
-            self._split(state, params, optimizer, split_ids, generator)
-            counts.split = int(len(split_ids))
-        return counts
-
-    def _duplicate(self, state, params, optimizer, ids: torch.Tensor) -> None:
-        update_parameters(
-            params,
-            optimizer,
-            lambda _, p: torch.cat([p, p[ids]]),
-            lambda _, s: torch.cat([s, torch.zeros_like(s[ids])]),
-        )
-        state.grad2d = torch.cat([state.grad2d, torch.zeros(len(ids))])
-        state.count = torch.cat([state.count, torch.zeros(len(ids), dtype=torch.int32)])
-
-    def _split(self, state, params, optimizer, ids: torch.Tensor, generator: torch.Generator) -> None:
-        """Each Gaussian in ids becomes two, centred at samples of itself, with σ / 1.6 (3DGS)."""
-        scales = params["log_scales"].detach()[ids].exp()
-        R = quat_to_rotmat(params["quats"].detach()[ids])
-        noise = torch.randn((2, len(ids), 3), generator=generator) * scales[None]
-        offsets = torch.einsum("nij,bnj->bni", R, noise)  # (2, M, 3)
-        n = params["means"].shape[0]
-        rest = torch.ones(n, dtype=torch.bool)
-        rest[ids] = False
-
-        def param_fn(name: str, p: torch.Tensor) -> torch.Tensor:
-            if name == "means":
-                new = (p[ids][None] + offsets).reshape(-1, 3)
-            elif name == "log_scales":
-                new = (p[ids] - math.log(1.6)).repeat(2, 1)
-            else:
-                new = p[ids].repeat(2, *([1] * (p.dim() - 1)))
-            return torch.cat([p[rest], new])
-
-        def state_fn(_: str, s: torch.Tensor) -> torch.Tensor:
-            return torch.cat([s[rest], torch.zeros((2 * len(ids), *s.shape[1:]), dtype=s.dtype)])
-
-        update_parameters(params, optimizer, param_fn, state_fn)
-        state.grad2d = torch.cat([state.grad2d[rest], torch.zeros(2 * len(ids))])
-        state.count = torch.cat([state.count[rest], torch.zeros(2 * len(ids), dtype=torch.int32)])
-
-    def _prune(self, state, params, optimizer, step, scene_scale) -> RefineCounts:
-        opacity = torch.sigmoid(params["logit_opacities"].detach())
-        drop = opacity < self.prune_opa
-        if self.reset_every > 0 and step > self.reset_every:
-            drop |= params["log_scales"].detach().exp().amax(dim=1) > self.prune_scale3d * scene_scale
-        if drop.all():  # keep the strongest one so the set never becomes empty
-            drop[torch.argmax(opacity)] = False
-        if not drop.any():
-            return RefineCounts()
-        keep = ~drop
-        update_parameters(params, optimizer, lambda _, p: p[keep], lambda _, s: s[keep])
-        state.grad2d = state.grad2d[keep]
-        state.count = state.count[keep]
-        return RefineCounts(pruned=int(drop.sum()))
-
-    def _reset_opacity(self, params, optimizer) -> None:
-        ceiling = math.log(2 * self.prune_opa / (1 - 2 * self.prune_opa))
-
-        def param_fn(name: str, p: torch.Tensor) -> torch.Tensor:
-            return p.clamp_max(ceiling) if name == "logit_opacities" else p
-
-        def state_fn(key: str, s: torch.Tensor) -> torch.Tensor:
-            return s
-
-        update_parameters(params, optimizer, param_fn, state_fn)
-        for group in optimizer.param_groups:
-            if group["name"] == "logit_opacities":
-                st = optimizer.state.get(group["params"][0])
-                if st:
-                    st["exp_avg"].zero_()
-                    st["exp_avg_sq"].zero_()
 
 
 @dataclass
@@ -231,22 +195,6 @@ class MCMCState:
 
     n_initial: int
     totals: RefineCounts = field(default_factory=RefineCounts)
-
-
-def _relocation(opacity: torch.Tensor, log_scales: torch.Tensor, ratio: torch.Tensor, max_ratio: int = 51):
-    """Opacity and log-scales of a Gaussian split into ``ratio`` copies that render like the original (MCMC paper,
-    Eq. 9; gsplat's ``compute_relocation``): α' = 1 − (1 − α)^(1/r),
-    σ' = α σ / Σᵢ₌₁..ᵣ Σₖ₌₀..ᵢ₋₁ C(i−1, k) (−1)^k α'^(k+1) / √(k+1)."""
-    r = ratio.clamp(1, max_ratio).to(opacity.dtype)
-    new_opacity = 1.0 - (1.0 - opacity).clamp_min(1e-12) ** (1.0 / r)
-    denom = torch.zeros_like(opacity)
-    for i in range(1, int(r.max()) + 1 if len(r) else 1):
-        term = torch.zeros_like(opacity)
-        for k in range(i):
-            term = term + math.comb(i - 1, k) * (-1) ** k / math.sqrt(k + 1) * new_opacity ** (k + 1)
-        denom = denom + torch.where(r >= i, term, torch.zeros_like(term))
-    scale_factor = (opacity / denom.clamp_min(1e-12)).clamp(1e-6, 1.0)
-    return new_opacity.clamp(1e-4, 1 - 1e-4), log_scales + torch.log(scale_factor)[:, None]
 
 
 @dataclass(frozen=True)
@@ -275,10 +223,7 @@ class MCMCStrategy:
         return MCMCState(n)
 
     def regularisation(self, params: dict[str, torch.Tensor]) -> torch.Tensor:
-        return (
-            self.opacity_reg * torch.sigmoid(params["logit_opacities"]).mean()
-            + self.scale_reg * params["log_scales"].exp().mean()
-        )
+        return _ops().mcmc_regularisation(params, self.opacity_reg, self.scale_reg)
 
     def after_backward(self, state: MCMCState, means2d: torch.Tensor, width: int, height: int, step: int,
                        **_: object) -> None:  # fmt: skip
@@ -298,73 +243,10 @@ class MCMCStrategy:
     ) -> RefineCounts:
         counts = RefineCounts()
         if self.refine_start <= step < self.refine_stop and step % self.refine_every == 0 and step > 0:
-            counts.relocated = self._relocate(params, optimizer, generator)
-            counts.cloned = self._add(params, optimizer, generator)
+            ops = _ops()
+            counts.relocated = ops.relocate_dead(params, optimizer, generator, self.min_opacity)
+            counts.cloned = ops.add_copies(params, optimizer, generator, self.cap, self.grow_rate)
         if lr_means > 0:
-            self._noise(params, lr_means, generator)
+            _ops().inject_noise(params, lr_means, self.noise_lr, generator)
         state.totals.add(counts)
         return counts
-
-    def _sample(self, opacity: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
-        return torch.multinomial(opacity.clamp_min(1e-12), n, replacement=True, generator=generator)
-
-    def _split_into(self, params, optimizer, sources: torch.Tensor, targets: torch.Tensor | None) -> None:
-        """Copies of ``sources`` (with repeats) go to ``targets`` (rows overwritten) or are appended (None); the
-        sources and copies get the relocated opacity and scale, and the copies zeroed Adam moments."""
-        opacity = torch.sigmoid(params["logit_opacities"].detach())
-        ratio = torch.bincount(sources, minlength=len(opacity))[sources] + 1
-        new_op, new_ls = _relocation(opacity[sources], params["log_scales"].detach()[sources], ratio)
-        uniq = torch.unique(sources)
-
-        def param_fn(name: str, p: torch.Tensor) -> torch.Tensor:
-            p = p.clone()
-            if name == "logit_opacities":
-                p[sources] = torch.logit(new_op)
-            elif name == "log_scales":
-                p[sources] = new_ls
-            copy = p[sources]
-            if targets is None:
-                return torch.cat([p, copy])
-            p[targets] = copy
-            return p
-
-        def state_fn(_: str, s: torch.Tensor) -> torch.Tensor:
-            s = s.clone()
-            s[uniq] = 0
-            if targets is None:
-                return torch.cat([s, torch.zeros_like(s[sources])])
-            s[targets] = 0
-            return s
-
-        update_parameters(params, optimizer, param_fn, state_fn)
-
-    def _relocate(self, params, optimizer, generator) -> int:
-        opacity = torch.sigmoid(params["logit_opacities"].detach())
-        dead = torch.nonzero(opacity <= self.min_opacity).squeeze(1)
-        alive = torch.nonzero(opacity > self.min_opacity).squeeze(1)
-        if len(dead) == 0 or len(alive) == 0:
-            return 0
-        sources = alive[self._sample(opacity[alive], len(dead), generator)]
-        self._split_into(params, optimizer, sources, dead)
-        return int(len(dead))
-
-    def _add(self, params, optimizer, generator) -> int:
-        n = params["means"].shape[0]
-        target = min(self.cap, int(math.floor(n * (1.0 + self.grow_rate))))
-        extra = max(0, target - n)
-        if extra == 0:
-            return 0
-        opacity = torch.sigmoid(params["logit_opacities"].detach())
-        self._split_into(params, optimizer, self._sample(opacity, extra, generator), None)
-        return extra
-
-    def _noise(self, params, lr_means: float, generator: torch.Generator) -> None:
-        with torch.no_grad():
-            opacity = torch.sigmoid(params["logit_opacities"])
-            R = quat_to_rotmat(params["quats"])
-            s2 = params["log_scales"].exp() ** 2
-            cov = torch.einsum("nij,nj,nkj->nik", R, s2, R)
-            gate = 1.0 / (1.0 + torch.exp(-100.0 * ((1.0 - opacity) - 0.995)))
-            z = torch.randn(params["means"].shape, generator=generator)
-            noise = torch.einsum("nij,nj->ni", cov, z) * (gate * self.noise_lr * lr_means)[:, None]
-            params["means"].add_(noise)

@@ -15,19 +15,6 @@ import typer
 classify_app = typer.Typer(help="Train or apply the point classifier; list its features.", no_args_is_help=True)
 
 
-@classify_app.command("predict")
-def predict_cmd(
-    project: Path = typer.Argument(..., help="Project folder with dense/fused.ply (after 'hybridsplat mvs')."),
-    model: str | None = typer.Option(None, help="default | none (no-model fallback) | path of a .skops model."),
-    threshold: float | None = typer.Option(None, help="Needs-splats probability threshold (default: the model's)."),
-    force: bool = typer.Option(False, "--force", help="Rerun even when up to date."),
-) -> None:
-    """Classify the dense cloud into PROJECT/classify/points.ply (classification, probability, needs_splats)."""
-    from hybridsplat.commands.common import run_project_stage
-
-    run_project_stage(project, "classify", {"model": model, "threshold": threshold}, force=force)
-
-
 @classify_app.command("train")
 def train_cmd(
     projects: list[Path] = typer.Argument(..., help="Project folders (dense/fused.ply + .vis) to learn from."),
@@ -81,4 +68,8 @@ def features_cmd(scales: int = typer.Option(3, help="Number of geometric scales.
 
 
 def register(app: typer.Typer) -> None:
+    from hybridsplat.commands.stages import stage_command
+    from hybridsplat.stages import stage_named
+
+    classify_app.command("predict")(stage_command(stage_named("classify")))
     app.add_typer(classify_app, name="classify")

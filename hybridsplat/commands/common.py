@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -40,14 +41,20 @@ def input_options_from_cli(
 
 
 def stage_options_from_cli(**given: dict[str, Any]) -> dict[str, Any]:
-    """Stage options from ``stage=dict(option=value)``; None values keep the stage's default."""
-    from hybridsplat.config import options_from_table
-    from hybridsplat.pipeline import STAGE_OPTIONS
+    """Stage options from ``stage={"option.path": value}`` (values as config.toml spells them; None keeps the
+    stage's default)."""
+    from hybridsplat.options import with_option
+    from hybridsplat.stages import stage_options_types
 
-    return {
-        name: options_from_table(STAGE_OPTIONS[name], {k: v for k, v in values.items() if v is not None}, "--options")
-        for name, values in given.items()
-    }
+    types = stage_options_types()
+    out = {}
+    for name, values in given.items():
+        options = types[name]()
+        for path, value in values.items():
+            if value is not None:
+                options = with_option(options, path, value)
+        out[name] = options
+    return out
 
 
 def print_result(terminal: Any, project: Path, manifest: Any) -> None:
@@ -59,23 +66,27 @@ def print_result(terminal: Any, project: Path, manifest: Any) -> None:
     terminal.line(f"manifest: {layout.manifest}")
 
 
-def run_project_stage(project: Path, name: str, overrides: dict[str, Any], force: bool = False, quiet: bool = False):
-    """Run stage ``name`` of an existing project with its recorded configuration and ``overrides`` (None = keep)."""
-    from dataclasses import replace
-
-    from core.errors import ConfigError
-    from hybridsplat.pipeline import STAGE_OPTIONS, load_config, run_pipeline
+def run_project_stage(
+    project: Path, name: str, update: Callable[[Any], Any] | dict[str, Any], force: bool = False, quiet: bool = False
+):
+    """Run stage ``name`` of an existing project with its recorded configuration, changed by ``update`` (a function
+    of the recorded options, or ``{option path: value}`` where None keeps the recorded value)."""
+    from hybridsplat.options import with_option
+    from hybridsplat.pipeline import load_config, run_pipeline
     from hybridsplat.stages import stage_named
     from hybridsplat.terminal import Terminal
 
+    stage = stage_named(name)
     config = load_config(project)
-    options = config.options(name, STAGE_OPTIONS[name])
-    try:
-        options = replace(options, **{k: v for k, v in overrides.items() if v is not None})
-    except (TypeError, ValueError) as err:
-        raise ConfigError(str(err)) from err
+    options = config.options(name, stage.Options)
+    if callable(update):
+        options = update(options)
+    else:
+        for path, value in update.items():
+            if value is not None:
+                options = with_option(options, path, value)
     terminal = Terminal(quiet=quiet)
     manifest = run_pipeline(
-        project, config.with_stage_options(name, options), [stage_named(name)], terminal, [name] if force else []
+        project, config.with_stage_options(name, options), [stage], terminal, [name] if force else []
     )
     return terminal, manifest

@@ -2,96 +2,97 @@
 
 from __future__ import annotations
 
+import inspect
+import typing
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from hybridsplat.commands.common import input_options_from_cli, print_result, stage_options_from_cli
 
-DEMO_STAGES = {
+DEMO_STAGES: dict[str, dict[str, Any]] = {
     "mesh": {"budget": 2_000},
-    "train": {"iterations": 600},
-    "baseline": {"enabled": True, "iterations": 1_000},
+    "train": {"training.iterations": 600},
+    "baseline": {"enabled": True, "training.iterations": 1_000},
 }
-"""The demo's stage options: a small mesh and CPU-sized training budgets for the hybrid and the whole-scene
-baseline, so that every stage of the demo scene runs in minutes on 2 cores (``bench/bench_pipeline.py`` sweeps
-the budgets)."""
+"""The demo's stage options (option paths as in config.toml): a small mesh and CPU-sized training budgets for the
+hybrid and the whole-scene baseline, so that every stage of the demo scene runs in minutes on 2 cores
+(``bench/bench_pipeline.py`` sweeps the budgets)."""
+
+
+def _run_input(
+    input_path: Path = typer.Argument(
+        ..., help="A folder of photos (or with images/), a COLMAP workspace, or a data_synth scene."
+    ),
+    out: Path = typer.Option(..., "--out", help="Project folder (created); its layout: docs/conventions.md."),
+    model: int | None = typer.Option(None, help="Model N of a COLMAP workspace with several (default: largest)."),
+    cameras: Path | None = typer.Option(
+        None, help="COLMAP model of known cameras: poses fixed, only matching and triangulation."
+    ),
+    full_sfm: bool = typer.Option(
+        False, "--full-sfm", help="Ignore the cameras a scene or workspace brings; run SfM and align to them."
+    ),
+    reference: Path | None = typer.Option(
+        None, help="Align to these camera centres: a text file 'NAME X Y Z' per line, or a COLMAP model."
+    ),
+    units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
+    crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N), written to sidecars and LAS."),
+    holdout: int = typer.Option(
+        -1, help="Hold out every N-th photo for evaluation (default: the input's own test views, else 8; 0: none)."
+    ),
+    splat_masks: Path | None = typer.Option(None, help="Masks of regions that need splats (white), NAME.png."),
+    feature_masks: Path | None = typer.Option(None, help="COLMAP masks for feature extraction (black = ignore)."),
+    seed: int = typer.Option(0, help="Seed of every random choice."),
+    force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """The parameters of ``run`` that are not stage options (the stages' come from their ``run_options``)."""
+
+
+def _run_parameters() -> list[inspect.Parameter]:
+    from hybridsplat.commands.stages import cli_parameters
+    from hybridsplat.stages import registered_stages
+
+    hints = typing.get_type_hints(_run_input)
+    params = [p.replace(annotation=hints[p.name]) for p in inspect.signature(_run_input).parameters.values()]
+    params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) if p.name != "input_path" else p for p in params]
+    for stage in registered_stages():
+        params += cli_parameters(stage.Options, stage.run_options)
+    return params
+
+
+def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks,
+         feature_masks, seed: int, force: list[str], quiet: bool, **stage_values: Any) -> None:  # fmt: skip
+    from hybridsplat.commands.stages import apply_cli_values
+    from hybridsplat.config import ProjectConfig
+    from hybridsplat.pipeline import run_pipeline
+    from hybridsplat.stages import registered_stages
+    from hybridsplat.terminal import Terminal
+
+    stages = {
+        stage.name: apply_cli_values(stage.Options(), stage.run_options, stage_values)
+        for stage in registered_stages()
+        if stage.run_options
+    }
+    config = ProjectConfig(
+        input=input_options_from_cli(
+            input_path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks, feature_masks
+        ),
+        seed=seed,
+        stages=stages,
+    )
+    terminal = Terminal(quiet=quiet)
+    terminal.line(f"hybridsplat run: {input_path} -> {out}")
+    manifest = run_pipeline(out, config, terminal=terminal, force=force)
+    print_result(terminal, out, manifest)
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("run")
-    def run(
-        input_path: Path = typer.Argument(
-            ..., help="A folder of photos (or with images/), a COLMAP workspace, or a data_synth scene."
-        ),
-        out: Path = typer.Option(..., "--out", help="Project folder (created); its layout: docs/conventions.md."),
-        model: int | None = typer.Option(None, help="Model N of a COLMAP workspace with several (default: largest)."),
-        cameras: Path | None = typer.Option(
-            None, help="COLMAP model of known cameras: poses fixed, only matching and triangulation."
-        ),
-        full_sfm: bool = typer.Option(
-            False, "--full-sfm", help="Ignore the cameras a scene or workspace brings; run SfM and align to them."
-        ),
-        reference: Path | None = typer.Option(
-            None, help="Align to these camera centres: a text file 'NAME X Y Z' per line, or a COLMAP model."
-        ),
-        units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
-        crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N), written to sidecars and LAS."),
-        holdout: int = typer.Option(
-            -1, help="Hold out every N-th photo for evaluation (default: the input's own test views, else 8; 0: none)."
-        ),
-        splat_masks: Path | None = typer.Option(None, help="Masks of regions that need splats (white), NAME.png."),
-        feature_masks: Path | None = typer.Option(None, help="COLMAP masks for feature extraction (black = ignore)."),
-        camera_model: str = typer.Option("SIMPLE_RADIAL", help="COLMAP camera model for SfM."),
-        single_camera: bool = typer.Option(
-            True, "--single-camera/--camera-per-photo", help="One camera for all photos, or one per photo."
-        ),
-        matcher: str = typer.Option("exhaustive", help="exhaustive | sequential | spatial | vocabtree."),
-        mvs_backend: str = typer.Option("auto", help="auto | cpu | colmap (COLMAP PatchMatch needs CUDA)."),
-        max_image_size: int = typer.Option(1000, help="Longer side of the dense images, px (-1: full size)."),
-        convert_mode: str = typer.Option("adaptive", help="MVS-to-Gaussian conversion: adaptive | paper."),
-        lidar: Path | None = typer.Option(
-            None, help="Reference cloud (PLY/LAS/LAZ/E57, e.g. a LiDAR scan) for the C2C evaluation."
-        ),
-        lpips_weights: Path | None = typer.Option(None, help="LPIPS v0.1 AlexNet weights (.npz)."),
-        mesh: int = typer.Option(0, "--mesh", help="Also write a mesh with this many triangles (0: no mesh)."),
-        train_iterations: int | None = typer.Option(
-            None, help="Most splat-training steps (default: the train stage's; it stops early on a plateau)."
-        ),
-        baseline: bool = typer.Option(
-            False, "--baseline", help="Also train the whole-scene 3DGS baseline and compare with it in the report."
-        ),
-        seed: int = typer.Option(0, help="Seed of every random choice."),
-        force: list[str] = typer.Option([], "--force", help="Rerun this stage even when up to date (repeatable)."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
-    ) -> None:
-        """Run every stage end to end; stages already up to date are skipped, and say so."""
-        from hybridsplat.config import ProjectConfig
-        from hybridsplat.pipeline import run_pipeline
-        from hybridsplat.terminal import Terminal
+    from hybridsplat.commands.stages import build_command
 
-        config = ProjectConfig(
-            input=input_options_from_cli(
-                input_path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks, feature_masks
-            ),
-            seed=seed,
-            stages=stage_options_from_cli(
-                sfm={"camera_model": camera_model, "single_camera": single_camera, "matcher": matcher},
-                mvs={"backend": mvs_backend, "max_image_size": max_image_size},
-                convert={"mode": convert_mode},
-                mesh={"budget": mesh},
-                train={"iterations": train_iterations},
-                baseline={"enabled": True if baseline else None},
-                eval={
-                    "lpips_weights": str(lpips_weights.resolve()) if lpips_weights else "",
-                    "reference": str(lidar.resolve()) if lidar else "",
-                },
-            ),
-        )
-        terminal = Terminal(quiet=quiet)
-        terminal.line(f"hybridsplat run: {input_path} -> {out}")
-        manifest = run_pipeline(out, config, terminal=terminal, force=force)
-        print_result(terminal, out, manifest)
+    doc = "Run every stage end to end; stages already up to date are skipped, and say so."
+    app.command("run")(build_command("run", _run_parameters(), _run, doc))
 
     @app.command("demo")
     def demo(

@@ -1,8 +1,11 @@
-"""The pipeline's stages, in order. Adding a stage = one module here + one entry in ``_STAGE_CLASSES`` (+ its test).
+"""The pipeline's stages, in order: the registry.
 
-The stage modules are imported lazily (module-level ``__getattr__``): importing one stage module, or calling
-:func:`stage_named`, does not import the others and their heavy dependencies (torch, open3d, pycolmap...), so
-a command fails on a bad input before those are loaded. ``STAGES`` imports every stage on first use.
+Adding a stage is its module (a :class:`~hybridsplat.stages.base.Stage` subclass) and one ``register_stage`` line
+below; its per-stage command, its ``run`` options and its report section come from its declaration.
+
+Stage modules are imported lazily: :func:`stage_named` imports only that stage's module, so a command fails on a
+bad input before the other stages' heavy dependencies (torch, open3d, pycolmap...) are loaded; :func:`registered_stages`
+(and ``STAGES``) import every stage.
 """
 
 from __future__ import annotations
@@ -10,90 +13,94 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:  # the names this package offers, for type checkers and readers
-    from hybridsplat.stages.base import Stage, StageContext
-    from hybridsplat.stages.baseline import BaselineStage
-    from hybridsplat.stages.classify import ClassifyStage
-    from hybridsplat.stages.clean import CleanStage
-    from hybridsplat.stages.convert import ConvertStage
-    from hybridsplat.stages.evaluate import EvalStage
-    from hybridsplat.stages.masks import MasksStage
-    from hybridsplat.stages.merge import MergeStage
-    from hybridsplat.stages.mesh import MeshStage
-    from hybridsplat.stages.mvs import MvsStage
-    from hybridsplat.stages.report import ReportStage
-    from hybridsplat.stages.sfm import SfmStage
-    from hybridsplat.stages.train import TrainStage
+from core.lazy import lazy_exports
 
-    STAGES: tuple[Stage, ...]
+if TYPE_CHECKING:
+    from hybridsplat.stages.base import Stage
 
-#: (stage name, module under hybridsplat.stages, class), in pipeline order.
-_STAGE_CLASSES: tuple[tuple[str, str, str], ...] = (
-    ("sfm", "sfm", "SfmStage"),
-    ("mvs", "mvs", "MvsStage"),
-    ("classify", "classify", "ClassifyStage"),
-    ("masks", "masks", "MasksStage"),
-    ("convert", "convert", "ConvertStage"),
-    ("train", "train", "TrainStage"),
-    ("clean", "clean", "CleanStage"),
-    ("merge", "merge", "MergeStage"),
-    ("mesh", "mesh", "MeshStage"),
-    ("baseline", "baseline", "BaselineStage"),
-    ("eval", "evaluate", "EvalStage"),
-    ("report", "report", "ReportStage"),
-)
-_LAZY: dict[str, str] = {cls: module for _name, module, cls in _STAGE_CLASSES}
-_LAZY.update(Stage="base", StageContext="base")
+#: stage name → "module:Class", in pipeline order
+_REGISTRY: dict[str, str] = {}
 _instances: dict[str, Stage] = {}
 
-__all__ = [
-    "STAGES",
-    "BaselineStage",
-    "ClassifyStage",
-    "CleanStage",
-    "ConvertStage",
-    "EvalStage",
-    "MasksStage",
-    "MergeStage",
-    "MeshStage",
-    "MvsStage",
-    "ReportStage",
-    "SfmStage",
-    "Stage",
-    "StageContext",
-    "TrainStage",
-    "stage_named",
-]
+
+def register_stage(name: str, target: str, after: str | None = None) -> None:
+    """Add stage ``name``, the class ``target`` (``"package.module:Class"``), at the end of the pipeline or right
+    after stage ``after``. Registering a name again replaces it in place."""
+    global _REGISTRY
+    _instances.pop(name, None)
+    entries = [(n, t) for n, t in _REGISTRY.items() if n != name]
+    if name in _REGISTRY and after is None:
+        entries = [(n, target if n == name else t) for n, t in _REGISTRY.items()]
+    elif after is not None:
+        if after not in _REGISTRY:
+            raise KeyError(after)
+        at = [n for n, _ in entries].index(after) + 1
+        entries.insert(at, (name, target))
+    else:
+        entries.append((name, target))
+    _REGISTRY = dict(entries)
 
 
-def _stage(name: str, module: str, cls: str) -> Stage:
-    """The one instance of stage ``name`` (shared by ``STAGES`` and :func:`stage_named`)."""
-    if name not in _instances:
-        _instances[name] = getattr(importlib.import_module(f"{__name__}.{module}"), cls)()
-    return _instances[name]
+def unregister_stage(name: str) -> None:
+    """Remove stage ``name`` from the pipeline (tests that register a toy stage undo it)."""
+    _REGISTRY.pop(name)
+    _instances.pop(name, None)
+
+
+register_stage("sfm", "hybridsplat.stages.sfm:SfmStage")
+register_stage("mvs", "hybridsplat.stages.mvs:MvsStage")
+register_stage("classify", "hybridsplat.stages.classify:ClassifyStage")
+register_stage("masks", "hybridsplat.stages.masks:MasksStage")
+register_stage("convert", "hybridsplat.stages.convert:ConvertStage")
+register_stage("train", "hybridsplat.stages.train:TrainStage")
+register_stage("clean", "hybridsplat.stages.clean:CleanStage")
+register_stage("merge", "hybridsplat.stages.merge:MergeStage")
+register_stage("mesh", "hybridsplat.stages.mesh:MeshStage")
+register_stage("baseline", "hybridsplat.stages.baseline:BaselineStage")
+register_stage("eval", "hybridsplat.stages.evaluate:EvalStage")
+register_stage("report", "hybridsplat.stages.report:ReportStage")
+
+
+def stage_names() -> tuple[str, ...]:
+    """The registered stages' names, in pipeline order (imports nothing)."""
+    return tuple(_REGISTRY)
 
 
 def stage_named(name: str) -> Stage:
-    """The stage called ``name`` (``"sfm"`` … ``"report"``); imports only that stage's module.
+    """The one instance of stage ``name``; imports only that stage's module. :class:`KeyError` for an unknown name."""
+    if name not in _instances:
+        module, _, cls = _REGISTRY[name].partition(":")
+        _instances[name] = getattr(importlib.import_module(module), cls)()
+    return _instances[name]
 
-    Raises :class:`KeyError` for an unknown name."""
-    for stage_name, module, cls in _STAGE_CLASSES:
-        if stage_name == name:
-            return _stage(stage_name, module, cls)
-    raise KeyError(name)
+
+def registered_stages() -> tuple[Stage, ...]:
+    """Every registered stage, in pipeline order."""
+    return tuple(stage_named(name) for name in _REGISTRY)
+
+
+def stage_options_types() -> dict[str, type]:
+    """Stage name → its ``Options`` type, for every registered stage (what config.toml's tables hold)."""
+    return {stage.name: stage.Options for stage in registered_stages()}
+
+
+_getattr, __dir__ = lazy_exports(__name__, {"Stage": "base", "StageContext": "base"})
 
 
 def __getattr__(attr: str) -> Any:
-    if attr == "STAGES":
-        stages = tuple(_stage(*entry) for entry in _STAGE_CLASSES)
-        globals()["STAGES"] = stages
-        return stages
-    if attr in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[attr]}"), attr)
-        globals()[attr] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {attr!r}")
+    if attr == "STAGES":  # recomputed on each access: a stage registered later is part of it
+        return registered_stages()
+    return _getattr(attr)
 
 
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__all__ = [
+    "STAGES",
+    "Stage",
+    "StageContext",
+    "register_stage",
+    "registered_stages",
+    "stage_named",
+    "stage_names",
+    "stage_options_types",
+    "unregister_stage",
+]

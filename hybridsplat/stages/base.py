@@ -1,22 +1,24 @@
 """What a pipeline stage is, and what it is given.
 
-A stage is a small class in its own module: a ``name``, an ``Options`` frozen dataclass with documented defaults
-(one TOML table in ``config.toml``), the files it reads (``inputs``) and writes (``outputs``), ``needs`` (a reason
-to skip, or None) and ``run`` (returns counts for the manifest). It is a thin shell: it reads files, calls a pure
-function of ``recon``/``classify``/``fusion``/``eval``, and writes files (atomically, through ``core.io``).
-The runner (``hybridsplat.runner``) decides whether it runs, times it and records it.
+A stage is a small class in its own module: a ``name``, its ``Options`` (the domain's options dataclass, or one
+composing it: one TOML table in ``config.toml``, see :mod:`hybridsplat.options`), the files it reads (``inputs``)
+and writes (``outputs``), ``needs`` (a reason to skip, or None) and ``run`` (returns counts for the manifest). It
+is a thin shell: it reads files through :mod:`hybridsplat.project_io`, calls a function of
+``recon``/``classify``/``fusion``/``eval``, and writes files (atomically, through ``core.io``). The runner
+(``hybridsplat.runner``) decides whether it runs, times it and records it.
+
+What the command line and the report show of a stage comes from its declaration too: ``command`` and
+``command_options`` make ``hybridsplat <command> PROJECT [--option V]`` (:mod:`hybridsplat.commands.stages`),
+``run_options`` adds options to ``hybridsplat run``, and :meth:`Stage.report_section` gives its section of the
+report. Registering a stage (one line in :mod:`hybridsplat.stages`) is all the rest needs.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-import numpy as np
-
-from core.cameras import Cameras
-from core.pointcloud import PointCloud
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.source import Source
@@ -26,6 +28,41 @@ from hybridsplat.terminal import ProgressCallback
 @dataclass(frozen=True)
 class NoOptions:
     """A stage without options."""
+
+
+@dataclass(frozen=True)
+class CliOption:
+    """A stage option on the command line.
+
+    path: the option's dotted path in the stage's options (``training.iterations``). flag: its spelling
+    (``--train-iterations``; ``--a/--b`` for a boolean pair); default ``--`` + the last part of the path with
+    dashes. help: one line. is_path: a file or folder, made absolute before it is recorded. value: for a flag
+    that takes no value (``--baseline``), what it sets."""
+
+    path: str
+    flag: str = ""
+    help: str = ""
+    is_path: bool = False
+    value: Any = None
+
+    @property
+    def spelling(self) -> str:
+        return self.flag or "--" + self.path.split(".")[-1].replace("_", "-")
+
+    @property
+    def parameter(self) -> str:
+        """The Python name of the command's parameter."""
+        return self.spelling.split("/")[0].lstrip("-").replace("-", "_")
+
+
+@dataclass(frozen=True)
+class ReportSection:
+    """What a stage shows in the report: a title, lines of text and figures (paths relative to the project,
+    with captions)."""
+
+    title: str
+    lines: tuple[str, ...] = ()
+    figures: tuple[tuple[str, str], ...] = ()
 
 
 def _no_progress(label: str, done: int, total: int) -> None:
@@ -60,6 +97,10 @@ class Stage:
     name: ClassVar[str]
     Options: ClassVar[type] = NoOptions
     title: ClassVar[str] = ""  # a few words for the terminal
+    command: ClassVar[str | None] = None  # ``hybridsplat <command> PROJECT`` runs this stage alone
+    command_help: ClassVar[str] = ""  # that command's help (default: the title)
+    command_options: ClassVar[tuple[CliOption, ...]] = ()  # its options
+    run_options: ClassVar[tuple[CliOption, ...]] = ()  # options of ``hybridsplat run`` that set this stage's
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         """Files and folders whose content decides the outputs (hashed by the runner)."""
@@ -85,40 +126,6 @@ class Stage:
         """A few words about what the stage produced, for the terminal's one-line summary."""
         return ""
 
-
-def model_origin(ctx: StageContext) -> np.ndarray:
-    """(3,) float64 world coordinates (metres) of the frame the project's COLMAP models are written in.
-
-    COLMAP models hold no origin: the sfm stage records it (a georeferenced block is aligned into a local frame
-    around a rounded centroid). Zeros before the sfm stage ran or without a georeference.
-    """
-    return recorded_model_origin(ctx.layout, np.zeros(3))
-
-
-def recorded_model_origin(layout: ProjectLayout, fallback: np.ndarray) -> np.ndarray:
-    """The ``origin`` the sfm stage recorded in ``layout.record("sfm")``, else ``fallback`` (see model_origin)."""
-    from core.errors import FormatError
-    from core.io.json_io import read_json_object
-
-    record = layout.record("sfm")
-    if record.is_file():
-        origin = read_json_object(record).get("origin")
-        if origin is not None:
-            if not (isinstance(origin, list) and len(origin) == 3):
-                raise FormatError(f'"origin" must be three numbers, got {origin!r}', record)
-            return np.asarray(origin, np.float64).reshape(3)
-    return np.asarray(fallback, np.float64).reshape(3)
-
-
-def read_model_at(path: Path, origin: np.ndarray) -> tuple[Cameras, PointCloud]:
-    """A COLMAP model (cameras and points) whose local frame lies at ``origin`` (world = origin + local)."""
-    from core.io.colmap import read_model
-
-    cameras, points = read_model(path)
-    origin = np.asarray(origin, dtype=np.float64).reshape(3)
-    return replace(cameras, origin=origin), replace(points, origin=origin)
-
-
-def read_project_model(ctx: StageContext, path: Path) -> tuple[Cameras, PointCloud]:
-    """A model of this project (``sparse/`` or the dense workspace's) in world coordinates, see model_origin."""
-    return read_model_at(path, model_origin(ctx))
+    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+        """This stage's section of the report, from the counts it recorded (None: no section)."""
+        return None

@@ -9,57 +9,21 @@ the demo turns it on): a survey does not need it, a comparison does.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from core.errors import ConfigError
-from hybridsplat.stages.base import Stage, StageContext, read_project_model
-
-
-@dataclass(frozen=True)
-class BaselineStageOptions:
-    """Options of the ``baseline`` stage.
-
-    enabled: train the baseline at all (off by default: it costs a whole-scene training).
-    iterations: maximum steps (early stop on 5 % held-back pixels, as in ``train``).
-    downscale, max_image_size: as the ``train`` stage's (same defaults, so both train at the same resolution).
-    cap: hard Gaussian budget (the ``train`` stage's hard cap by default: "same Gaussian cap").
-    sh_degree: highest SH degree.
-    refine_start / refine_until: densification window, as the ``train`` stage's (same defaults). On the demo
-        tabletop (seed 1) 1000 steps reached 19.99 dB held-out masked PSNR (23.82 whole image) with densification
-        from step 100 to 500, against 17.81 (20.81) when it ran from step 500 to the last step.
-    checkpoints: steps (< iterations) after which the splats are also written to splats/baseline_checkpoints/,
-        with the seconds the stage had taken by then (counts ``checkpoints``): points of one run's time against
-        error curve, which the eval stage measures as products ``baseline_<step>``. A checkpoint is the state of
-        the longer run at that step (learning rates and densification scheduled for ``iterations`` steps), not
-        what a run of that many steps would give.
-    """
-
-    enabled: bool = False
-    iterations: int = 2000
-    downscale: int = 1
-    max_image_size: int = 640
-    cap: int = 60_000
-    sh_degree: int = 3
-    refine_start: int = 100
-    refine_until: float = 0.5
-    checkpoints: tuple[int, ...] = ()
-
-    def __post_init__(self) -> None:
-        if self.iterations < 1 or self.downscale < 1 or self.cap < 1 or self.max_image_size < 0:
-            raise ConfigError("baseline: iterations, downscale and cap must be >= 1, max_image_size >= 0")
-        if any(not 1 <= int(s) < self.iterations for s in self.checkpoints):
-            raise ConfigError(f"baseline: checkpoints must be steps from 1 to iterations - 1 ({self.iterations - 1}), "
-                              f"got {list(self.checkpoints)}")  # fmt: skip
-        if self.refine_start < 0 or not 0.0 < self.refine_until <= 1.0:
-            raise ConfigError("baseline: need refine_start >= 0 and 0 < refine_until <= 1")
+from fusion.train.masked import WholeSceneOptions
+from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
 class BaselineStage(Stage):
     name = "baseline"
-    Options = BaselineStageOptions
+    Options = WholeSceneOptions
     title = "whole-scene 3DGS baseline"
+    run_options = (
+        CliOption("enabled", "--baseline", value=True,
+                  help="Also train the whole-scene 3DGS baseline and compare with it in the report."),
+    )  # fmt: skip
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         ws = ctx.layout.dense_workspace
@@ -79,34 +43,25 @@ class BaselineStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import write_gaussian_ply
         from core.io.images import read_image
-        from fusion.train import DefaultStrategy, TrainOptions, train_splats
-        from fusion.train.init import sfm_seeds
-        from hybridsplat.stages.train import training_downscale
+        from fusion.train.masked import train_whole_scene
+        from hybridsplat.project_io import read_project_model
 
         t0 = time.perf_counter()
-        opts: BaselineStageOptions = ctx.options(self)
+        opts: WholeSceneOptions = ctx.options(self)
         layout = ctx.layout
         ws = layout.dense_workspace
-        cameras, _ = read_project_model(ctx, ws.sparse)
-        _, sfm = read_project_model(ctx, layout.sparse)
+        cameras, _ = read_project_model(layout, ws.sparse)
+        _, sfm = read_project_model(layout, layout.sparse)
         held_out = set(ctx.source.holdout_names)
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name not in held_out}
-        init = sfm_seeds(sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None, cameras.origin)
-        downscale = training_downscale(cameras, opts.downscale, opts.max_image_size)
-        train_opts = TrainOptions(iterations=opts.iterations, downscale=downscale, seed=ctx.config.seed,
-                                  sh_degree=opts.sh_degree, refine_until=opts.refine_until,
-                                  snapshot_iterations=tuple(int(s) for s in opts.checkpoints),
-                                  strategy=DefaultStrategy(cap=opts.cap, refine_start=opts.refine_start))  # fmt: skip
+        sfm_points = (sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None)
 
         def progress(info) -> None:
-            ctx.progress(
-                f"loss {info.loss:.4f} PSNR {info.holdout_psnr:.2f} dB, {info.gaussians} splats",
-                info.step,
-                info.iterations,
-            )
+            ctx.progress(f"loss {info.loss:.4f} PSNR {info.holdout_psnr:.2f} dB, {info.gaussians} splats",
+                         info.step, info.iterations)  # fmt: skip
 
         setup = time.perf_counter() - t0
-        result = train_splats(cameras, images, None, init, None, train_opts, progress)
+        result, downscale = train_whole_scene(cameras, images, sfm_points, opts, ctx.config.seed, progress)
         write_gaussian_ply(layout.baseline_splats, result.splats)
         # Written even when empty: a recorded output that does not exist would make the stage never up to date.
         layout.baseline_checkpoints_dir.mkdir(parents=True, exist_ok=True)
@@ -116,7 +71,7 @@ class BaselineStage(Stage):
             "splats": len(result.splats),
             "initial": result.initial_gaussians,
             "downscale": downscale,
-            "cap": opts.cap,
+            "cap": opts.training.strategy.cap,
             "iterations": result.iterations,
             "stopped_early": result.stopped_early,
             "holdout_psnr_db": result.final_holdout_psnr,

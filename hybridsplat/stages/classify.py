@@ -9,37 +9,24 @@ classify/figures/importances.png.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from core.errors import ConfigError
-from hybridsplat.stages.base import Stage, StageContext
-
-
-@dataclass(frozen=True)
-class ClassifyStageOptions:
-    """Options of the ``classify`` stage.
-
-    model: ``default`` (the model shipped in classify/models/default.skops), ``none`` (the documented no-model
-        fallback from MVS quality signals, :mod:`classify.fallback`), or the path of a ``.skops`` model
-        (``hybridsplat classify train``).
-    threshold: a point needs splats when the summed probability of the needs-splats classes reaches this;
-        None = the threshold stored with the model (chosen on its held-out data), else 0.5.
-    """
-
-    model: str = "default"
-    threshold: float | None = None
-
-    def __post_init__(self) -> None:
-        if self.threshold is not None and not 0.0 < self.threshold < 1.0:
-            raise ConfigError(f"threshold must lie strictly between 0 and 1, got {self.threshold}")
+from classify.options import ClassifyOptions
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
 
 class ClassifyStage(Stage):
     name = "classify"
-    Options = ClassifyStageOptions
+    Options = ClassifyOptions
     title = "classify the dense cloud"
+    command_help = (
+        "Classify the dense cloud into PROJECT/classify/points.ply (classification, probability, needs_splats)."
+    )
+    command_options = (
+        CliOption("model", help="default | none (no-model fallback) | path of a .skops model."),
+        CliOption("threshold", help="Needs-splats probability threshold (default: the model's)."),
+    )
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         from classify.run import resolve_model_path
@@ -62,7 +49,7 @@ class ClassifyStage(Stage):
         from classify.run import classify_dense, write_classified, write_classify_figures
         from core.io.json_io import write_json_atomic
 
-        opts: ClassifyStageOptions = ctx.options(self)
+        opts: ClassifyOptions = ctx.options(self)
         ctx.progress("features", 0, 1)
         result = classify_dense(ctx.layout.dense, opts.model, opts.threshold)
         ctx.progress("features", 1, 1)
@@ -78,3 +65,18 @@ class ClassifyStage(Stage):
     def summary(self, counts: dict[str, Any]) -> str:
         share = counts["needs_splats"] / max(counts["points"], 1)
         return f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"
+
+    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+        from pathlib import Path as _Path
+
+        if not isinstance(counts.get("points"), int) or counts["points"] <= 0:
+            return None
+        per = ", ".join(f"{k} {v:,}" for k, v in (counts.get("per_class") or {}).items())
+        line = (f"{counts['points']:,} points, {counts.get('needs_splats', 0) / counts['points']:.1%} need splats "
+                f"({per}); model {_Path(str(counts.get('model', '?'))).name}.")  # fmt: skip
+        captions = {"classes": "the dense cloud coloured by class (top and side views)",
+                    "importances": "the classifier's feature importances"}  # fmt: skip
+        figures = tuple(
+            (str(f), captions.get(_Path(str(f)).stem, _Path(str(f)).stem)) for f in counts.get("figures") or []
+        )
+        return ReportSection("Classification and region masks", (line,), figures)

@@ -3,38 +3,29 @@
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from core.errors import ConfigError
-from fusion.convert import DEFAULT_MODE, ConvertMode
-from hybridsplat.stages.base import Stage, StageContext
+from fusion.convert_options import DEFAULT_MODE, ConvertMode, ConvertOptions
+from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
 @dataclass(frozen=True)
 class ConvertStageOptions:
-    """Options of the ``convert`` stage.
+    """Options of the ``convert`` stage: the conversion ``mode`` (:class:`fusion.convert.ConvertMode`: ``adaptive``,
+    the default everywhere, or ``paper``, Eq. 1-4 exactly) and its parameters (:class:`fusion.convert.ConvertOptions`,
+    ``[convert.conversion]``)."""
 
-    mode: ``adaptive`` (per-point spacing from k neighbours, surfels along the MVS normal, opacity from the
-        number of views; the default everywhere, ``hybridsplat convert`` included) or ``paper`` (Eq. 1-4 exactly).
-    """
-
-    mode: str = DEFAULT_MODE.value
-
-    def __post_init__(self) -> None:
-        try:
-            ConvertMode(self.mode)
-        except ValueError as err:
-            raise ConfigError(
-                f"mode must be one of {', '.join(m.value for m in ConvertMode)}, got {self.mode!r}"
-            ) from err
+    mode: ConvertMode = DEFAULT_MODE
+    conversion: ConvertOptions = field(default_factory=ConvertOptions)
 
 
 class ConvertStage(Stage):
     name = "convert"
     Options = ConvertStageOptions
     title = "MVS points to Gaussians"
+    run_options = (CliOption("mode", "--convert-mode", help="MVS-to-Gaussian conversion: adaptive | paper."),)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.fused_ply, ctx.layout.fused_vis]
@@ -52,7 +43,7 @@ class ConvertStage(Stage):
         ctx.progress("points", 0, len(cloud))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            result = convert_points(cloud, ConvertMode(opts.mode))
+            result = convert_points(cloud, opts.mode, opts.conversion)
         write_gaussian_ply(ctx.layout.mvs_gaussians, result.gaussians, extra_fields=True)
         ctx.progress("points", len(cloud), len(cloud))
         return {

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from core.errors import ConfigError
-from hybridsplat.stages.base import Stage, StageContext, model_origin, read_model_at
+from hybridsplat.project_io import model_origin, read_model_at
+from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,7 @@ class EvalStageOptions:
     """Options of the ``eval`` stage.
 
     tau_gsd: completeness / F-score threshold in ground-sample distances (scenes that know their GSD).
-    tau_m: the same threshold in metres (used when set, > 0; for real data with a LiDAR reference).
+    tau_m: the same threshold in metres (used when set; for real data with a LiDAR reference); None: from tau_gsd.
     reference: a reference cloud (PLY/LAS/LAZ/E57) for C2C; default: the input's own (a data_synth scene's LiDAR).
     lpips_weights: LPIPS v0.1 AlexNet weights (.npz); empty = $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips.
     cache: reuse the stored measurement of a product whose files, evaluation inputs and evaluation code are
@@ -31,14 +32,14 @@ class EvalStageOptions:
     """
 
     tau_gsd: float = 3.0
-    tau_m: float = 0.0
+    tau_m: float | None = None
     reference: str = ""
     lpips_weights: str = ""
     cache: bool = True
 
     def __post_init__(self) -> None:
-        if self.tau_gsd <= 0 or self.tau_m < 0:
-            raise ConfigError(f"tau_gsd must be > 0 and tau_m >= 0, got {self.tau_gsd}, {self.tau_m}")
+        if self.tau_gsd <= 0 or (self.tau_m is not None and not self.tau_m > 0):
+            raise ConfigError(f"tau_gsd must be > 0 and tau_m > 0 (or none), got {self.tau_gsd}, {self.tau_m}")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,11 @@ class EvalStage(Stage):
     name = "eval"
     Options = EvalStageOptions
     title = "evaluation against ground truth"
+    run_options = (
+        CliOption("reference", "--lidar", is_path=True,
+                  help="Reference cloud (PLY/LAS/LAZ/E57, e.g. a LiDAR scan) for the C2C evaluation."),
+        CliOption("lpips_weights", is_path=True, help="LPIPS v0.1 AlexNet weights (.npz)."),
+    )  # fmt: skip
 
     def _reference(self, ctx: StageContext) -> Path | None:
         opts: EvalStageOptions = ctx.options(self)
@@ -70,7 +76,7 @@ class EvalStage(Stage):
         holdout = ctx.source.holdout
         if holdout.source == "every":  # photos of the input: their undistorted copies in the dense workspace
             ws = ctx.layout.dense_workspace
-            return HeldOutViews(ws.sparse, model_origin(ctx), ws.images, holdout.names)
+            return HeldOutViews(ws.sparse, model_origin(ctx.layout), ws.images, holdout.names)
         if holdout.source == "input":  # the input's own views, in the input's frame
             return HeldOutViews(holdout.model, np.asarray(ctx.source.spec.origin, np.float64), holdout.image_dir, None)
         return None
@@ -104,7 +110,7 @@ class EvalStage(Stage):
         opts: EvalStageOptions = ctx.options(self)
         layout, spec = ctx.layout, ctx.source.spec
         reference = self._reference(ctx)
-        tau = opts.tau_m if opts.tau_m > 0 else (opts.tau_gsd * spec.gsd_m if spec.gsd_m else None)
+        tau = opts.tau_m if opts.tau_m is not None else (opts.tau_gsd * spec.gsd_m if spec.gsd_m else None)
         images = None
         held_out = self._held_out(ctx)
         if held_out is not None:

@@ -9,67 +9,33 @@ non-collaborative region or hole says that training is not needed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from classify.masks import MaskOptions
-from hybridsplat.stages.base import Stage, StageContext
-
-
-@dataclass(frozen=True)
-class MasksStageOptions:
-    """Options of the ``masks`` stage (see :class:`classify.masks.MaskOptions`).
-
-    footprint: point radius in spacings (1.5). hole_gsd: radius within which a point explains pixels when looking
-    for holes, in ground sample distances (2.5; 0 = ``hole_footprint`` point spacings, 2.5). close_px /
-    dilate_px: closing and dilation radii (3 / 2 px); dilate_spacings: the dilation in point spacings at the
-    photo's median depth when larger (3). train_margin_spacings: the training masks' extra margin (5; see
-    classify.masks.MaskOptions), recorded per photo in logs/masks.json.
-    holes: add MVS holes (True). hole_area: hull_below | hull | below | enclosed (hull_below).
-    explained_by: seen | all (seen): which points explain pixels when looking for holes.
-    grow_area: GrabCut iterations growing the valid area by what looks like the reconstructed scene (3; 0 = off).
-    infinity: pixels at infinity (no parallax between neighbouring photos: sky, a distant backdrop) outside what
-    the cloud encloses are no holes (True).
-    """
-
-    footprint: float = 1.5
-    hole_gsd: float = 2.5
-    hole_footprint: float = 2.5
-    close_px: int = 3
-    dilate_px: int = 2
-    dilate_spacings: float = 3.0
-    train_margin_spacings: float = 5.0
-    holes: bool = True
-    hole_area: str = "hull_below"
-    explained_by: str = "seen"
-    grow_area: int = 3
-    infinity: bool = True
-
-    def mask_options(self) -> MaskOptions:
-        return MaskOptions(
-            footprint=self.footprint,
-            hole_gsd=self.hole_gsd,
-            hole_footprint=self.hole_footprint,
-            close_px=self.close_px,
-            dilate_px=self.dilate_px,
-            dilate_spacings=self.dilate_spacings,
-            train_margin_spacings=self.train_margin_spacings,
-            holes=self.holes,
-            hole_area=self.hole_area,
-            explained_by=self.explained_by,
-            grow_area=self.grow_area,
-            infinity=self.infinity,
-        )
-
-    def __post_init__(self) -> None:
-        self.mask_options()  # validates
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
 
 class MasksStage(Stage):
     name = "masks"
-    Options = MasksStageOptions
+    Options = MaskOptions
     title = "region masks per photo"
+    command = "masks"
+    command_help = "Region masks per registered photo: non-collaborative points, MVS holes and user masks, united."
+    command_options = (
+        CliOption("footprint", help="Point radius in point spacings."),
+        CliOption("close_px", help="Closing radius in pixels."),
+        CliOption("dilate_px", help="Dilation radius in pixels, at least."),
+        CliOption(
+            "dilate_spacings", help="Dilation radius in point spacings at the photo's median depth, when larger."
+        ),
+        CliOption("holes", help="Add MVS holes to the masks."),
+        CliOption("hole_area", help="Where holes are looked for: hull_below | hull | below | enclosed."),
+        CliOption("explained_by", help="Points that explain pixels: seen (fused by the photo or of its colour) | all."),
+        CliOption("hole_gsd", help="Radius (ground sample distances) within which a point explains pixels."),
+        CliOption("grow_area", help="GrabCut iterations growing the hole area by what looks like the scene (0 off)."),
+        CliOption("infinity", help="Pixels at infinity (no parallax: sky, backdrop) are no holes."),
+    )
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.sparse]
@@ -89,14 +55,14 @@ class MasksStage(Stage):
         from core.io.atomic import remove_output
         from core.io.json_io import write_json_atomic
 
-        opts: MasksStageOptions = ctx.options(self)
+        opts: MaskOptions = ctx.options(self)
         user = Path(ctx.config.input.splat_masks) if ctx.config.input.splat_masks else None
         result = project_masks(
             ctx.layout.classified_points,
             ctx.layout.classify_report,
             ctx.layout.sparse,
             ctx.layout.mask_path,
-            opts.mask_options(),
+            opts,
             user_mask_dir=user,
             held_out=set(ctx.source.holdout_names),
             progress=ctx.progress,
@@ -115,3 +81,18 @@ class MasksStage(Stage):
         if not counts["training_needed"]:
             return f"{counts['photos']} masks, all empty: no splat training needed"
         return f"{counts['photos']} masks, mean coverage {counts['mean_coverage']:.1%}, {counts['empty']} empty"
+
+    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+        if not isinstance(counts.get("photos"), int):
+            return None
+        if counts.get("training_needed") is False:
+            line = f"{counts['photos']} masks, all empty: no splat training is needed."
+        else:
+            cov = counts.get("mean_coverage")
+            share = f"{cov:.1%}" if isinstance(cov, (int, float)) else "n/a"
+            line = (f"{counts['photos']} masks, mean coverage {share} of the photo, "
+                    f"{counts.get('empty', 0)} empty (skipped by training).")  # fmt: skip
+        caption = "photos with their region masks (red: splats are trained there)"
+        return ReportSection(
+            "Classification and region masks", (line,), tuple((str(f), caption) for f in counts.get("figures") or [])
+        )

@@ -11,19 +11,26 @@ written, zeros included). Skipped unless a budget is set (``run --mesh N``, ``hy
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from core.errors import ConfigError, DataError
+from core.options import enum_choice
+from fusion.mesh.pipeline import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
-from hybridsplat.stages.base import Stage, StageContext, read_project_model
+from hybridsplat.stages.base import CliOption, Stage, StageContext
 
-METHODS = ("poisson", "tsdf")
-SOURCES = ("all", "mvs")
-DECIMATORS = ("auto", "fast-simplification", "open3d")
+
+class MeshMethod(str, Enum):
+    """How the mesh is made: screened Poisson of oriented points from the Gaussians, or TSDF fusion of depth rendered
+    from the merged Gaussians at the project's cameras."""
+
+    POISSON = "poisson"
+    TSDF = "tsdf"
 
 
 @dataclass(frozen=True)
@@ -31,20 +38,15 @@ class MeshStageOptions:
     """Options of the ``mesh`` stage.
 
     budget: triangles of the mesh (0: no mesh, the stage is skipped); within 1 % unless the raw mesh is smaller.
-    formats: files written under export/ (any of ply, obj, glb).
-    method: ``poisson`` (screened Poisson of oriented points from the Gaussians) or ``tsdf`` (TSDF fusion of depth
-        rendered from the merged Gaussians at the project's cameras).
-    source: ``all`` Gaussians of the merged product (hybrid) or only those converted from ``mvs``.
-    snapshots: add the training snapshots in splats/snapshots/ for the splat regions (poisson, source all).
-    decimator: ``auto`` (fast-simplification, open3d where it cannot reach the budget), or one of them.
+    formats: files written under export/ (any of ply, obj, glb). method: :class:`MeshMethod`.
+    mesh: the meshing options (:class:`fusion.mesh.MeshOptions`, ``[mesh.mesh]``: which Gaussians, training
+    snapshots for the splat regions, decimator...); its budget is the one above.
     """
 
     budget: int = 0
     formats: tuple[str, ...] = MESH_FORMATS
-    method: str = "poisson"
-    source: str = "all"
-    snapshots: bool = True
-    decimator: str = "auto"
+    method: MeshMethod = MeshMethod.POISSON
+    mesh: MeshOptions = field(default_factory=MeshOptions, metadata={"runtime": ("budget",)})
 
     def __post_init__(self) -> None:
         if isinstance(self.budget, bool) or not isinstance(self.budget, int) or self.budget < 0:
@@ -52,19 +54,26 @@ class MeshStageOptions:
         bad = [f for f in self.formats if f not in MESH_FORMATS]
         if bad or not self.formats:
             raise ConfigError(f"formats must be a non-empty list of {', '.join(MESH_FORMATS)}, got {self.formats!r}")
-        for name, value, allowed in (
-            ("method", self.method, METHODS),
-            ("source", self.source, SOURCES),
-            ("decimator", self.decimator, DECIMATORS),
-        ):
-            if value not in allowed:
-                raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
+        object.__setattr__(self, "method", enum_choice(MeshMethod, self.method, "method"))
 
 
 class MeshStage(Stage):
     name = "mesh"
     Options = MeshStageOptions
     title = "mesh with a polygon budget"
+    command = "mesh"
+    command_help = "A triangle mesh with a polygon budget from the merged product: PROJECT/export/mesh.ply, .obj, .glb."
+    command_options = (
+        CliOption("budget", help="Triangles of the mesh (within 1 %)."),
+        CliOption("formats", "--format", help="ply | obj | glb (repeatable; default: all three)."),
+        CliOption("method", help="poisson (default) | tsdf (fusion of rendered depth)."),
+        CliOption("mesh.source", help="all (hybrid, default) | mvs (MVS Gaussians only)."),
+        CliOption(
+            "mesh.use_snapshots", "--snapshots/--no-snapshots", help="Use training snapshots for transparent regions."
+        ),
+        CliOption("mesh.decimate.method", "--decimator", help="auto (default) | fast-simplification | open3d."),
+    )
+    run_options = (CliOption("budget", "--mesh", help="Also write a mesh with this many triangles (0: no mesh)."),)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
@@ -86,32 +95,29 @@ class MeshStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply
         from core.io.origin import write_origin
-        from fusion.mesh import MeshOptions, MeshWarning, mesh_from_gaussians, write_mesh
-        from fusion.mesh.decimate import DecimateOptions
+        from fusion.mesh import MeshWarning, mesh_from_gaussians, write_mesh
+        from hybridsplat.project_io import read_project_model
 
         opts: MeshStageOptions = ctx.options(self)
         layout = ctx.layout
         merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
         cameras = None
         if layout.sparse.is_dir():
-            cameras = read_project_model(ctx, layout.sparse)[0]
+            cameras = read_project_model(layout, layout.sparse)[0]
         snapshots = []
-        if opts.snapshots and layout.snapshots_dir.is_dir():
+        if opts.mesh.use_snapshots and layout.snapshots_dir.is_dir():
             snapshots = [read_gaussian_ply(p) for p in sorted(layout.snapshots_dir.glob("*.ply"))]
         ctx.progress("mesh", 0, 1)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MeshWarning)
-            if opts.method == "tsdf":
+            if opts.method is MeshMethod.TSDF:
                 counts = _tsdf(merged, cameras, opts)
                 mesh = counts.pop("mesh")
             else:
                 viewpoints = None
                 if cameras is not None and len(cameras):
                     viewpoints = np.array([v.center for v in cameras]) + cameras.origin - merged.origin
-                options = MeshOptions(
-                    budget=opts.budget, source=opts.source, use_snapshots=opts.snapshots,
-                    decimate=DecimateOptions(method=opts.decimator),
-                )  # fmt: skip
+                options = replace(opts.mesh, budget=opts.budget)
                 result = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=viewpoints)
                 mesh, counts = result.mesh, result.summary()
         for fmt in opts.formats:
@@ -120,7 +126,7 @@ class MeshStage(Stage):
         write_origin(layout.mesh_path("ply"), mesh.origin, ctx.config.input.crs or None)
         ctx.progress("mesh", 1, 1)
         counts.update(
-            method=opts.method,
+            method=opts.method.value,
             snapshots=len(snapshots),
             formats=list(opts.formats),
             warnings=[" ".join(str(w.message).split()) for w in caught],
@@ -158,15 +164,14 @@ def _tsdf(merged, cameras, opts: MeshStageOptions) -> dict[str, Any]:
     from fusion.convert import Source
     from fusion.mesh import decimate, mesh_quality
     from fusion.mesh.colors import vertex_colors_from_gaussians
-    from fusion.mesh.decimate import DecimateOptions
     from fusion.mesh.tsdf import tsdf_mesh
     from fusion.mesh.types import TriangleMesh
 
     if cameras is None or len(cameras) == 0:
         raise DataError("TSDF meshing renders at the project's cameras, and sparse/ holds none")
-    gs = merged if opts.source == "all" else merged.subset(merged.fields["source"] == Source.MVS)
+    gs = merged if opts.mesh.source is MeshSource.ALL else merged.subset(merged.fields["source"] == Source.MVS)
     raw = tsdf_mesh(gs, cameras)
-    mesh, st = decimate(raw, opts.budget, DecimateOptions(method=opts.decimator))
+    mesh, st = decimate(raw, opts.budget, opts.mesh.decimate)
     mesh = TriangleMesh(mesh.vertices, mesh.triangles, mesh.origin,
                         vertex_colors_from_gaussians(mesh.vertices, mesh.origin, merged))  # fmt: skip
     q = mesh_quality(mesh)

@@ -7,51 +7,30 @@ camera centres when a reference is given (``--reference``; a data_synth scene's 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from core.errors import ConfigError
 from core.io.json_io import write_json_atomic
-from hybridsplat.stages.base import Stage, StageContext
-from recon.sfm import Matcher, SfmOptions
-
-
-@dataclass(frozen=True)
-class SfmStageOptions:
-    """Options of the ``sfm`` stage.
-
-    camera_model: COLMAP camera model for unknown cameras (SIMPLE_RADIAL, OPENCV, ...).
-    single_camera: one camera shared by all photos (same body and lens); per-photo cameras otherwise.
-    matcher: exhaustive | sequential | spatial | vocabtree.
-    max_image_size: features are extracted on photos downscaled to this longer side (pixels).
-    align_threshold_m: RANSAC inlier threshold of the alignment to reference centres, metres (0: 2 % of their extent).
-    deterministic: byte-identical sparse models run to run (COLMAP on one thread); false uses every core for
-        feature extraction and matching (features + matching about 1.4x faster on 2 cores, demo scene).
-    """
-
-    camera_model: str = "SIMPLE_RADIAL"
-    single_camera: bool = True
-    matcher: str = "exhaustive"
-    max_image_size: int = 1600
-    align_threshold_m: float = 0.0
-    deterministic: bool = True
-
-    def __post_init__(self) -> None:
-        try:
-            Matcher(self.matcher)
-        except ValueError as err:
-            raise ConfigError(
-                f"matcher must be one of {', '.join(m.value for m in Matcher)}, got {self.matcher!r}"
-            ) from err
+from hybridsplat.stages.base import CliOption, Stage, StageContext
+from recon.sfm import SfmOptions
 
 
 class SfmStage(Stage):
     name = "sfm"
-    Options = SfmStageOptions
+    Options = SfmOptions
     title = "camera poses and sparse model"
+    command_options = (
+        CliOption("camera_model", help="COLMAP camera model for SfM."),
+        CliOption(
+            "single_camera", "--single-camera/--camera-per-photo", help="One camera for all photos, or one per photo."
+        ),
+        CliOption("matcher", help="exhaustive | sequential | spatial | vocabtree."),
+        CliOption("max_image_size", help="Features are extracted at this longer side (px)."),
+    )
+    run_options = command_options[:3]
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         src = ctx.source
@@ -70,18 +49,10 @@ class SfmStage(Stage):
         from recon.model import from_reconstruction, read_reconstruction
         from recon.sfm import run_sfm, triangulate_known_poses
 
-        opts: SfmStageOptions = ctx.options(self)
+        opts: SfmOptions = ctx.options(self)
         src, layout = ctx.source, ctx.layout
         origin = np.asarray(src.spec.origin, dtype=np.float64)
-        sfm_options = SfmOptions(
-            matcher=Matcher(opts.matcher),
-            max_image_size=opts.max_image_size,
-            camera_model=opts.camera_model,
-            single_camera=opts.single_camera,
-            seed=ctx.config.seed,
-            mask_dir=ctx.config.input.feature_masks,
-            deterministic=opts.deterministic,
-        )
+        sfm_options = replace(opts, seed=ctx.config.seed, mask_dir=ctx.config.input.feature_masks)
         ctx.progress("features, matching, " + ("triangulation" if src.known_cameras else "mapping"), 0, 1)
         if src.known_cameras is not None:
             cameras = from_reconstruction(read_reconstruction(src.known_cameras))
@@ -90,7 +61,7 @@ class SfmStage(Stage):
             rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.image_names))
             reference, reference_origin = _reference_centers(ctx)
             if reference:
-                aligned = align_to_reference(rec, reference, opts.align_threshold_m or None, seed=ctx.config.seed)
+                aligned = align_to_reference(rec, reference, opts.align_threshold_m, seed=ctx.config.seed)
                 report.alignment = aligned.result
                 origin = reference_origin + aligned.origin  # world = origin + local model coordinates
                 rec.write(str(layout.sparse))

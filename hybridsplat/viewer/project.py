@@ -25,6 +25,6 @@ def cameras_origin(layout: ProjectLayout, fallback: np.ndarray) -> np.ndarray:
     ``fallback`` is the merged product's origin (its ``.origin.json`` sidecar), which equals the model's frame
     whenever the products were made from this model.
     """
-    from hybridsplat.stages.base import recorded_model_origin
+    from hybridsplat.project_io import model_origin
 
-    return recorded_model_origin(layout, fallback)
+    return model_origin(layout, fallback)

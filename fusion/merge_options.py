@@ -1,0 +1,37 @@
+"""Options of the hybrid merge and of its survey-point product (:mod:`fusion.survey`), without heavy imports."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from core.errors import ConfigError
+from fusion.clean_options import SurveyPointOptions
+
+
+@dataclass(frozen=True)
+class MergeOptions:
+    """Options of the pipeline's ``merge`` stage (:func:`fusion.survey.hybrid_products`).
+
+    keep_needs_splats: keep the MVS Gaussians of points that needed splats (in the 3DGS product and the points).
+    points: the rule for trained splats in the survey point product (:class:`fusion.clean.SurveyPointOptions`).
+    needs_mvs: ``needs_splats`` MVS points that pass the same view tests (no shape checks) go into the point
+        product, with their own rim limit ``needs_mvs_max_rim_spacing`` (spacings; None: no rim test).
+    needs_mvs_classes: the predicted classes (names of the project's class set; others are ignored) whose
+        ``needs_splats`` MVS points go into the point product as they are: textureless surfaces leave MVS
+        incomplete rather than wrong, while reflective and transparent ones add virtual images behind mirrors and
+        glass (chosen on the benchmark's training scenes; docs/experiments/2026-11-27-pipeline-defaults.md).
+    surface_test: mark the splats that may shape a mesh (the ``surface`` field of merged.ply, see
+        :func:`fusion.clean.surface_splat_options`); off: every Gaussian gets ``surface = 1``.
+    """
+
+    keep_needs_splats: bool = False
+    points: SurveyPointOptions = field(default_factory=SurveyPointOptions)
+    needs_mvs: bool = True
+    needs_mvs_max_rim_spacing: float | None = 0.5
+    needs_mvs_classes: tuple[str, ...] = ("textureless",)
+    surface_test: bool = True
+
+    def __post_init__(self) -> None:
+        rim = self.needs_mvs_max_rim_spacing
+        if rim is not None and not rim > 0:
+            raise ConfigError(f"needs_mvs_max_rim_spacing must be > 0 or none, got {rim}")

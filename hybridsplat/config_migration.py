@@ -1,0 +1,137 @@
+"""config.toml of hybridsplat 0.2 → 0.3: the stage tables' old flat keys mapped to where the options live now.
+
+0.3 made each stage's options the domain's own options dataclass (README, "Migration notes"), so some keys moved
+into sub-tables (``[train] iterations`` → ``[train.training] iterations``), and "a negative value turns a check
+off" became ``"none"``. :func:`migrate_table` rewrites an old stage table into the new form; it is applied to
+every table read from config.toml and to the options recorded in an old manifest, so that a finished 0.2 project
+loads, and its stages stay up to date when their effective options did not change.
+
+A key that is known under the new layout is left as it is: a table already in the new form passes unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+NONE = "none"
+
+
+def _off_if_negative(value: Any) -> Any:
+    return NONE if isinstance(value, (int, float)) and not isinstance(value, bool) and value < 0 else value
+
+
+def _off_if_zero(value: Any) -> Any:
+    return NONE if value == 0 and not isinstance(value, bool) else value
+
+
+def _none_as_word(value: Any) -> Any:
+    """An old manifest recorded None as JSON null; a table spells it ``"none"``."""
+    return NONE if value is None else value
+
+
+def _put(table: dict[str, Any], path: str, value: Any) -> None:
+    """``table[path] = value`` for a dotted path; a table value is merged into what is there already."""
+    node = table
+    parts = path.split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+    if isinstance(value, dict) and isinstance(node.get(parts[-1]), dict):
+        for key, item in value.items():
+            _put(node[parts[-1]], key, item)
+    else:
+        node[parts[-1]] = value
+
+
+#: per stage: old key → (new dotted path, value transform)
+_MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
+    "sfm": {"align_threshold_m": ("align_threshold_m", _off_if_zero)},
+    "mvs": {
+        "threads": ("num_threads", _off_if_zero),
+        "min_num_pixels": ("fusion.min_num_pixels", lambda v: v),
+    },
+    "train": {
+        "iterations": ("training.iterations", lambda v: v),
+        "downscale": ("training.downscale", lambda v: v),
+        "cap": ("training.strategy.cap", lambda v: v),
+        "sh_degree": ("training.sh_degree", lambda v: v),
+        "flat": ("training.flat", lambda v: v),
+        "refine_start": ("training.strategy.refine_start", lambda v: v),
+        "refine_until": ("training.refine_until", lambda v: v),
+        "photometric": ("training.photometric", lambda v: v),
+        "lpips_weight": ("training.lpips_weight", lambda v: v),
+        "lpips_start": ("training.lpips_start", lambda v: v),
+        "hard_views": ("training.hard_views", lambda v: {} if v else NONE),
+        "rays_per_view": ("init.rays_per_view", lambda v: v),
+    },
+    "clean": {
+        name: (name, _off_if_negative)
+        for name in ("min_opacity", "max_scale_scene", "max_scale_spacing", "cluster_eps_spacing")
+    },
+    "merge": {
+        "points_min_opacity": ("points.min_opacity", _off_if_negative),
+        "points_max_thickness_spacing": ("points.max_thickness_spacing", _off_if_negative),
+        "points_max_extent_spacing": ("points.max_extent_spacing", _off_if_negative),
+        "points_min_views": ("points.min_views", lambda v: max(int(v), 0)),
+        "points_min_mask_share": ("points.min_mask_share", _off_if_negative),
+        "points_max_rim_spacing": ("points.max_rim_spacing", _off_if_negative),
+        "points_needs_mvs": ("needs_mvs", lambda v: v),
+        "points_needs_mvs_max_rim_spacing": ("needs_mvs_max_rim_spacing", _off_if_negative),
+        "points_needs_mvs_classes": ("needs_mvs_classes", lambda v: v),
+    },
+    "mesh": {
+        "source": ("mesh.source", lambda v: v),
+        "snapshots": ("mesh.use_snapshots", lambda v: v),
+        "decimator": ("mesh.decimate.method", lambda v: v),
+    },
+    "baseline": {
+        "iterations": ("training.iterations", lambda v: v),
+        "downscale": ("training.downscale", lambda v: v),
+        "cap": ("training.strategy.cap", lambda v: v),
+        "sh_degree": ("training.sh_degree", lambda v: v),
+        "refine_start": ("training.strategy.refine_start", lambda v: v),
+        "refine_until": ("training.refine_until", lambda v: v),
+    },
+    "eval": {"tau_m": ("tau_m", _off_if_zero)},
+}
+
+#: the train stage's five prior weights of 0.2 became one optional table, ``[train.training.priors]``
+_OLD_PRIOR_KEYS = ("depth_prior", "normal_prior", "prior_border_px", "prior_edge_scale", "prior_hull_share")
+
+
+def _train_priors(old: dict[str, Any]) -> Any:
+    depth, normal = float(old.get("depth_prior", 0.0)), float(old.get("normal_prior", 0.0))
+    if depth <= 0 and normal <= 0:
+        return NONE
+    border, edge, hull = (
+        old.get("prior_border_px", 8.0),
+        old.get("prior_edge_scale", 0.1),
+        old.get("prior_hull_share", 0.8),
+    )
+    return {
+        "depth_weight": max(depth, 0.0),
+        "normal_weight": max(normal, 0.0),
+        "border_px": border if border > 0 else NONE,
+        "edge_scale": edge if edge > 0 else NONE,
+        "hull_share": hull if hull >= 0 else NONE,
+    }
+
+
+def migrate_table(stage: str, table: dict[str, Any]) -> dict[str, Any]:
+    """The stage table ``table`` with the keys of hybridsplat 0.2 moved to their 0.3 places (see the module)."""
+    moved = _MOVED.get(stage, {})
+    old_priors = stage == "train" and any(k in table for k in _OLD_PRIOR_KEYS)
+    if not old_priors and not any(k in table and not isinstance(table[k], dict) for k in moved):
+        return {k: _none_as_word(v) for k, v in table.items()}
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key in _OLD_PRIOR_KEYS and stage == "train":
+            continue
+        if key in moved and not (moved[key][0] == key and isinstance(value, dict)):
+            path, transform = moved[key]
+            _put(out, path, transform(_none_as_word(value) if value is None else value))
+        else:
+            _put(out, key, _none_as_word(value))
+    if old_priors:
+        _put(out, "training.priors", _train_priors(table))
+    return out

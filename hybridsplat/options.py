@@ -1,0 +1,284 @@
+"""Options dataclasses ⇄ TOML tables: the one place that reads and writes a stage's options.
+
+A stage's options are the domain's own options dataclass (``classify.masks.MaskOptions``, ``fusion.clean.CleanOptions``,
+``recon.mvs.MvsOptions`` ...) or a small dataclass composing them, so every option has one definition and one
+default. This module turns such a dataclass into TOML-ready data and back, driven by its type hints:
+
+- ``bool``, ``int``, ``float``, ``str``, ``Enum`` (by value), ``tuple[T, ...]`` (a TOML array) and nested
+  dataclasses (a TOML sub-table ``[stage.field]``);
+- ``X | None``: ``None`` is written and read as the string ``"none"`` (``"off"`` is read too), because TOML has
+  no null: ``max_scale_spacing = "none"`` turns that check off;
+- a union of dataclasses (``DefaultStrategy | MCMCStrategy``) is a sub-table with ``kind = "<ClassName>"``;
+- fields the pipeline sets itself (the seed, the held-out photos...) are not configuration: a domain class marks
+  them with :func:`core.options.runtime_field`, or a composing class lists a nested class's
+  ones in its field's ``metadata={"runtime": ("seed", ...)}``. They are neither written nor read nor compared.
+
+A nested table given in part keeps the composing class's default for the rest (``[train.training]`` with only
+``iterations`` keeps the train stage's snapshot steps, not ``TrainOptions``'s).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from core.errors import ConfigError
+from core.options import runtime_field
+
+__all__ = [
+    "options_digest",
+    "options_from_table",
+    "options_to_data",
+    "options_with",
+    "runtime_field",
+    "toml_tables",
+    "with_option",
+]
+
+#: how ``None`` is spelled in config.toml (read case-insensitively, with "off")
+NONE_SPELLING = "none"
+_NONE_WORDS = ("none", "off")
+
+
+def configurable_fields(options_type: type, runtime: tuple[str, ...] = ()) -> list[dataclasses.Field]:
+    """The fields of ``options_type`` that config.toml holds (runtime fields and ``runtime`` names left out)."""
+    return [
+        f
+        for f in dataclasses.fields(options_type)
+        if f.init and f.metadata.get("runtime") is not True and f.name not in runtime
+    ]
+
+
+def _child_runtime(f: dataclasses.Field) -> tuple[str, ...]:
+    value = f.metadata.get("runtime")
+    return tuple(value) if isinstance(value, (tuple, list)) else ()
+
+
+def _hints(options_type: type) -> dict[str, Any]:
+    return typing.get_type_hints(options_type)
+
+
+def _is_union(tp: Any) -> bool:
+    return typing.get_origin(tp) in (typing.Union, types.UnionType)
+
+
+def _kind(cls: type) -> str:
+    return cls.__name__
+
+
+# ----------------------------------------------------------------------------------------------------------- write
+
+
+def options_to_data(options: Any, runtime: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The configurable fields of an options dataclass as plain data (nested dicts, lists, strings for enums and
+    ``"none"`` for None): what config.toml holds and what the manifest compares."""
+    data: dict[str, Any] = {}
+    hints = _hints(type(options))
+    for f in configurable_fields(type(options), runtime):
+        value = getattr(options, f.name)
+        data[f.name] = _value_to_data(value, hints[f.name], _child_runtime(f))
+    return data
+
+
+def _value_to_data(value: Any, tp: Any, runtime: tuple[str, ...]) -> Any:
+    if value is None:
+        return NONE_SPELLING
+    if dataclasses.is_dataclass(value):
+        data = options_to_data(value, runtime)
+        choices = [a for a in typing.get_args(tp) if dataclasses.is_dataclass(a)] if _is_union(tp) else []
+        return {"kind": _kind(type(value)), **data} if len(choices) > 1 else data
+    if isinstance(value, Enum):
+        return value.value
+    if isinstance(value, (tuple, list, frozenset, set)):
+        return [v.value if isinstance(v, Enum) else v for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def options_digest(options: Any) -> dict[str, Any]:
+    """Options as plain JSON data, the form recorded and compared in the manifest ({} for none)."""
+    if options is None or not dataclasses.is_dataclass(options):
+        return {}
+    return options_to_data(options)
+
+
+def toml_tables(name: str, options: Any) -> list[str]:
+    """Lines of the TOML table ``[name]`` (and its sub-tables) holding ``options``."""
+    return _toml_tables(name, options_to_data(options))
+
+
+def _toml_tables(name: str, data: dict[str, Any]) -> list[str]:
+    lines = [f"[{name}]"]
+    nested = []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            nested.append((key, value))
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    lines.append("")
+    for key, value in nested:
+        lines += _toml_tables(f"{name}.{key}", value)
+    return lines
+
+
+def _toml_value(value: Any) -> str:
+    import json
+
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return json.dumps(str(value))
+
+
+# ------------------------------------------------------------------------------------------------------------ read
+
+
+def options_from_table(
+    options_type: type, table: dict[str, Any], where: Path | str, base: Any = None, prefix: str = ""
+) -> Any:
+    """Options of ``options_type`` from a TOML table: ``base`` (default: the type's defaults) with the table's values.
+
+    Unknown keys, wrong types and values the dataclass refuses are a :class:`ConfigError` naming the option
+    (``prefix`` + key, e.g. ``training.iterations``) and ``where`` (the file, or ``--options``)."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"option {prefix.rstrip('.') or 'table'} must be a table, got {table!r}", where)
+    try:
+        base = options_type() if base is None else base
+    except ConfigError as err:
+        raise ConfigError(err.problem, where) from err
+    known = {f.name: f for f in configurable_fields(options_type)}
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        spelled = ", ".join(prefix + k for k in unknown)
+        raise ConfigError(f"unknown option(s) {spelled} (known: {', '.join(sorted(known))})", where)
+    hints = _hints(options_type)
+    values = {}
+    for key, value in table.items():
+        f = known[key]
+        runtime = _child_runtime(f)
+        values[key] = _value_from_data(hints[key], value, getattr(base, key), where, prefix + key, runtime)
+    try:
+        return dataclasses.replace(base, **values)
+    except ConfigError as err:
+        raise ConfigError(f"{prefix.rstrip('.') + ': ' if prefix else ''}{err.problem}", where) from err
+    except (TypeError, ValueError) as err:
+        raise ConfigError(str(err), where) from err
+
+
+def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str, runtime: tuple[str, ...]) -> Any:
+    if _is_union(tp):
+        args = typing.get_args(tp)
+        optional = type(None) in args
+        if optional and isinstance(value, str) and value.lower() in _NONE_WORDS:
+            return None
+        choices = [a for a in args if a is not type(None)]
+        if len(choices) == 1:
+            return _value_from_data(choices[0], value, base, where, key, runtime)
+        return _union_from_data(choices, value, base, where, key)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f'option {key} must be a table ([...{key}]) or "none", got {value!r}', where)
+        child_base = base if isinstance(base, tp) else None
+        return options_from_table(tp, value, where, child_base, prefix=key + ".")
+    if isinstance(tp, type) and issubclass(tp, Enum):
+        try:
+            return tp(value)
+        except ValueError as err:
+            allowed = ", ".join(str(m.value) for m in tp)
+            raise ConfigError(f"option {key} must be one of {allowed}, got {value!r}", where) from err
+    if typing.get_origin(tp) is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"option {key} must be a list, got {value!r}", where)
+        args = typing.get_args(tp)
+        item_types = [args[0]] * len(value) if len(args) == 2 and args[1] is Ellipsis else list(args)
+        if len(item_types) != len(value):
+            raise ConfigError(f"option {key} must be a list of {len(item_types)} values, got {value!r}", where)
+        return tuple(_value_from_data(t, v, None, where, key, ()) for t, v in zip(item_types, value, strict=True))
+    return _scalar_from_data(tp, value, where, key)
+
+
+def _union_from_data(choices: list[Any], value: Any, base: Any, where: Path | str, key: str) -> Any:
+    classes = {_kind(c): c for c in choices if dataclasses.is_dataclass(c)}
+    if len(classes) == len(choices) and isinstance(value, dict):
+        table = dict(value)
+        kind = table.pop("kind", _kind(type(base)) if base is not None else None)
+        if kind not in classes:
+            raise ConfigError(f"option {key}.kind must be one of {', '.join(classes)}, got {kind!r}", where)
+        cls = classes[kind]
+        return options_from_table(cls, table, where, base if isinstance(base, cls) else None, prefix=key + ".")
+    for choice in choices:
+        try:
+            return _value_from_data(choice, value, base, where, key, ())
+        except ConfigError:
+            continue
+    raise ConfigError(f"option {key}: {value!r} is not a valid value", where)
+
+
+def _scalar_from_data(tp: Any, value: Any, where: Path | str, key: str) -> Any:
+    if tp is Any:
+        return value
+    if tp is bool:
+        ok = isinstance(value, bool)
+    elif tp is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif tp is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif tp is str:
+        ok = isinstance(value, str)
+    elif tp is Path:
+        ok = isinstance(value, (str, Path))
+        value = Path(value) if ok else value
+    else:
+        ok = isinstance(value, tp) if isinstance(tp, type) else True
+    if not ok:
+        name = getattr(tp, "__name__", str(tp))
+        raise ConfigError(f"option {key} must be {name}, got {type(value).__name__} {value!r}", where)
+    return value
+
+
+def option_paths(options_type: type, prefix: str = "") -> dict[str, Any]:
+    """Every configurable scalar option of ``options_type`` by its dotted path (``training.iterations``) → its type
+    hint; nested dataclasses are walked (their runtime fields left out)."""
+    out: dict[str, Any] = {}
+    hints = _hints(options_type)
+    for f in configurable_fields(options_type):
+        tp = hints[f.name]
+        inner = [a for a in typing.get_args(tp) if a is not type(None)] if _is_union(tp) else [tp]
+        if all(dataclasses.is_dataclass(a) for a in inner):  # a nested table (of one of several classes)
+            runtime = _child_runtime(f)
+            for cls in reversed(inner):  # the first class's type wins where several have an option
+                nested = option_paths(cls, prefix + f.name + ".")
+                start = len(prefix + f.name) + 1
+                out.update({k: v for k, v in nested.items() if k[start:].split(".")[0] not in runtime})
+        else:
+            out[prefix + f.name] = tp
+    return out
+
+
+def with_option(options: Any, path: str, value: Any, where: Path | str = "--options") -> Any:
+    """``options`` with the option at dotted ``path`` set from plain data (as a TOML value would give it)."""
+    table: dict[str, Any] = {}
+    node = table
+    parts = path.split(".")
+    for part in parts[:-1]:
+        node = node.setdefault(part, {})
+    node[parts[-1]] = value
+    return options_from_table(type(options), table, where, base=options)
+
+
+def options_with(options_type: type, values: dict[str, Any], where: Path | str = "--options") -> Any:
+    """Options of ``options_type`` (its defaults) with ``{dotted path: value}`` set, values as config.toml spells
+    them: ``options_with(MaskedTrainingOptions, {"training.iterations": 40, "snapshot_iterations": [20]})``."""
+    options = options_type()
+    for path, value in values.items():
+        options = with_option(options, path, value, where)
+    return options
