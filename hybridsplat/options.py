@@ -142,9 +142,15 @@ def _toml_value(value: Any) -> str:
 
 
 def options_from_table(
-    options_type: type, table: dict[str, Any], where: Path | str, base: Any = None, prefix: str = ""
+    options_type: type,
+    table: dict[str, Any],
+    where: Path | str,
+    base: Any = None,
+    prefix: str = "",
+    runtime: tuple[str, ...] = (),
 ) -> Any:
-    """Options of ``options_type`` from a TOML table: ``base`` (default: the type's defaults) with the table's values.
+    """Options of ``options_type`` from a TOML table: ``base`` (default: the type's defaults) with the table's values;
+    ``runtime`` names fields that the composing class sets itself (not options: unknown here).
 
     Unknown keys, wrong types and values the dataclass refuses are a :class:`ConfigError` naming the option
     (``prefix`` + key, e.g. ``training.iterations``) and ``where`` (the file, or ``--options``)."""
@@ -154,7 +160,7 @@ def options_from_table(
         base = options_type() if base is None else base
     except ConfigError as err:
         raise ConfigError(err.problem, where) from err
-    known = {f.name: f for f in configurable_fields(options_type)}
+    known = {f.name: f for f in configurable_fields(options_type, runtime)}
     unknown = sorted(set(table) - set(known))
     if unknown:
         spelled = ", ".join(prefix + k for k in unknown)
@@ -162,9 +168,8 @@ def options_from_table(
     hints = _hints(options_type)
     values = {}
     for key, value in table.items():
-        f = known[key]
-        runtime = _child_runtime(f)
-        values[key] = _value_from_data(hints[key], value, getattr(base, key), where, prefix + key, runtime)
+        child_runtime = _child_runtime(known[key])
+        values[key] = _value_from_data(hints[key], value, getattr(base, key), where, prefix + key, child_runtime)
     try:
         return dataclasses.replace(base, **values)
     except ConfigError as err:
@@ -182,12 +187,12 @@ def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str
         choices = [a for a in args if a is not type(None)]
         if len(choices) == 1:
             return _value_from_data(choices[0], value, base, where, key, runtime)
-        return _union_from_data(choices, value, base, where, key)
+        return _union_from_data(choices, value, base, where, key, runtime)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(f'option {key} must be a table ([...{key}]) or "none", got {value!r}', where)
         child_base = base if isinstance(base, tp) else None
-        return options_from_table(tp, value, where, child_base, prefix=key + ".")
+        return options_from_table(tp, value, where, child_base, prefix=key + ".", runtime=runtime)
     if isinstance(tp, type) and issubclass(tp, Enum):
         try:
             return tp(value)
@@ -205,7 +210,9 @@ def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str
     return _scalar_from_data(tp, value, where, key)
 
 
-def _union_from_data(choices: list[Any], value: Any, base: Any, where: Path | str, key: str) -> Any:
+def _union_from_data(
+    choices: list[Any], value: Any, base: Any, where: Path | str, key: str, runtime: tuple[str, ...]
+) -> Any:
     classes = {_kind(c): c for c in choices if dataclasses.is_dataclass(c)}
     if len(classes) == len(choices) and isinstance(value, dict):
         table = dict(value)
@@ -213,7 +220,8 @@ def _union_from_data(choices: list[Any], value: Any, base: Any, where: Path | st
         if kind not in classes:
             raise ConfigError(f"option {key}.kind must be one of {', '.join(classes)}, got {kind!r}", where)
         cls = classes[kind]
-        return options_from_table(cls, table, where, base if isinstance(base, cls) else None, prefix=key + ".")
+        child_base = base if isinstance(base, cls) else None
+        return options_from_table(cls, table, where, child_base, prefix=key + ".", runtime=runtime)
     for choice in choices:
         try:
             return _value_from_data(choice, value, base, where, key, ())

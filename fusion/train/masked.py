@@ -16,24 +16,16 @@ from core.errors import ConfigError
 from core.gaussians import GaussianSet
 from fusion.train.init import InitOptions
 from fusion.train.options import TrainOptions
-from fusion.train.strategy import DefaultStrategy
 
 #: fields of TrainOptions that these functions set themselves (the seed; the snapshot steps are their own option)
 _SET_HERE = ("seed", "snapshot_iterations")
-
-
-def _pipeline_training(iterations: int) -> TrainOptions:
-    """The trainer's options as the pipeline uses them: CPU-sized budgets (a 60 000-Gaussian cap, densification
-    from step 100) and ``iterations`` steps; everything else is :class:`TrainOptions`'s own default."""
-    return TrainOptions(iterations=iterations, strategy=DefaultStrategy(cap=60_000, refine_start=100))
 
 
 @dataclass(frozen=True)
 class MaskedTrainingOptions:
     """Options of :func:`train_in_masks` (the pipeline's ``train`` stage).
 
-    training: the trainer's options (:class:`fusion.train.TrainOptions`, ``[train.training]``; 1000 steps, which
-        keep a CPU run of a dozen photos within minutes, and the pipeline's strategy); its ``downscale`` is
+    training: the trainer's options (:class:`fusion.train.TrainOptions`, ``[train.training]``); its ``downscale`` is
         a lower bound (see ``max_image_size``) and its strategy's ``cap`` a hard budget (see
         ``splats_per_mask_pixel``). init: how splats are seeded (:class:`fusion.train.init.InitOptions`).
     max_image_size: the training downscale is raised until the longer side of every photo is at most this many
@@ -44,7 +36,7 @@ class MaskedTrainingOptions:
         empty = $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips (eval.lpips.find_weights).
     """
 
-    training: TrainOptions = field(default_factory=lambda: _pipeline_training(1000), metadata={"runtime": _SET_HERE})
+    training: TrainOptions = field(default_factory=TrainOptions, metadata={"runtime": _SET_HERE})
     init: InitOptions = field(default_factory=InitOptions, metadata={"runtime": ("seed",)})
     max_image_size: int = 640
     splats_per_mask_pixel: float = 0.25
@@ -72,7 +64,9 @@ class WholeSceneOptions:
     """
 
     enabled: bool = False
-    training: TrainOptions = field(default_factory=lambda: _pipeline_training(2000), metadata={"runtime": _SET_HERE})
+    training: TrainOptions = field(
+        default_factory=lambda: TrainOptions(iterations=2000), metadata={"runtime": _SET_HERE}
+    )
     max_image_size: int = 640
     checkpoints: tuple[int, ...] = ()
 

@@ -98,8 +98,9 @@ class HardViewOptions:
 class TrainOptions:
     """Options of :func:`fusion.train.train_splats` (learning rates per step as in 3DGS / gsplat; lengths in metres).
 
-    iterations: maximum number of steps. downscale: integer factor for photos, masks and intrinsics (2 on a CPU:
-    a quarter of the pixels). sh_degree: highest SH degree, reached one degree per ``sh_degree_interval`` steps.
+    iterations: maximum number of steps (1000 keep a CPU run of a dozen photos within minutes). downscale: integer
+    factor for photos, masks and intrinsics (2 on a CPU: a quarter of the pixels). sh_degree: highest SH degree,
+    reached one degree per ``sh_degree_interval`` steps.
     scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
     of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping
@@ -118,7 +119,7 @@ class TrainOptions:
     (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
     """
 
-    iterations: int = 2000
+    iterations: int = 1000
     downscale: int = 1
     seed: int = 0
     sh_degree: int = 3

@@ -122,8 +122,8 @@ class DefaultStrategy:
     """gsplat-default-like densification with clipped growth (see the module docstring; lengths relative to the
     scene scale, steps in iterations)."""
 
-    cap: int = 100_000
-    refine_start: int = 500
+    cap: int = 60_000
+    refine_start: int = 100
     refine_stop: int = 15_000
     refine_every: int = 100
     grow_grad2d: float = 2e-4
