@@ -100,7 +100,7 @@ class MaskOptions:
     infinity: pixels that show no parallax between the photo and its neighbours (a backdrop or sky at infinity,
     :func:`at_infinity`) and that the cloud's points do not enclose are no holes and seed GrabCut's certain
     background; with a backdrop in view, the area below the envelope outside the hull keeps only what GrabCut
-    puts with the scene (default True; needs the photos). Figures in docs/classify.md.
+    puts with the scene (default True; needs the photos). Figures in docs/experiments/2026-11-26-classify.md.
     """
 
     footprint: float = 1.5

@@ -117,7 +117,7 @@ PRESETS: dict[str, Preset] = {
 # The demo scene with every object textured, seen from farther and higher (1.4 m, 40° and 60°): every part of the
 # table is in at least 10 of the 24 photos. From the demo's rig (0.85 m, 28° and 50°) its corners are in 4, at
 # grazing angles, and 7.9 % of the training pixels were unreconstructed table (holes, which need splats); from
-# this one 0.26 % (seed 1, CPU MVS; docs/classify.md).
+# this one 0.26 % (seed 1, CPU MVS; docs/experiments/2026-11-26-classify.md).
 PRESETS["textured"] = replace(
     PRESETS["demo"],
     name="textured",

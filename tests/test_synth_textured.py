@@ -42,7 +42,8 @@ def test_demo_presets_are_the_reduced_tabletop():
 def test_the_textured_rig_sees_every_part_of_the_table_from_many_views():
     """The textured preset's farther rig sees every point of the 1 m table (a 21 × 21 grid) from at least 10 of its
     24 training views (the median point from all 24); the demo's closer rig sees the table's corners from 4,
-    at grazing angles, where CPU MVS left them unreconstructed (7.9 % of the pixels; docs/classify.md)."""
+    at grazing angles, where CPU MVS left them unreconstructed (7.9 % of the pixels;
+    docs/experiments/2026-11-26-classify.md)."""
     from data_synth.rig import build_cameras
 
     g = np.linspace(-0.5, 0.5, 21)
