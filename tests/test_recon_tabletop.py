@@ -70,7 +70,7 @@ def test_tabletop_full_sfm_registers_all_and_aligns(tabletop: Path, tmp_path: Pa
     # max 0.36-0.54 GSD over runs (lowest ring); without the robust final BA: median 0.19-0.25, max 1.4-2.4 GSD
     alignment = json.loads(ProjectLayout(tmp_path).record("sfm").read_text())["report"]["alignment"]
     residuals = np.asarray(alignment["residuals"])
-    assert alignment["num_inliers"] == n_train
+    assert counts["alignment_inliers"] == n_train and sum(alignment["inliers"]) == n_train
     assert np.median(residuals) <= 0.2 * gsd
     assert np.percentile(residuals, 90) <= 0.5 * gsd
     assert np.max(residuals) <= 1.0 * gsd
