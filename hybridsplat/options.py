@@ -41,7 +41,7 @@ __all__ = [
 
 #: how ``None`` is spelled in config.toml (read case-insensitively, with "off")
 NONE_SPELLING = "none"
-_NONE_WORDS = ("none", "off")
+NONE_WORDS = ("none", "off")  # read as None (case-insensitive)
 
 
 def configurable_fields(options_type: type, runtime: tuple[str, ...] = ()) -> list[dataclasses.Field]:
@@ -182,7 +182,7 @@ def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str
     if _is_union(tp):
         args = typing.get_args(tp)
         optional = type(None) in args
-        if optional and isinstance(value, str) and value.lower() in _NONE_WORDS:
+        if optional and isinstance(value, str) and value.lower() in NONE_WORDS:
             return None
         choices = [a for a in args if a is not type(None)]
         if len(choices) == 1:

@@ -18,8 +18,6 @@ from typing import Any
 
 import typer
 
-_NONE_WORDS = ("none", "off")
-
 
 def _cli_type(tp: Any) -> Any:
     """The type typer parses an option as (None: it is not given)."""
@@ -72,8 +70,10 @@ def _value(tp: Any, given: Any, opt: Any) -> Any:
         return None
     if opt.is_path:
         return str(Path(given).resolve()) if str(given) else ""
-    if isinstance(given, str) and given.lower() in _NONE_WORDS:
-        return "none"
+    from hybridsplat.options import NONE_SPELLING, NONE_WORDS
+
+    if isinstance(given, str) and given.lower() in NONE_WORDS:
+        return NONE_SPELLING
     inner = [a for a in typing.get_args(tp) if a is not type(None)]
     if isinstance(given, str) and inner and inner[0] in (int, float):
         from core.errors import ConfigError
