@@ -63,7 +63,8 @@ class CleanResult:
     reasons: np.ndarray
 
 
-def _median_spacing(points: np.ndarray) -> float:
+def median_nn_spacing(points: np.ndarray) -> float:
+    """Median distance (metres) from each of the (N, 3) points to its nearest other point; 0 for fewer than two."""
     if len(points) < 2:
         return 0.0
     d, _ = cKDTree(points).query(points, k=2)
@@ -96,7 +97,7 @@ def clean_splats(
     if opts.min_opacity is not None:
         mark(splats.opacities < opts.min_opacity, Reason.LOW_OPACITY)
     sigma = splats.scales.astype(np.float64).max(axis=1)
-    spacing = _median_spacing(splats.means)
+    spacing = median_nn_spacing(splats.means)
     if opts.max_scale_scene is not None:
         if cameras is not None and len(cameras) > 1:
             scale = scene_scale(cameras)

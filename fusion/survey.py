@@ -45,21 +45,17 @@ class HybridProducts:
     counts: dict[str, Any]
 
 
-def _median_nn_spacing(points: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
-    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1])) if len(points) > 1 else 0.0
-
-
 def view_tests(
     cameras: Cameras, masks: Mapping[str, np.ndarray], mvs: GaussianSet, needs: np.ndarray, splats: GaussianSet
 ) -> ViewTests:
     """The inputs of the view tests: trusted points are the MVS Gaussians that need no splats; their spacing, else
     (no trusted surface) the splats' own, else 1 m."""
+    from fusion.clean import median_nn_spacing
+
     trusted = mvs.subset(~needs).with_origin(cameras.origin).means if (~needs).any() else np.zeros((0, 3))
-    spacing = _median_nn_spacing(trusted)
+    spacing = median_nn_spacing(trusted)
     if not spacing > 0:
-        spacing = _median_nn_spacing(splats.means)
+        spacing = median_nn_spacing(splats.means)
     return ViewTests(cameras, masks, trusted, spacing if spacing > 0 else 1.0)
 
 

@@ -43,26 +43,32 @@ def _put(table: dict[str, Any], path: str, value: Any) -> None:
         node[parts[-1]] = value
 
 
+def _same(value: Any) -> Any:
+    return value
+
+
+#: the trainer's keys of 0.2's [train] and [baseline] tables → their place under ``training``
+_TRAINING: dict[str, tuple[str, Callable[[Any], Any]]] = {
+    "iterations": ("training.iterations", _same),
+    "downscale": ("training.downscale", _same),
+    "cap": ("training.strategy.cap", _same),
+    "sh_degree": ("training.sh_degree", _same),
+    "refine_start": ("training.strategy.refine_start", _same),
+    "refine_until": ("training.refine_until", _same),
+}
+
 #: per stage: old key → (new dotted path, value transform)
 _MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
     "sfm": {"align_threshold_m": ("align_threshold_m", _off_if_zero)},
-    "mvs": {
-        "threads": ("num_threads", _off_if_zero),
-        "min_num_pixels": ("fusion.min_num_pixels", lambda v: v),
-    },
+    "mvs": {"threads": ("num_threads", _off_if_zero), "min_num_pixels": ("fusion.min_num_pixels", _same)},
     "train": {
-        "iterations": ("training.iterations", lambda v: v),
-        "downscale": ("training.downscale", lambda v: v),
-        "cap": ("training.strategy.cap", lambda v: v),
-        "sh_degree": ("training.sh_degree", lambda v: v),
-        "flat": ("training.flat", lambda v: v),
-        "refine_start": ("training.strategy.refine_start", lambda v: v),
-        "refine_until": ("training.refine_until", lambda v: v),
-        "photometric": ("training.photometric", lambda v: v),
-        "lpips_weight": ("training.lpips_weight", lambda v: v),
-        "lpips_start": ("training.lpips_start", lambda v: v),
+        **_TRAINING,
+        "flat": ("training.flat", _same),
+        "photometric": ("training.photometric", _same),
+        "lpips_weight": ("training.lpips_weight", _same),
+        "lpips_start": ("training.lpips_start", _same),
         "hard_views": ("training.hard_views", lambda v: {} if v else NONE),
-        "rays_per_view": ("init.rays_per_view", lambda v: v),
+        "rays_per_view": ("init.rays_per_view", _same),
     },
     "clean": {
         name: (name, _off_if_negative)
@@ -75,23 +81,16 @@ _MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
         "points_min_views": ("points.min_views", lambda v: max(int(v), 0)),
         "points_min_mask_share": ("points.min_mask_share", _off_if_negative),
         "points_max_rim_spacing": ("points.max_rim_spacing", _off_if_negative),
-        "points_needs_mvs": ("needs_mvs", lambda v: v),
+        "points_needs_mvs": ("needs_mvs", _same),
         "points_needs_mvs_max_rim_spacing": ("needs_mvs_max_rim_spacing", _off_if_negative),
-        "points_needs_mvs_classes": ("needs_mvs_classes", lambda v: v),
+        "points_needs_mvs_classes": ("needs_mvs_classes", _same),
     },
     "mesh": {
-        "source": ("mesh.source", lambda v: v),
-        "snapshots": ("mesh.use_snapshots", lambda v: v),
-        "decimator": ("mesh.decimate.method", lambda v: v),
+        "source": ("mesh.source", _same),
+        "snapshots": ("mesh.use_snapshots", _same),
+        "decimator": ("mesh.decimate.method", _same),
     },
-    "baseline": {
-        "iterations": ("training.iterations", lambda v: v),
-        "downscale": ("training.downscale", lambda v: v),
-        "cap": ("training.strategy.cap", lambda v: v),
-        "sh_degree": ("training.sh_degree", lambda v: v),
-        "refine_start": ("training.strategy.refine_start", lambda v: v),
-        "refine_until": ("training.refine_until", lambda v: v),
-    },
+    "baseline": _TRAINING,
     "eval": {"tau_m": ("tau_m", _off_if_zero)},
 }
 

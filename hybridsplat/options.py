@@ -37,6 +37,7 @@ __all__ = [
     "runtime_field",
     "toml_tables",
     "with_option",
+    "with_options",
 ]
 
 #: how ``None`` is spelled in config.toml (read case-insensitively, with "off")
@@ -283,10 +284,15 @@ def with_option(options: Any, path: str, value: Any, where: Path | str = "--opti
     return options_from_table(type(options), table, where, base=options)
 
 
+def with_options(options: Any, values: dict[str, Any], where: Path | str = "--options") -> Any:
+    """``options`` with every ``{dotted path: value}`` set (values as config.toml spells them; None: left as is)."""
+    for path, value in values.items():
+        if value is not None:
+            options = with_option(options, path, value, where)
+    return options
+
+
 def options_with(options_type: type, values: dict[str, Any], where: Path | str = "--options") -> Any:
     """Options of ``options_type`` (its defaults) with ``{dotted path: value}`` set, values as config.toml spells
     them: ``options_with(MaskedTrainingOptions, {"training.iterations": 40, "snapshot_iterations": [20]})``."""
-    options = options_type()
-    for path, value in values.items():
-        options = with_option(options, path, value, where)
-    return options
+    return with_options(options_type(), values, where)

@@ -43,18 +43,11 @@ def input_options_from_cli(
 def stage_options_from_cli(**given: dict[str, Any]) -> dict[str, Any]:
     """Stage options from ``stage={"option.path": value}`` (values as config.toml spells them; None keeps the
     stage's default)."""
-    from hybridsplat.options import with_option
+    from hybridsplat.options import options_with
     from hybridsplat.stages import stage_options_types
 
     types = stage_options_types()
-    out = {}
-    for name, values in given.items():
-        options = types[name]()
-        for path, value in values.items():
-            if value is not None:
-                options = with_option(options, path, value)
-        out[name] = options
-    return out
+    return {name: options_with(types[name], values) for name, values in given.items()}
 
 
 def print_result(terminal: Any, project: Path, manifest: Any) -> None:
@@ -71,7 +64,7 @@ def run_project_stage(
 ):
     """Run stage ``name`` of an existing project with its recorded configuration, changed by ``update`` (a function
     of the recorded options, or ``{option path: value}`` where None keeps the recorded value)."""
-    from hybridsplat.options import with_option
+    from hybridsplat.options import with_options
     from hybridsplat.pipeline import load_config, run_pipeline
     from hybridsplat.stages import stage_named
     from hybridsplat.terminal import Terminal
@@ -79,12 +72,7 @@ def run_project_stage(
     stage = stage_named(name)
     config = load_config(project)
     options = config.options(name, stage.Options)
-    if callable(update):
-        options = update(options)
-    else:
-        for path, value in update.items():
-            if value is not None:
-                options = with_option(options, path, value)
+    options = update(options) if callable(update) else with_options(options, update)
     terminal = Terminal(quiet=quiet)
     manifest = run_pipeline(
         project, config.with_stage_options(name, options), [stage], terminal, [name] if force else []

@@ -25,7 +25,8 @@ def _cli_type(tp: Any) -> Any:
     if typing.get_origin(tp) in (typing.Union, types.UnionType):
         return str if type(None) in typing.get_args(tp) else _cli_type(args[0])
     if typing.get_origin(tp) is tuple:
-        return list[str]
+        item = typing.get_args(tp)[0]
+        return list[item] if item in (int, float, str) else list[str]
     if tp in (bool, int, float, str):
         return tp
     return str  # enums, paths: checked when the options are built
@@ -51,8 +52,8 @@ def cli_parameters(options_type: type, declared: Iterable[Any]) -> list[inspect.
             spelling = opt.spelling
             flags = spelling if "/" in spelling else f"{spelling}/--no-{spelling.lstrip('-')}"
             annotation, default = bool | None, typer.Option(None, flags, help=opt.help)
-        elif _cli_type(tp) == list[str]:
-            annotation, default = list[str], typer.Option([], opt.spelling, help=opt.help)
+        elif typing.get_origin(_cli_type(tp)) is list:
+            annotation, default = _cli_type(tp), typer.Option([], opt.spelling, help=opt.help)
         else:
             annotation, default = _cli_type(tp) | None, typer.Option(None, opt.spelling, help=opt.help)
         params.append(inspect.Parameter(opt.parameter, inspect.Parameter.KEYWORD_ONLY, default=default,

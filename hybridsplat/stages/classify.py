@@ -67,16 +67,14 @@ class ClassifyStage(Stage):
         return f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"
 
     def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        from pathlib import Path as _Path
-
         if not isinstance(counts.get("points"), int) or counts["points"] <= 0:
             return None
         per = ", ".join(f"{k} {v:,}" for k, v in (counts.get("per_class") or {}).items())
         line = (f"{counts['points']:,} points, {counts.get('needs_splats', 0) / counts['points']:.1%} need splats "
-                f"({per}); model {_Path(str(counts.get('model', '?'))).name}.")  # fmt: skip
+                f"({per}); model {Path(str(counts.get('model', '?'))).name}.")  # fmt: skip
         captions = {"classes": "the dense cloud coloured by class (top and side views)",
                     "importances": "the classifier's feature importances"}  # fmt: skip
         figures = tuple(
-            (str(f), captions.get(_Path(str(f)).stem, _Path(str(f)).stem)) for f in counts.get("figures") or []
+            (str(f), captions.get(Path(str(f)).stem, Path(str(f)).stem)) for f in counts.get("figures") or []
         )
         return ReportSection("Classification and region masks", (line,), figures)
