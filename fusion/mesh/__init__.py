@@ -1,17 +1,61 @@
 """Meshes with a triangle budget from merged Gaussian sets (screened Poisson, trimming, quadric decimation, export).
 
-Entry point: :func:`fusion.mesh.pipeline.mesh_from_gaussians`; files: :func:`fusion.mesh.export.write_mesh`.
+Entry point: :func:`fusion.mesh.pipeline.mesh_from_gaussians`; files: :func:`fusion.mesh.export.write_mesh`; options:
+:mod:`fusion.mesh.options`. The names are imported lazily (:func:`core.lazy.lazy_exports`): importing the package or
+its options does not load numba, scipy or open3d. The decimation function is ``fusion.mesh.decimate.decimate`` (the
+package's attribute ``decimate`` is that submodule).
 """
 
-from fusion.mesh.decimate import DecimateOptions, Decimator, decimate
-from fusion.mesh.export import read_mesh, write_mesh
-from fusion.mesh.oriented_points import NormalFallback, OrientedPointOptions, oriented_points_from_gaussians
-from fusion.mesh.pipeline import MeshOptions, MeshResult, MeshSource, mesh_from_gaussians
-from fusion.mesh.poisson import PoissonOptions, poisson_reconstruct, trim_mesh
-from fusion.mesh.quality import MeshQuality, mesh_quality
-from fusion.mesh.transparent import SnapshotOptions, snapshot_union
-from fusion.mesh.types import MeshWarning, OrientedPoints, TriangleMesh
+from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+from core.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from fusion.mesh.export import read_mesh, write_mesh
+    from fusion.mesh.options import (
+        DecimateOptions,
+        Decimator,
+        MeshOptions,
+        MeshSource,
+        NormalFallback,
+        OrientedPointOptions,
+        PoissonOptions,
+        SnapshotOptions,
+    )
+    from fusion.mesh.oriented_points import oriented_points_from_gaussians
+    from fusion.mesh.pipeline import MeshResult, mesh_from_gaussians
+    from fusion.mesh.poisson import poisson_reconstruct, trim_mesh
+    from fusion.mesh.quality import MeshQuality, mesh_quality
+    from fusion.mesh.transparent import snapshot_union
+    from fusion.mesh.types import MeshWarning, OrientedPoints, TriangleMesh
+
+#: name -> submodule that defines it
+_EXPORTS: dict[str, str] = {
+    "DecimateOptions": "options",
+    "Decimator": "options",
+    "MeshOptions": "options",
+    "MeshQuality": "quality",
+    "MeshResult": "pipeline",
+    "MeshSource": "options",
+    "MeshWarning": "types",
+    "NormalFallback": "options",
+    "OrientedPointOptions": "options",
+    "OrientedPoints": "types",
+    "PoissonOptions": "options",
+    "SnapshotOptions": "options",
+    "TriangleMesh": "types",
+    "mesh_from_gaussians": "pipeline",
+    "mesh_quality": "quality",
+    "oriented_points_from_gaussians": "oriented_points",
+    "poisson_reconstruct": "poisson",
+    "read_mesh": "export",
+    "snapshot_union": "transparent",
+    "trim_mesh": "poisson",
+    "write_mesh": "export",
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = [
     "DecimateOptions",
     "Decimator",
@@ -26,7 +70,6 @@ __all__ = [
     "PoissonOptions",
     "SnapshotOptions",
     "TriangleMesh",
-    "decimate",
     "mesh_from_gaussians",
     "mesh_quality",
     "oriented_points_from_gaussians",

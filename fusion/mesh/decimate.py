@@ -24,38 +24,13 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 
 from core.errors import ConfigError, DataError
+from fusion.mesh.options import DecimateOptions, Decimator  # noqa: F401 (re-exported)
 from fusion.mesh.poisson import repair_non_manifold_edges
-from fusion.mesh.types import MeshWarning, TriangleMesh, as_choice
-
-
-class Decimator(str, Enum):
-    AUTO = "auto"  # fast-simplification, then open3d if the count is still outside the tolerance
-    FAST_SIMPLIFICATION = "fast-simplification"
-    OPEN3D = "open3d"
-
-
-@dataclass(frozen=True)
-class DecimateOptions:
-    """method: which decimator (default auto, see the module docstring). tolerance: allowed |count − budget| / budget
-    (default 0.01). max_attempts: runs with a corrected target, per decimator (default 6). aggressiveness:
-    fast-simplification's ``agg`` (default 7, its own)."""
-
-    method: Decimator = Decimator.AUTO
-    tolerance: float = 0.01
-    max_attempts: int = 6
-    aggressiveness: float = 7.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "method", as_choice(Decimator, self.method, "decimation method"))
-        if not 0.0 <= self.tolerance < 1.0:
-            raise ConfigError(f"tolerance must lie in [0, 1), got {self.tolerance}")
-        if self.max_attempts < 1:
-            raise ConfigError(f"max_attempts must be >= 1, got {self.max_attempts}")
+from fusion.mesh.types import MeshWarning, TriangleMesh
 
 
 @dataclass

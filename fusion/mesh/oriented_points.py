@@ -23,66 +23,15 @@ Per Gaussian i (α_i its opacity, σ its three standard deviations, R_i its rota
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.errors import ConfigError, DataError
+from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.convert import Source, pca_normals
-from fusion.mesh.types import OrientedPoints, as_choice
-
-
-class NormalFallback(str, Enum):
-    """What to do with Gaussians that have no usable shortest axis (near-isotropic)."""
-
-    ESTIMATE = "estimate"  # PCA of the neighbouring centres, then orientation
-    ERROR = "error"  # refuse the set (DataError)
-    DROP = "drop"  # leave those Gaussians out
-
-
-@dataclass(frozen=True)
-class OrientedPointOptions:
-    """Options of :func:`oriented_points_from_gaussians` (see the module docstring).
-
-    min_opacity: Gaussians with α below are ignored (default 0.02: faint floaters).
-    full_weight_opacity: α from which a Gaussian counts fully (default 0.5); fainter ones are sampled less.
-    sample_spacing: reference spacing s in metres (None: the median √(σ_a σ_b)).
-    footprint_sigmas: radius of a Gaussian's sampled ellipse in σ (default 1.5).
-    max_samples_per_gaussian: cap of points per Gaussian (default 256).
-    isotropy_ratio: σ_min / σ_mid above which the shortest axis is no normal (default 0.8).
-    normal_fallback: see :class:`NormalFallback` (default estimate).
-    normal_neighbors: neighbours for PCA normals and for orienting by trusted normals (default 16).
-    seed: seed of the sampling.
-    """
-
-    min_opacity: float = 0.02
-    full_weight_opacity: float = 0.5
-    sample_spacing: float | None = None
-    footprint_sigmas: float = 1.5
-    max_samples_per_gaussian: int = 256
-    isotropy_ratio: float = 0.8
-    normal_fallback: NormalFallback = NormalFallback.ESTIMATE
-    normal_neighbors: int = 16
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.min_opacity < 1.0:
-            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
-        if not 0.0 < self.full_weight_opacity <= 1.0:
-            raise ConfigError(f"full_weight_opacity must lie in (0, 1], got {self.full_weight_opacity}")
-        if self.sample_spacing is not None and not (np.isfinite(self.sample_spacing) and self.sample_spacing > 0):
-            raise ConfigError(f"sample_spacing must be a positive distance in metres, got {self.sample_spacing}")
-        if not (np.isfinite(self.footprint_sigmas) and self.footprint_sigmas > 0):
-            raise ConfigError(f"footprint_sigmas must be positive, got {self.footprint_sigmas}")
-        if self.max_samples_per_gaussian < 1:
-            raise ConfigError(f"max_samples_per_gaussian must be >= 1, got {self.max_samples_per_gaussian}")
-        if not 0.0 < self.isotropy_ratio <= 1.0:
-            raise ConfigError(f"isotropy_ratio must lie in (0, 1], got {self.isotropy_ratio}")
-        if self.normal_neighbors < 3:
-            raise ConfigError(f"normal_neighbors must be >= 3, got {self.normal_neighbors}")
-        object.__setattr__(self, "normal_fallback", as_choice(NormalFallback, self.normal_fallback, "normal_fallback"))
+from fusion.mesh.options import NormalFallback, OrientedPointOptions  # noqa: F401 (re-exported)
+from fusion.mesh.types import OrientedPoints
 
 
 @dataclass

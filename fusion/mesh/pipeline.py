@@ -19,62 +19,22 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from enum import Enum
+from dataclasses import dataclass
 
 import numpy as np
 
-from core.errors import ConfigError, DataError
+from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.convert import Source
 from fusion.mesh.closing import ClosingStats
 from fusion.mesh.colors import vertex_colors_from_gaussians
-from fusion.mesh.decimate import DecimateOptions, DecimationStats, decimate
-from fusion.mesh.oriented_points import OrientedPointOptions, OrientedPointStats, oriented_points_from_gaussians
-from fusion.mesh.poisson import PoissonOptions, TrimStats, poisson_reconstruct, trim_mesh
+from fusion.mesh.decimate import DecimationStats, decimate
+from fusion.mesh.options import MeshOptions, MeshSource  # noqa: F401 (re-exported)
+from fusion.mesh.oriented_points import OrientedPointStats, oriented_points_from_gaussians
+from fusion.mesh.poisson import TrimStats, poisson_reconstruct, trim_mesh
 from fusion.mesh.quality import MeshQuality, mesh_quality
-from fusion.mesh.transparent import SnapshotOptions, SnapshotStats, snapshot_union
-from fusion.mesh.types import OrientedPoints, TriangleMesh, as_choice
-
-
-class MeshSource(str, Enum):
-    """Which Gaussians of the merged set are meshed: all (hybrid) or only those converted from MVS."""
-
-    ALL = "all"
-    MVS = "mvs"
-
-
-@dataclass(frozen=True)
-class MeshOptions:
-    """budget: triangles of the result (None: no decimation). source: see :class:`MeshSource` (default all).
-    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; source all only).
-    mvs_priority: splat points (trained or snapshot) closer to an MVS point than this many median MVS point
-    spacings are left out (default 2; 0 keeps all): where MVS measured the surface, its metric points alone shape
-    it, and splats fill only where MVS has none (splats float around surfaces by a fraction of their σ).
-    color_neighbors: Gaussians blended per vertex colour (default 8). surface_only: leave Gaussians whose
-    ``surface`` field is 0 out of the geometry (default True; no effect on a set without that field; colours still
-    come from every Gaussian). Sub-options: see their classes."""
-
-    budget: int | None = 10_000
-    source: MeshSource = MeshSource.ALL
-    use_snapshots: bool = True
-    mvs_priority: float = 2.0
-    color_neighbors: int = 8
-    surface_only: bool = True
-    points: OrientedPointOptions = field(default_factory=OrientedPointOptions)
-    poisson: PoissonOptions = field(default_factory=PoissonOptions)
-    decimate: DecimateOptions = field(default_factory=DecimateOptions)
-    snapshots: SnapshotOptions = field(default_factory=SnapshotOptions)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "source", as_choice(MeshSource, self.source, "mesh source"))
-        b = self.budget
-        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
-            raise ConfigError(f"the triangle budget must be a positive integer (or None for no decimation), got {b!r}")
-        if not (np.isfinite(self.mvs_priority) and self.mvs_priority >= 0):
-            raise ConfigError(f"mvs_priority must be >= 0 (spacings), got {self.mvs_priority}")
-        if self.color_neighbors < 1:
-            raise ConfigError(f"color_neighbors must be >= 1, got {self.color_neighbors}")
+from fusion.mesh.transparent import SnapshotStats, snapshot_union
+from fusion.mesh.types import OrientedPoints, TriangleMesh
 
 
 @dataclass

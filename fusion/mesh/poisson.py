@@ -33,71 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.errors import ConfigError, DataError
+from core.errors import DataError
 from fusion.mesh.closing import ClosingStats, close_at_cube, poisson_cube
 from fusion.mesh.graph import edge_use_counts, triangle_components
 from fusion.mesh.manifold import ManifoldStats, make_edge_manifold
+from fusion.mesh.options import PoissonOptions  # noqa: F401 (re-exported)
 from fusion.mesh.types import OrientedPoints, TriangleMesh
-
-
-@dataclass(frozen=True)
-class PoissonOptions:
-    """Options of :func:`poisson_reconstruct` and :func:`trim_mesh`.
-
-    depth: octree depth (None: from the sampling, see the module docstring). cell_factor: finest cell in units of
-    the median point spacing (default 1.5). min_depth / max_depth: clamp of the automatic depth (5 / 10).
-    scale: Poisson bounding cube / sample bounding cube (open3d's default 1.1). linear_fit: open3d's option.
-    point_weight: screening weight (open3d default 2; 0 is unscreened Poisson). close: cap the untrimmed mesh on the
-    faces of the reconstruction cube where the surface runs into it, so that it is watertight (default True; the caps
-    never survive trimming). manifold: remove the pillows and flat tetrahedra PoissonRecon emits and split its other
-    non-manifold edges (:mod:`fusion.mesh.manifold`), so that the untrimmed mesh is edge-manifold (default True).
-    footprint_support: a vertex within the footprint (``OrientedPoints.footprint``) of any
-    point is supported too, whatever ``support_factor`` says (default False).
-    density_quantile: vertices below
-    this quantile of the densities are trimmed (default 0: off, see the module docstring). support_factor:
-    vertices farther than this many spacings from their nearest point are trimmed (default 2; None: off).
-    support_neighbors: neighbours over which a point's local spacing is taken (default 8).
-    min_component_fraction: pieces with fewer triangles than this share of the trimmed mesh are dropped (default
-    0.01). threads: open3d threads (default 1: deterministic; -1 uses all cores, faster, but the order of its
-    float reductions varies from run to run, vertices move by ~1e-7 m and decimation can turn that into a different
-    triangulation).
-    """
-
-    depth: int | None = None
-    cell_factor: float = 1.5
-    min_depth: int = 5
-    max_depth: int = 10
-    scale: float = 1.1
-    linear_fit: bool = False
-    point_weight: float = 2.0
-    close: bool = True
-    manifold: bool = True
-    footprint_support: bool = False
-    density_quantile: float = 0.0
-    support_factor: float | None = 2.0
-    support_neighbors: int = 8
-    min_component_fraction: float = 0.01
-    threads: int = 1
-
-    def __post_init__(self) -> None:
-        if self.depth is not None and not 2 <= self.depth <= 14:
-            raise ConfigError(f"Poisson depth must lie in 2..14, got {self.depth}")
-        if not 2 <= self.min_depth <= self.max_depth <= 14:
-            raise ConfigError(f"need 2 <= min_depth <= max_depth <= 14, got {self.min_depth}, {self.max_depth}")
-        if not (np.isfinite(self.cell_factor) and self.cell_factor > 0):
-            raise ConfigError(f"cell_factor must be positive, got {self.cell_factor}")
-        if not self.scale >= 1.0:
-            raise ConfigError(f"scale must be >= 1, got {self.scale}")
-        if not self.point_weight >= 0:
-            raise ConfigError(f"point_weight must be >= 0, got {self.point_weight}")
-        if not 0.0 <= self.density_quantile < 1.0:
-            raise ConfigError(f"density_quantile must lie in [0, 1), got {self.density_quantile}")
-        if self.support_factor is not None and not (np.isfinite(self.support_factor) and self.support_factor > 0):
-            raise ConfigError(f"support_factor must be positive (or None), got {self.support_factor}")
-        if self.support_neighbors < 1:
-            raise ConfigError(f"support_neighbors must be >= 1, got {self.support_neighbors}")
-        if not 0.0 <= self.min_component_fraction < 1.0:
-            raise ConfigError(f"min_component_fraction must lie in [0, 1), got {self.min_component_fraction}")
 
 
 @dataclass

@@ -19,26 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from core.errors import ConfigError, DataError
+from core.errors import DataError
 from core.gaussians import GaussianSet, logit
 from fusion.convert import Source
 from fusion.merge import subset
-
-
-@dataclass(frozen=True)
-class SnapshotOptions:
-    """region_radius: metres (None: 4 × the median nearest-neighbour distance between the merged set's splats).
-    min_opacity: snapshot Gaussians with α below this before raising are ignored (default 0.005, the pruning cut of
-    3DGS densification: such Gaussians are about to be removed by training)."""
-
-    region_radius: float | None = None
-    min_opacity: float = 0.005
-
-    def __post_init__(self) -> None:
-        if self.region_radius is not None and not (np.isfinite(self.region_radius) and self.region_radius > 0):
-            raise ConfigError(f"region_radius must be a positive distance in metres, got {self.region_radius}")
-        if not 0.0 <= self.min_opacity < 1.0:
-            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
+from fusion.mesh.options import SnapshotOptions  # noqa: F401 (re-exported)
 
 
 @dataclass

@@ -26,35 +26,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from core.cameras import Cameras
-from core.errors import ConfigError, DataError
+from core.errors import DataError
 from core.gaussians import SH_C0, GaussianSet, logit
 from fusion.mask_projection import project_to_pixels
-
-
-@dataclass(frozen=True)
-class InitOptions:
-    """Options of :func:`seed_splats`.
-
-    rays_per_view: mask pixels sampled per view for ray seeds (0 disables them). band_px: width of the band
-    around the mask whose trusted MVS depths are interpolated. min_sfm_views: views in whose masks an SfM point
-    must fall. k_scale: neighbours for the initial σ. min_spacing: seeds closer than this (m) to an earlier one are
-    dropped (0 keeps all). max_seeds: cap on the total (seeded subsample). initial_opacity: α of every seed.
-    """
-
-    rays_per_view: int = 400
-    band_px: int = 12
-    min_sfm_views: int = 1
-    k_scale: int = 3
-    min_spacing: float = 0.0
-    max_seeds: int = 30_000
-    initial_opacity: float = 0.1
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.rays_per_view < 0 or self.band_px < 1 or self.k_scale < 1 or self.max_seeds < 1:
-            raise ConfigError("rays_per_view >= 0, band_px >= 1, k_scale >= 1 and max_seeds >= 1 are required")
-        if not 0.0 < self.initial_opacity < 1.0:
-            raise ConfigError(f"initial_opacity must lie in (0, 1), got {self.initial_opacity}")
+from fusion.train.options import InitOptions  # noqa: F401 (re-exported)
 
 
 @dataclass

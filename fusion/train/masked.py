@@ -7,15 +7,16 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from core.cameras import Cameras
 from core.errors import ConfigError
-from core.gaussians import GaussianSet
-from fusion.train.init import InitOptions
-from fusion.train.options import TrainOptions
+from fusion.train.options import InitOptions, TrainOptions
+
+if TYPE_CHECKING:
+    from core.cameras import Cameras
+    from core.gaussians import GaussianSet
 
 #: fields of TrainOptions that these functions set themselves (the seed; the snapshot steps are their own option)
 _SET_HERE = ("seed", "snapshot_iterations")

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from classify.masks import MaskOptions
+from classify.mask_options import MaskOptions
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
 

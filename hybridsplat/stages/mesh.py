@@ -20,7 +20,7 @@ import numpy as np
 
 from core.errors import ConfigError, DataError
 from core.options import enum_choice
-from fusion.mesh.pipeline import MeshOptions, MeshSource
+from fusion.mesh.options import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 
@@ -162,8 +162,9 @@ def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianS
 
 def _tsdf(merged, cameras, opts: MeshStageOptions) -> dict[str, Any]:
     from fusion.convert import Source
-    from fusion.mesh import decimate, mesh_quality
+    from fusion.mesh import mesh_quality
     from fusion.mesh.colors import vertex_colors_from_gaussians
+    from fusion.mesh.decimate import decimate
     from fusion.mesh.tsdf import tsdf_mesh
     from fusion.mesh.types import TriangleMesh
 
