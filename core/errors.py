@@ -50,3 +50,30 @@ class ConfigError(HybridSplatError):
 
 class ReconstructionError(HybridSplatError):
     """A reconstruction stage failed on valid input (images do not overlap, too few registered images)."""
+
+
+class ProjectBusyError(HybridSplatError):
+    """Another process holds the project's lock (``hybridsplat.project_lock``; exit code 3 on the command line)."""
+
+    def __init__(self, problem: str, path: str | PathLike[str], holder: object = None) -> None:
+        self.holder = holder
+        super().__init__(problem, path)
+
+
+class DiskSpaceError(HybridSplatError):
+    """A stage would not fit on the disk (refused before it starts) or ran out of space while it wrote (exit code 4).
+
+    needed / free: bytes (needed is None when the disk filled up during the stage)."""
+
+    def __init__(self, problem: str, path: str | PathLike[str], needed: int | None = None, free: int = 0) -> None:
+        self.needed, self.free = needed, free
+        super().__init__(problem, path)
+
+
+class FileSystemRefusedError(HybridSplatError):
+    """The operating system refused a file operation during a stage: permission denied, read-only file system,
+    too many open files (exit code 5). ``errno``: the OS error number."""
+
+    def __init__(self, problem: str, path: str | PathLike[str] | None = None, errno: int | None = None) -> None:
+        self.errno = errno
+        super().__init__(problem, path)

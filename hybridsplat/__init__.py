@@ -11,4 +11,4 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # nothing a user can act on.
 warnings.filterwarnings("ignore", message="The TBB threading layer requires TBB version")
 
-__version__ = "0.3.0"
+__version__ = "0.3.1"

@@ -71,6 +71,31 @@ class Terminated(BaseException):
 
 
 EXIT_OK, EXIT_INTERNAL, EXIT_BAD_INPUT, EXIT_INTERRUPTED, EXIT_TERMINATED = 0, 1, 2, 130, 143
+EXIT_BUSY, EXIT_DISK_SPACE, EXIT_REFUSED = 3, 4, 5
+"""3: another process holds the project's lock; 4: not enough disk space (before a stage, or the disk filled up
+during it); 5: the operating system refused a file operation (permission denied, read-only file system, too
+many open files)."""
+
+
+def _exit_code_of(err: HybridSplatError) -> int:
+    from core.errors import DiskSpaceError, FileSystemRefusedError, ProjectBusyError
+
+    for kind, code in ((ProjectBusyError, EXIT_BUSY), (DiskSpaceError, EXIT_DISK_SPACE)):
+        if isinstance(err, kind):
+            return code
+    return EXIT_REFUSED if isinstance(err, FileSystemRefusedError) else EXIT_BAD_INPUT
+
+
+def _os_error_code(err: OSError) -> int:
+    """Exit status of an OSError outside a stage: full disk 4, refused by the system 5, else bad input when it
+    names a file (an unwritable output, a folder where a file is expected), internal otherwise."""
+    import errno
+
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return EXIT_DISK_SPACE
+    if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.EMFILE, errno.ENFILE):
+        return EXIT_REFUSED
+    return EXIT_BAD_INPUT if err.filename is not None else EXIT_INTERNAL
 
 
 def _raise_terminated(signum: int, frame: object) -> None:
@@ -94,8 +119,9 @@ def run_cli(argv: list[str] | None = None, cli: typer.Typer | None = None) -> in
 
     Exit statuses: 0 success; 2 bad input or usage (one line ``hybridsplat: error: <file>: <problem>``,
     or a usage line and the error); 1 internal error (one line naming the exception; ``--debug`` shows the
-    traceback); 130 Ctrl-C ("interrupted"); 143 SIGTERM ("terminated"). ``cli``: an app of :func:`build_app`
-    (default: the one built at import). SIGTERM is converted into the
+    traceback); 3 project busy, 4 disk space, 5 refused by the operating system (one line naming the file, and
+    the stage when one ran); 130 Ctrl-C ("interrupted"); 143 SIGTERM ("terminated"). ``cli``: an app of
+    :func:`build_app` (default: the one built at import). SIGTERM is converted into the
     :class:`Terminated` exception while the command runs, so ``finally`` blocks run as on Ctrl-C.
     """
     from typer._click import exceptions as click_exc
@@ -119,7 +145,7 @@ def run_cli(argv: list[str] | None = None, cli: typer.Typer | None = None) -> in
         if debug:
             raise
         _error(err.one_line())
-        return EXIT_BAD_INPUT
+        return _exit_code_of(err)
     except click_exc.NoArgsIsHelpError as err:
         err.show()
         return EXIT_BAD_INPUT
@@ -149,7 +175,7 @@ def run_cli(argv: list[str] | None = None, cli: typer.Typer | None = None) -> in
         if debug:
             raise
         _error(_os_error_line(err))
-        return EXIT_BAD_INPUT if err.filename is not None else EXIT_INTERNAL
+        return _os_error_code(err)
     except MemoryError:
         if debug:
             raise

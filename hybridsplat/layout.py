@@ -37,6 +37,16 @@ class ProjectLayout:
         return self.root / "config.toml"
 
     @property
+    def lock(self) -> Path:
+        """The file a command that writes the project locks (``flock``; :mod:`hybridsplat.project_lock`)."""
+        return self.root / ".hybridsplat.lock"
+
+    @property
+    def lock_holder(self) -> Path:
+        """Who holds the write lock (pid, host, command, stage; JSON); gone when the lock is released."""
+        return self.root / ".hybridsplat.lock.json"
+
+    @property
     def logs_dir(self) -> Path:
         return self.root / "logs"
 
@@ -243,6 +253,8 @@ class ProjectLayout:
         paths = {
             "manifest.json": self.manifest,
             "config.toml": self.config,
+            ".hybridsplat.lock": self.lock,
+            ".hybridsplat.lock.json": self.lock_holder,
             "sparse/": self.sparse,
             "dense/": self.dense,
             "dense/fused.ply": self.fused_ply,

@@ -28,6 +28,8 @@ class StageRecord:
 
     config: the stage's options and fingerprint as plain JSON data; inputs: relative path -> SHA-256.
     cached: true when the last pipeline run found the stage up to date and did not run it.
+    bytes_expected / bytes_written: the stage's estimate of what it would write (checked against the free disk
+    space before it ran) and the size of its outputs afterwards.
     """
 
     name: str
@@ -40,6 +42,8 @@ class StageRecord:
     config: dict[str, Any] = field(default_factory=dict)
     inputs: dict[str, str] = field(default_factory=dict)
     outputs: list[str] = field(default_factory=list)
+    bytes_expected: int = 0
+    bytes_written: int = 0
     finished_at: str = ""
 
     def is_current(self, inputs: dict[str, str], config: dict[str, Any], project: Path) -> bool:
@@ -52,9 +56,11 @@ class StageRecord:
         )
 
     def content(self) -> dict[str, Any]:
-        """The record without what changes when nothing ran (the cached flag and its reason)."""
+        """The record without what changes when nothing ran (the cached flag and its reason), nor the byte counts
+        (recorded since 0.3.1: leaving them out keeps the digests of earlier projects' records)."""
         data = asdict(self)
-        data.pop("cached")
+        for key in ("cached", "bytes_expected", "bytes_written"):
+            data.pop(key)
         if not self.skipped:
             data.pop("reason")
         return data

@@ -15,6 +15,7 @@ from core.io.atomic import write_text_atomic
 from hybridsplat.config import ProjectConfig, read_config
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest
+from hybridsplat.project_lock import ProjectLock
 from hybridsplat.runner import run_stages
 from hybridsplat.source import resolve_source
 from hybridsplat.stages import Stage, StageContext, registered_stages, stage_options_types
@@ -36,17 +37,23 @@ def run_pipeline(
     """Run ``stages`` (default: every registered stage) of the project at ``project`` with ``config`` (written to
     ``config.toml`` first).
 
-    The input is resolved before anything is written, so a bad input leaves no project folder behind.
+    The input is resolved before anything is written, so a bad input leaves no project folder behind. The
+    project's write lock (:mod:`hybridsplat.project_lock`) is held from before ``config.toml`` is written until the
+    last stage ends: a second writer is refused with :class:`~core.errors.ProjectBusyError`, naming this one.
     """
     layout = ProjectLayout(project)
     if layout.root.exists() and not layout.root.is_dir():
         raise ConfigError("the project folder is a file", layout.root)
     source = resolve_source(config.input)
     layout.root.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(layout.config, _complete(config).to_toml())
-    ctx = StageContext(layout=layout, config=config, source=source)
     stages = registered_stages() if stages is None else stages
-    return run_stages(ctx, stages, terminal or Terminal(quiet=True), force)
+    terminal = terminal or Terminal(quiet=True)
+    with ProjectLock(layout.root, stages=[s.name for s in stages]) as lock:
+        if lock.took_over is not None:
+            terminal.line(f"took over the project's lock from {lock.took_over.describe()}, which ended without it")
+        write_text_atomic(layout.config, _complete(config).to_toml())
+        ctx = StageContext(layout=layout, config=config, source=source)
+        return run_stages(ctx, stages, terminal, force, on_stage=lock.note_stage)
 
 
 def _complete(config: ProjectConfig) -> ProjectConfig:

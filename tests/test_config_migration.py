@@ -14,7 +14,7 @@ from hybridsplat.config import ProjectConfig, read_config
 from hybridsplat.config_migration import migrate_table
 from hybridsplat.manifest import StageRecord
 from hybridsplat.options import options_digest, options_from_table, options_with
-from hybridsplat.runner import _is_current
+from hybridsplat.runner import record_is_current
 from hybridsplat.stages import stage_named, stage_options_types
 
 OLD_CONFIG = Path(__file__).parent / "data" / "config_v0.2.toml"  # written by `hybridsplat demo` of 0.2
@@ -92,7 +92,7 @@ def test_a_stage_recorded_by_0_2_is_current_when_its_options_did_not_move_in_val
            "min_cluster_size": 3, "mask_dilation_px": 2}  # fmt: skip
     record = StageRecord(name="clean", config={"options": old, "fingerprint": {}}, inputs={"a": "h"})
     now = {"options": options_digest(clean.Options()), "fingerprint": {}}
-    assert _is_current(record, clean, {"a": "h"}, now, tmp_path)
+    assert record_is_current(record, clean, {"a": "h"}, now, tmp_path)
     changed = {"options": options_digest(dataclasses.replace(clean.Options(), min_cluster_size=4)), "fingerprint": {}}
-    assert not _is_current(record, clean, {"a": "h"}, changed, tmp_path)
-    assert not _is_current(record, clean, {"a": "other"}, now, tmp_path)
+    assert not record_is_current(record, clean, {"a": "h"}, changed, tmp_path)
+    assert not record_is_current(record, clean, {"a": "other"}, now, tmp_path)

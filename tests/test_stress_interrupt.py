@@ -7,82 +7,24 @@ random moment in the normal suite; ten in the slow test.
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from core.io.ply import read_ply
-from eval.metrics_io import read_metrics
-from hybridsplat.layout import ProjectLayout
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _default_sigint() -> None:
-    # A test run started in the background by a non-interactive shell inherits SIGINT ignored, and Python then
-    # installs no KeyboardInterrupt handler: give the child the disposition of a foreground terminal.
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-def _start(scene: Path, project: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_WAIT_POLICY": "PASSIVE"}
-    return subprocess.Popen(
-        [sys.executable, "-m", "hybridsplat", "run", str(scene), "--out", str(project), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        preexec_fn=_default_sigint,
-    )
-
-
-def _run(scene: Path, project: Path) -> float:
-    start = time.perf_counter()
-    proc = _start(scene, project)
-    _, err = proc.communicate(timeout=900)
-    assert proc.returncode == 0, err
-    return time.perf_counter() - start
-
-
-def _numbers(value, prefix: str = "") -> dict[str, float]:
-    """Every numeric leaf of the metrics, by key path (file names and timings left out)."""
-    out: dict[str, float] = {}
-    if isinstance(value, dict):
-        for k, v in value.items():
-            if k not in ("files", "reference", "seconds"):
-                out.update(_numbers(v, f"{prefix}.{k}"))
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            out.update(_numbers(v, f"{prefix}[{i}]"))
-    elif isinstance(value, (int, float)) and not isinstance(value, bool):
-        out[prefix] = float(value)
-    return out
-
-
-def _products(project: Path) -> tuple[np.ndarray, dict[str, float]]:
-    layout = ProjectLayout(project)
-    return read_ply(layout.fused_ply).world_positions, _numbers(read_metrics(layout.metrics_json))
+from project_runs import assert_same_products, run_to_end, start_run
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    from data_synth import generate_scene
-
-    root = tmp_path_factory.mktemp("interrupt")
-    scene = generate_scene("tiny", root / "scene", seed=0)
-    seconds = _run(scene, root / "reference")
-    return scene, _products(root / "reference"), seconds
+def reference(tiny_reference):
+    return tiny_reference
 
 
 def interrupt_then_resume(scene: Path, project: Path, delay: float, expected) -> bool:
     """Ctrl-C ``run`` after ``delay`` s, check the exit, rerun to completion, compare. True if it was interrupted."""
-    proc = _start(scene, project)
+    proc = start_run(scene, project)
     time.sleep(delay)
     interrupted = proc.poll() is None
     if interrupted:
@@ -101,13 +43,8 @@ def interrupt_then_resume(scene: Path, project: Path, delay: float, expected) ->
         assert "interrupted" in err and "Traceback" not in err, err
     else:
         assert proc.returncode == 0, err
-    _run(scene, project)
-    fused, metrics = _products(project)
-    ref_fused, ref_metrics = expected
-    np.testing.assert_array_equal(fused, ref_fused)
-    assert metrics.keys() == ref_metrics.keys()
-    for key, value in ref_metrics.items():
-        assert metrics[key] == pytest.approx(value, rel=1e-9, abs=1e-12, nan_ok=True), key
+    run_to_end(scene, project)
+    assert_same_products(project, expected)
     return interrupted
 
 

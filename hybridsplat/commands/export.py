@@ -28,7 +28,10 @@ def export(
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
     for path in out:
         check_output_file(path)
-    gs = read_gaussian_ply(gaussians)
+    from hybridsplat.project_lock import reading_project
+
+    with reading_project(gaussians):
+        gs = read_gaussian_ply(gaussians)
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:

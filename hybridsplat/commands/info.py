@@ -21,6 +21,13 @@ def info(
     path: Path = typer.Argument(..., help="A .ply/.las/.laz/.e57 cloud, a 3DGS .ply or a COLMAP model folder."),
 ) -> None:
     """Print what a file holds: point count, origin, bounds, fields; Gaussians' SH degree; cameras and images."""
+    from hybridsplat.project_lock import reading_project
+
+    with reading_project(path):  # a file of a project that another command writes now is refused, not half-read
+        _info(path)
+
+
+def _info(path: Path) -> None:
     if path.is_dir():
         from core.io.colmap import read_model  # pycolmap
 

@@ -37,6 +37,16 @@ def measure_command(
     ),
 ) -> None:
     """Multi-ray intersection of picked points: world coordinates, σ, error ellipsoids and distances; CSV/GeoJSON."""
+    from hybridsplat.project_lock import ProjectLock
+    from hybridsplat.viewer.project import open_project
+
+    open_project(project)  # a missing project is named before a lock is tried in it
+    with ProjectLock(project, exclusive=out is None):  # writes into PROJECT/export unless --out says otherwise
+        _measure(picks, project, out, crs, min_angle_deg, keep_going)
+
+
+def _measure(picks: Path, project: Path, out: Path | None, crs: str | None, min_angle_deg: float,
+             keep_going: bool) -> None:  # fmt: skip
     from dataclasses import replace
 
     from eval.measure import TriangulationOptions, write_csv, write_geojson

@@ -87,8 +87,11 @@ def render_command(
     if depth_scale <= 0:
         raise ConfigError(f"--depth-scale must be positive, got {depth_scale}")
     check_output_dir(out)
-    splats = _load_gaussians(gaussians)  # inputs are checked before torch is imported
-    model = _load_cameras(cameras)
+    from hybridsplat.project_lock import reading_project
+
+    with reading_project(gaussians), reading_project(cameras):
+        splats = _load_gaussians(gaussians)  # inputs are checked before torch is imported
+        model = _load_cameras(cameras)
     views = _select_views(model, images, cameras)
     from fusion.render import render_gaussian_set, resolve_backend
 

@@ -24,16 +24,18 @@ def view_command(
     from dataclasses import replace
 
     from eval.measure.project import read_cameras
+    from hybridsplat.project_lock import reading_project
     from hybridsplat.viewer.app import ViewerApp, ViewerOptions
     from hybridsplat.viewer.project import open_project
     from hybridsplat.viewer.scene import load_ply_alone, load_project
 
-    if target.is_dir():
-        scene = load_project(target, max_splats=max_splats, max_points=max_points)
-        files = open_project(target)
-    else:
-        scene = load_ply_alone(target, max_splats=max_splats)
-        files = None
+    with reading_project(target):  # the viewer shows what it read: the lock is held while it reads
+        if target.is_dir():
+            scene = load_project(target, max_splats=max_splats, max_points=max_points)
+            files = open_project(target)
+        else:
+            scene = load_ply_alone(target, max_splats=max_splats)
+            files = None
     if test_cameras is not None:
         scene = replace(scene, test_cameras=read_cameras(test_cameras))
     app = ViewerApp(scene, ViewerOptions(host=host, port=port, pick_sigma_px=sigma_px), files)

@@ -110,6 +110,14 @@ class Stage:
         """Files and folders this stage writes; removed when it fails, is interrupted or becomes unneeded."""
         return []
 
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """About how many bytes the stage will write (its outputs and its log), from its inputs' sizes and counts;
+        an upper estimate: the runner refuses to start the stage when it does not fit on the disk. The default,
+        twice the size of its inputs, is for stages that declare no estimate of their own."""
+        from hybridsplat.disk_space import tree_bytes
+
+        return 2 * tree_bytes(self.inputs(ctx))
+
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         """Extra values that decide the outputs besides inputs and options (compared like the options)."""
         return {}

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import WholeSceneOptions
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
@@ -34,6 +35,19 @@ class BaselineStage(Stage):
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout_names)}
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of splats/baseline.ply and its checkpoints (one per ``checkpoints`` step), each with at most the
+        strategy's ``cap`` Gaussians, or, when the run is too short for the strategy to densify, at most the SfM
+        points it starts from; at the training SH degree, with origin sidecars, and the log (64 KiB)."""
+        opts: WholeSceneOptions = ctx.options(self)
+        training = opts.training
+        count = training.strategy.cap
+        points = sizes.model_count(ctx.layout.sparse, "points3D")
+        if points and not sizes.can_densify(training.strategy, training.iterations):
+            count = min(count, points)
+        files = 1 + sizes.snapshot_count(opts.checkpoints, training.iterations)
+        return files * (sizes.gaussian_ply_bytes(count, training.sh_degree) + sizes.SIDECAR_BYTES) + sizes.LOG_BYTES
 
     def needs(self, ctx: StageContext) -> str | None:
         if not ctx.options(self).enabled:

@@ -13,7 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from classify.options import ClassifyOptions
+from hybridsplat.disk_space import tree_bytes
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
+
+_IMPORTANCE_BARS = 20  # classify.figures.importances_png draws the top 20 features
 
 
 class ClassifyStage(Stage):
@@ -38,6 +42,18 @@ class ClassifyStage(Stage):
     def outputs(self, ctx: StageContext) -> list[Path]:
         paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.classes_figure]
         return paths + ([ctx.layout.importances_figure] if self._has_model(ctx) else [])
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of classify/: points.ply is fused.ply plus 8 bytes a point (classification, probability,
+        needs_splats: 6) and a header; report.json and the log 64 KiB each; the figures as RGBA PNGs of their
+        sizes at 100 dpi (classes 11 × 5.2 in; importances 6.5 × 6.6 in at most (20 bars), + 1 in a side for
+        feature names that reach past its edge)."""
+        points = sizes.ply_vertices(ctx.layout.fused_ply).count
+        cloud = tree_bytes([ctx.layout.fused_ply]) + 8 * points + sizes.PLY_HEADER_BYTES + sizes.SIDECAR_BYTES
+        figures = sizes.figure_png_bytes(11.0, 5.2)
+        if self._has_model(ctx):
+            figures += sizes.figure_png_bytes(6.5, 0.28 * _IMPORTANCE_BARS + 1.0, pad_in=1.0)  # long feature names
+        return cloud + figures + sizes.JSON_BYTES + sizes.LOG_BYTES
 
     def _has_model(self, ctx: StageContext) -> bool:
         from classify.run import resolve_model_path

@@ -6,6 +6,8 @@ from pathlib import Path
 from typing import Any
 
 from fusion.clean_options import CleanOptions
+from hybridsplat.disk_space import tree_bytes
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
@@ -28,6 +30,11 @@ class CleanStage(Stage):
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.cleaned_splats]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of splats/cleaned.ply, a subset of splats/trained.ply in the same layout: at most that file's
+        size, plus an origin sidecar and the log (64 KiB)."""
+        return tree_bytes([ctx.layout.trained_splats]) + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def needs(self, ctx: StageContext) -> str | None:
         return None if ctx.layout.trained_splats.is_file() else "no trained splats (stage 'train' was skipped)"

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.convert_options import DEFAULT_MODE, ConvertMode, ConvertOptions
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
@@ -32,6 +33,13 @@ class ConvertStage(Stage):
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.mvs_gaussians]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of export/mvs_gaussians.ply: one SH-degree-0 Gaussian per fused point with the fused cloud's extra
+        fields and ``source`` appended (4 bytes a property), its origin sidecar, and the log (64 KiB)."""
+        fused = sizes.ply_vertices(ctx.layout.fused_ply)
+        gaussians = sizes.gaussian_ply_bytes(fused.count, 0, len(fused.extras) + 1)
+        return gaussians + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import write_gaussian_ply

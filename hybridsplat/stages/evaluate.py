@@ -16,7 +16,12 @@ import numpy as np
 
 from core.errors import ConfigError
 from hybridsplat.project_io import model_origin, read_model_at
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
+
+_PREVIEW_WIDTH = 800  # eval.plots.preview_image: 800 px wide, at most 4 times as high
+_HISTOGRAM_BINS = 50  # eval.c2c.histogram
+_PANELS = 4  # eval.render_eval.evaluate_pairs: panels of the first 4 held-out views
 
 
 @dataclass(frozen=True)
@@ -94,6 +99,37 @@ class EvalStage(Stage):
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout.names)}
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of eval/ and (with ``cache``) as much again in cache/eval: per product measured (the fused cloud,
+        the baseline and its checkpoints, the splats, the merged points) 16 KiB + 1 KiB a held-out view of JSON;
+        with a reference, its C2C cloud as PLY and LAS (the product's points with its extra fields, ``source``,
+        ``classification``, ``opacity``, ``scale``, normals and ``c2c``), the histogram SVG and the 800 px wide
+        preview PNG (one pixel a point); with held-out views, a render | photo | error panel PNG for each of the
+        first 4; plus the held-out views' truth masks (greyscale PNGs), 128 KiB of metrics and the log (64 KiB)."""
+        opts: EvalStageOptions = ctx.options(self)
+        views, size = self._view_bound(ctx)
+        geometry = self._reference(ctx) is not None
+        products = sum(_product_bytes(cloud, renders, geometry, views, size) for cloud, renders in _clouds(ctx))
+        fixed = self._masks_bytes(ctx, size) + 2 * sizes.JSON_BYTES + sizes.LOG_BYTES
+        return (2 if opts.cache else 1) * products + fixed
+
+    def _view_bound(self, ctx: StageContext) -> tuple[int, tuple[int, int]]:
+        """The number of held-out views and the largest of their sizes (px): (0, (0, 0)) without any."""
+        holdout = ctx.source.holdout
+        if holdout.source == "every":
+            return len(holdout.names), sizes.largest(sizes.camera_sizes(ctx.layout.dense_workspace.sparse))
+        if holdout.source == "input" and holdout.model is not None:
+            return sizes.model_count(holdout.model, "images"), sizes.largest(sizes.camera_sizes(holdout.model))
+        return 0, (0, 0)
+
+    def _masks_bytes(self, ctx: StageContext, size: tuple[int, int]) -> int:
+        """Upper bytes of eval/masks/: a greyscale PNG of ``size`` per truth label image (data_synth scenes)."""
+        spec = ctx.source.spec
+        if ctx.source.holdout.source != "input" or spec.test_labels is None or not spec.non_collaborative_ids:
+            return 0
+        labels = len(list(spec.test_labels.glob("*.png"))) if spec.test_labels.is_dir() else 0
+        return labels * sizes.png_bytes(*size, 1)
 
     def needs(self, ctx: StageContext) -> str | None:
         if self._reference(ctx) is None and self._held_out(ctx) is None:
@@ -291,6 +327,30 @@ class EvalStage(Stage):
             if counts.get(f"{name}_psnr") is not None:
                 parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
         return ", ".join(parts)
+
+
+def _clouds(ctx: StageContext) -> list[tuple[sizes.PlyVertices, bool]]:
+    """The products the stage measures, as the header of the file their points come from, and whether they are
+    rendered at the held-out views (the splats alone are not)."""
+    layout = ctx.layout
+    checkpoints = sorted(layout.baseline_checkpoints_dir.glob("baseline_*.ply"))
+    files = [(layout.fused_ply, True), (layout.baseline_splats, True), *((p, True) for p in checkpoints),
+             (layout.splats_export, False), (layout.merged_points_ply, True)]  # fmt: skip
+    return [(sizes.ply_vertices(path), renders) for path, renders in files if path.is_file()]
+
+
+def _product_bytes(cloud: sizes.PlyVertices, renders: bool, geometry: bool, views: int, size: tuple[int, int]) -> int:
+    """Upper bytes the measurement of one product writes (see :meth:`EvalStage.expected_bytes`)."""
+    total = 16 * sizes.KIB + sizes.KIB * views
+    if geometry:
+        fields = len(cloud.extras) + 8
+        total += sizes.point_ply_bytes(cloud.count, fields) + sizes.las_bytes(cloud.count, fields)
+        total += sizes.svg_bytes(_HISTOGRAM_BINS)
+        total += sizes.sparse_png_bytes(_PREVIEW_WIDTH, 4 * _PREVIEW_WIDTH, cloud.count)
+    if renders:
+        width, height = size
+        total += min(views, _PANELS) * sizes.png_bytes(3 * width + 8, height, 3)
+    return total
 
 
 def _count(counts: dict[str, Any], name: str, entry: dict[str, Any]) -> None:

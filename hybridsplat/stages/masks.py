@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from classify.mask_options import MaskOptions
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
 
@@ -49,6 +50,16 @@ class MasksStage(Stage):
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout_names)}
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of the masks, the record, the figure and the log: a greyscale PNG per registered training photo
+        at the largest camera's size; the record 4 KiB + 512 bytes a photo; the figure (up to 4 photos in 2
+        columns, 5 in wide each, at 100 dpi) as an RGBA PNG; the log 64 KiB."""
+        n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
+        n = max(n - len(ctx.source.holdout_names), 0)
+        width, height = sizes.largest(sizes.camera_sizes(ctx.layout.sparse))
+        record = 4 * sizes.KIB + 512 * n
+        return n * sizes.png_bytes(width, height, 1) + record + _figure_bytes(n, width, height) + sizes.LOG_BYTES
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from classify.run import project_masks
@@ -96,3 +107,14 @@ class MasksStage(Stage):
         return ReportSection(
             "Classification and region masks", (line,), tuple((str(f), caption) for f in counts.get("figures") or [])
         )
+
+
+def _figure_bytes(photos: int, width: int, height: int) -> int:
+    """Upper bytes of classify/figures/masks.png (:func:`classify.figures.masks_png`): up to 4 of ``photos``
+    photos of ``width`` × ``height`` px in 2 columns, 5 in wide each and 0.4 in of title a row."""
+    panels = min(photos, 4)
+    if panels == 0 or width <= 0:
+        return 0
+    cols = min(2, panels)
+    rows = -(-panels // cols)
+    return sizes.figure_png_bytes(5.0 * cols, rows * (5.0 * height / width + 0.4))

@@ -12,6 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from fusion.merge_options import MergeOptions
+from hybridsplat.disk_space import tree_bytes
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import Stage, StageContext
 
 
@@ -32,6 +34,23 @@ class MergeStage(Stage):
         layout = ctx.layout
         splats = [layout.splats_export] if self._hybrid(ctx) else []
         return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las, *splats]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of the merge's products for n = the MVS Gaussians + (hybrid) the cleaned splats: merged.ply with
+        n Gaussians at the higher SH degree and both sets' extra fields + ``classification``, ``source``,
+        ``surface``; merged_points.ply and .las with n points and those fields + ``opacity``, ``scale`` and the
+        normals (3DGS properties at 4 bytes, point fields at 8 at most); export/splats.ply at most
+        splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
+        layout = ctx.layout
+        sets = [sizes.ply_vertices(layout.mvs_gaussians)]
+        if self._hybrid(ctx):
+            sets.append(sizes.ply_vertices(layout.cleaned_splats))
+        n = sum(s.count for s in sets)
+        extras = sum(len(s.extras) for s in sets) + 3
+        merged = sizes.gaussian_ply_bytes(n, max(s.sh_degree for s in sets), extras)
+        points = sizes.point_ply_bytes(n, extras + 5) + sizes.las_bytes(n, extras + 5)
+        splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
+        return merged + points + splats + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.gaussian_ply import read_gaussian_ply

@@ -10,6 +10,7 @@ written, zeros included). Skipped unless a budget is set (``run --mesh N``, ``hy
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass, field, replace
 from enum import Enum
@@ -22,7 +23,10 @@ from core.errors import ConfigError, DataError
 from core.options import enum_choice
 from fusion.mesh.options import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
+
+_MESH_BYTES = {"ply": (16, 13), "obj": (128, 38), "glb": (28, 12)}  # upper bytes per (vertex, triangle), per format
 
 
 class MeshMethod(str, Enum):
@@ -85,6 +89,17 @@ class MeshStage(Stage):
         opts: MeshStageOptions = ctx.options(self)
         paths = [ctx.layout.mesh_path(f) for f in opts.formats]
         return [*paths, sidecar_path(ctx.layout.mesh_path("ply"))]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of the mesh files for T = ``budget`` × (1 + the decimation tolerance) triangles and at most 3T
+        vertices: PLY 16 bytes a vertex (xyz float32, RGBA) and 13 a triangle; OBJ 128 characters a vertex (6
+        ``%.8f`` numbers) and 38 a triangle; GLB 28 bytes a vertex (position, normal, RGBA) and 12 a triangle; each
+        with 4 KiB of header; the origin sidecar and the log (64 KiB)."""
+        opts: MeshStageOptions = ctx.options(self)
+        triangles = math.ceil(opts.budget * (1 + opts.mesh.decimate.tolerance))
+        per_format = [_MESH_BYTES[f] for f in opts.formats]
+        files = sum(triangles * (3 * vertex + face) + 4 * sizes.KIB for vertex, face in per_format)
+        return files + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def needs(self, ctx: StageContext) -> str | None:
         opts: MeshStageOptions = ctx.options(self)

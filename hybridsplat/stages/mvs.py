@@ -12,7 +12,9 @@ from typing import Any
 import numpy as np
 
 from core.io.json_io import write_json_atomic
+from hybridsplat.disk_space import tree_bytes
 from hybridsplat.project_io import model_origin
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 from recon.mvs import MvsOptions
 
@@ -43,6 +45,25 @@ class MvsStage(Stage):
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout_names)}
 
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of the dense workspace, the record and COLMAP's log, for n registered photos of W × H px (the
+        largest camera, +10 % a side for undistortion, capped at ``max_image_size``): per photo its undistorted RGB
+        PNG and 32·W·H bytes of photometric and geometric depth (4 bytes a pixel) and normal (12) maps (COLMAP
+        computes held-out photos too); a fused point per ``fusion.min_num_pixels`` pixels of the fused photos, 27
+        bytes in fused.ply and 4 in fused.ply.vis, plus 4 bytes a fused pixel in the .vis; a copy of the sparse
+        model (+256 bytes a photo); the configuration 4 KiB + 1 KiB a photo; the record 64 KiB + 256 bytes a photo;
+        the log 64 KiB + 8 KiB a photo."""
+        opts: MvsOptions = ctx.options(self)
+        n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
+        width, height = _dense_size(ctx.layout.sparse, opts.max_image_size)
+        photos = n * (sizes.png_bytes(width, height, 3) + 2 * (4 + 12) * width * height + 4 * 64)
+        fused_pixels = max(n - len(ctx.source.holdout_names), 0) * width * height
+        points = -(-fused_pixels // max(opts.fusion.min_num_pixels, 1))
+        fused = 2 * sizes.PLY_HEADER_BYTES + (27 + 4) * points + 4 * fused_pixels + sizes.SIDECAR_BYTES
+        model = tree_bytes([ctx.layout.sparse]) + 256 * n
+        text = 4 * sizes.KIB + sizes.JSON_BYTES + sizes.LOG_BYTES + (1 + 8) * sizes.KIB * n + 256 * n
+        return photos + fused + model + text
+
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.io.origin import write_origin
         from recon.mvs import run_mvs
@@ -68,3 +89,13 @@ class MvsStage(Stage):
             f"{counts['backend']}: {counts['views']} views at {counts['image_size']} px, "
             f"{counts['seconds_per_view']:.1f} s/view, {counts['points']} fused points"
         )
+
+
+def _dense_size(sparse: Path, max_image_size: int) -> tuple[int, int]:
+    """(width, height) in pixels bounding the undistorted photos: the largest camera of ``sparse`` with 10 % more a
+    side (undistortion of a distorted camera may enlarge it), capped at ``max_image_size`` (-1: no cap)."""
+    cameras = sizes.camera_sizes(sparse)
+    if not cameras:  # no model: the stage fails before it writes a map
+        return 0, 0
+    width, height = sizes.largest(cameras)
+    return sizes.capped_size((-(-width * 11 // 10), -(-height * 11 // 10)), max_image_size)

@@ -10,7 +10,12 @@ from pathlib import Path
 from typing import Any
 
 from eval.report_options import ReportOptions
+from hybridsplat.disk_space import tree_bytes
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import Stage, StageContext
+
+_C2C_VIEWS_PX = (990, 462)  # eval.plots.c2c_views_jpeg: 9 × 4.2 in at 110 dpi
+_THUMBNAIL_MAX_SIDE = 1500  # eval.report.THUMBNAIL_MAX_SIDE
 
 
 class ReportStage(Stage):
@@ -23,6 +28,22 @@ class ReportStage(Stage):
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.report_dir]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of report/: its text (tables, configuration, JSON and Markdown) at most 8 times the manifest,
+        metrics, per-material table and config.toml it is made from, + 256 KiB; the SVG charts (a 50-bar histogram
+        per C2C product, per-view bars of PSNR, SSIM and LPIPS, the stages' time and memory bars); and, base64 (4/3)
+        in the HTML, JPEGs of each C2C product's views (990 × 462 px), of every render panel and stage figure
+        (longer side at most 1500 px)."""
+        from hybridsplat.stages import stage_names
+
+        layout = ctx.layout
+        sources = [layout.manifest, layout.metrics_json, layout.per_material_json, layout.config]
+        c2c, bars = _metrics_counts(layout.metrics_json)
+        figures = sorted(layout.eval_dir.glob("plots/render_*.png")) + sorted(layout.classify_figures_dir.glob("*.png"))
+        jpegs = c2c * sizes.jpeg_bytes(*_C2C_VIEWS_PX) + sum(_thumbnail_bytes(f) for f in figures)
+        svgs = c2c * sizes.svg_bytes(50) + 3 * sizes.svg_bytes(bars) + sizes.svg_bytes(2 * len(stage_names()))
+        return 8 * tree_bytes(sources) + 256 * sizes.KIB + svgs + -(-4 * jpegs // 3) + sizes.LOG_BYTES
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         # The report shows every stage's timings and counts: it is current while no other stage's record changed
@@ -38,6 +59,27 @@ class ReportStage(Stage):
 
     def summary(self, counts: dict[str, Any]) -> str:
         return f"report.html {counts['html_bytes'] / 1e6:.1f} MB"
+
+
+def _metrics_counts(path: Path) -> tuple[int, int]:
+    """(products with a C2C measurement, held-out view bars over all products) of eval/metrics.json; (0, 0) when
+    it is missing or unreadable."""
+    import json
+
+    try:
+        products = json.loads(path.read_text(encoding="utf-8")).get("products") or {}
+        entries = [p for p in products.values() if isinstance(p, dict)]
+        c2c = sum(1 for p in entries if p.get("c2c"))
+        bars = sum(len((p.get("images") or {}).get("per_view") or []) for p in entries)
+    except (OSError, ValueError, AttributeError, TypeError):
+        return 0, 0
+    return c2c, bars
+
+
+def _thumbnail_bytes(path: Path) -> int:
+    """Upper bytes of the report's JPEG thumbnail of the image at ``path`` (0 when it cannot be read)."""
+    found = sizes.photo_sizes(path.parent, [path.name])
+    return sizes.jpeg_bytes(*sizes.thumbnail_size(found[0], _THUMBNAIL_MAX_SIDE)) if found else 0
 
 
 def stage_sections(layout: Any) -> list[dict[str, Any]]:

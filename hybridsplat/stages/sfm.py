@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from core.io.json_io import write_json_atomic
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 from recon.sfm import SfmOptions
 
@@ -43,6 +44,22 @@ class SfmStage(Stage):
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.sparse, ctx.layout.record(self.name)]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of the sparse model, the record and COLMAP's log: per photo a fixed record (camera, image, frame,
+        rig: 512 bytes and its name) and 58 bytes per feature (24 in images.bin; in points3D.bin 8 for its track
+        entry and half of a 51-byte point, which has at least 2 observations); features per photo at most
+        ``max_num_features`` and one per 4 pixels of the photo at the extraction size (SIFT finds about one per 40);
+        the record 8 KiB + 256 bytes and the name per photo; the log 64 KiB + 16 KiB per photo."""
+        opts: SfmOptions = ctx.options(self)
+        names = ctx.source.spec.image_names
+        found = _photo_sizes(ctx)
+        features = sum(_feature_bound(size, opts) for size in found)
+        features += opts.max_num_features * max(0, len(names) - len(found))  # photos whose size is unknown
+        name_bytes = sum(len(n.encode()) for n in names)
+        model = 40 + 512 * len(names) + name_bytes + 58 * features
+        record = 8 * sizes.KIB + 256 * len(names) + name_bytes
+        return model + record + sizes.LOG_BYTES + 16 * sizes.KIB * len(names)
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from recon.align import align_to_reference
@@ -90,6 +107,23 @@ class SfmStage(Stage):
         if "alignment_rms_m" in counts:
             text += f", aligned (centre rms {counts['alignment_rms_m']:.3g} m)"
         return text
+
+
+def _photo_sizes(ctx: StageContext) -> list[tuple[int, int]]:
+    """(width, height) of the photos: the known cameras' sizes (one per photo, the largest), else the photos'."""
+    names = ctx.source.spec.image_names
+    known = ctx.source.known_cameras
+    cameras = sizes.camera_sizes(known) if known is not None else []
+    if cameras:
+        return [sizes.largest(cameras)] * len(names)
+    return sizes.photo_sizes(ctx.source.image_dir, names)
+
+
+def _feature_bound(size: tuple[int, int], opts: SfmOptions) -> int:
+    """Most SIFT features of a photo of ``size`` (px): a quarter of its pixels at the extraction size, at most
+    ``max_num_features``."""
+    width, height = sizes.capped_size(size, opts.max_image_size)
+    return min(opts.max_num_features, -(-width * height // 4))
 
 
 def _path(value: str | None) -> Path | None:

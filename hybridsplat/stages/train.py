@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import MaskedTrainingOptions
+from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext
 
 
@@ -41,6 +42,16 @@ class TrainStage(Stage):
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.trained_splats, ctx.layout.snapshots_dir]
+
+    def expected_bytes(self, ctx: StageContext) -> int:
+        """Bytes of splats/trained.ply and its snapshots (one per ``snapshot_iterations`` step within the run),
+        each at most the run's Gaussian budget at the training SH degree (:func:`_training_budget`), with origin
+        sidecars, and the log (64 KiB)."""
+        opts: MaskedTrainingOptions = ctx.options(self)
+        files = 1 + sizes.snapshot_count(opts.snapshot_iterations, opts.training.iterations)
+        budget = _training_budget(ctx.layout.dense_workspace.sparse, opts)
+        splats = sizes.gaussian_ply_bytes(budget, opts.training.sh_degree)
+        return files * (splats + sizes.SIDECAR_BYTES) + sizes.LOG_BYTES
 
     def needs(self, ctx: StageContext) -> str | None:
         from hybridsplat.project_io import has_region_masks, read_masks_record
@@ -107,6 +118,22 @@ class TrainStage(Stage):
             f"{counts['trained']} splats after {counts['iterations']} steps, "
             f"masked PSNR {counts['holdout_psnr_db']:.2f} dB"
         )
+
+
+def _training_budget(model: Path, opts: MaskedTrainingOptions) -> int:
+    """The most Gaussians masked training may hold (:func:`fusion.train.masked.train_in_masks`): the strategy's
+    ``cap``, and at most ``splats_per_mask_pixel`` × the mask pixels at the training downscale (at least 1000),
+    the mask pixels bounded by every pixel of the photos of the dense ``model`` (the largest camera's each)."""
+    cameras = sizes.camera_sizes(model)
+    cap = opts.training.strategy.cap
+    if not cameras:
+        return cap
+    width, height = sizes.largest(cameras)
+    longest = max(max(c) for c in cameras)
+    limit = opts.max_image_size
+    downscale = max(opts.training.downscale, -(-longest // limit) if limit else 1)
+    pixels = sizes.model_count(model, "images") * width * height / downscale**2
+    return min(cap, max(1000, round(opts.splats_per_mask_pixel * pixels)))
 
 
 def _counts(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | None) -> dict[str, Any]:

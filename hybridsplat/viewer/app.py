@@ -336,20 +336,30 @@ class ViewerApp:
         if self.files is None:
             self._say("export needs a project folder")
             return []
-        with self.lock:
-            m = self.session.measurements()
-            f = self.files
-            write_csv(f.measurements_csv, m, f.measurement_distances_csv if m.distances else None)
-            written = [f.measurements_csv] + ([f.measurement_distances_csv] if m.distances else [])
-            if m.crs:
-                write_geojson(f.measurements_geojson, m)
-                written.append(f.measurements_geojson)
-            picks = self.session.picks_file()
-            if picks.points:
-                write_picks(f.picks_json, picks)
-                written.append(f.picks_json)
-            self._say("wrote " + ", ".join(p.name for p in written))
-            return written
+        from core.errors import ProjectBusyError
+        from hybridsplat.project_lock import ProjectLock
+
+        try:
+            with self.lock, ProjectLock(self.files.root, command="hybridsplat view (Export)"):
+                return self._write_exports()
+        except ProjectBusyError as err:
+            self._say(f"not written: {err.problem}")
+            return []
+
+    def _write_exports(self) -> list[Path]:
+        m = self.session.measurements()
+        f = self.files
+        write_csv(f.measurements_csv, m, f.measurement_distances_csv if m.distances else None)
+        written = [f.measurements_csv] + ([f.measurement_distances_csv] if m.distances else [])
+        if m.crs:
+            write_geojson(f.measurements_geojson, m)
+            written.append(f.measurements_geojson)
+        picks = self.session.picks_file()
+        if picks.points:
+            write_picks(f.picks_json, picks)
+            written.append(f.picks_json)
+        self._say("wrote " + ", ".join(p.name for p in written))
+        return written
 
     # -- lifetime ---------------------------------------------------------------------------------
     @property
