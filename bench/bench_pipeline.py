@@ -58,8 +58,14 @@ PRODUCT_STAGES = {
     "mvs": ("mvs", "convert"),
     "baseline": ("baseline",),
     "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "merge"),
+    "mvs_filtered": ("mvs", "classify", "masks", "convert", "merge"),  # the control: merged without its splats
 }
-PRODUCT_LABELS = {"mvs": "MVS only", "baseline": "whole-scene 3DGS", "merged": "hybrid"}
+PRODUCT_LABELS = {
+    "mvs": "MVS only",
+    "baseline": "whole-scene 3DGS",
+    "merged": "hybrid",
+    "mvs_filtered": "MVS as merged (no splats)",
+}
 
 
 def load() -> str:
@@ -349,7 +355,12 @@ def plot_pareto(scene: str, points: list[Point], out: Path) -> list[str]:
         if not any(getattr(p, key) is not None for p in points):  # e.g. no masked PSNR on a scene without masks
             continue
         fig, ax = plt.subplots(figsize=(6, 4))
-        for product, colour in (("mvs", "tab:blue"), ("baseline", "tab:orange"), ("merged", "tab:green")):
+        for product, colour in (
+            ("mvs", "tab:blue"),
+            ("baseline", "tab:orange"),
+            ("merged", "tab:green"),
+            ("mvs_filtered", "tab:gray"),
+        ):
             pts, labels = [], {}
             for p in points:  # a product a variant did not change repeats the base run's point: plot it once
                 if p.product != product or getattr(p, key) is None:

@@ -268,6 +268,29 @@ def _pm(block: Mapping[str, Any] | None, key: str) -> str:
     return _num(block[key], digits, sci) + ("" if std is None else f" ± {_num(std, digits, sci)}")
 
 
+def _training_note(counts: Mapping[str, Any], what: str) -> str:
+    steps = counts.get("iterations")
+    if not isinstance(steps, int):
+        return ""
+    end = "ended by its early stop" if counts.get("stopped_early") else "its whole step budget"
+    return f"{what}: {steps} steps ({end})"
+
+
+def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
+    """What each product's figures cost in training, for the note column: a product trained for fewer steps is
+    not compared as if it had plateaued."""
+    stages = report.get("stages") or {}
+    train = (stages.get("train") or {}).get("counts") or {}
+    baseline = (stages.get("baseline") or {}).get("counts") or {}
+    notes = {"mvs": "no training", "mvs_filtered": "control: the MVS part of merged alone (no splats)"}
+    notes["baseline"] = _training_note(baseline, "whole scene")
+    notes["merged"] = notes["splats"] = _training_note(train, "splats in the masks")
+    for name in report.get("products") or {}:
+        if name.startswith("baseline_") and name.split("_", 1)[1].isdigit():
+            notes[name] = f"whole scene: {int(name.split('_', 1)[1])} steps (a checkpoint of the baseline)"
+    return notes
+
+
 def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of every table, shared by Markdown and HTML."""
     products = report["products"]
@@ -308,12 +331,15 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
         ("masked", "Table 4 — image metrics, non-collaborative mask"),
     ):
         rows = []
+        notes = _budget_notes(report)
         for name, p in products.items():
             block = p["images"][part]
             if block is None:
                 rows.append([name] + ["–"] * len(IMAGE_KEYS) + ["–", p["reason"] or "not measured"])
             else:
-                rows.append([name] + [_pm(block, k) for k in IMAGE_KEYS] + [_num(block.get("views")), ""])
+                rows.append(
+                    [name] + [_pm(block, k) for k in IMAGE_KEYS] + [_num(block.get("views")), notes.get(name, "")]
+                )
         tables.append((title, ["product"] + [IMAGE_LABELS[k] for k in IMAGE_KEYS] + ["views", "note"], rows))
     class_rows = [
         [name, str(k), _num(st.get("count")), _len(st.get("mean"), u), _len(st.get("std"), u),

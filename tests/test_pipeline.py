@@ -104,7 +104,7 @@ def test_three_products_side_by_side_with_scores_per_material(project):
     # per material: every material of the scene that the LiDAR saw, for every measured product
     materials = {m["name"] for m in json.loads((scene / "scene.json").read_text())["materials"]}
     per_material = json.loads(layout.per_material_json.read_text())
-    assert set(per_material["products"]) == {"mvs", "baseline", "baseline_20", "splats", "merged"}
+    assert set(per_material["products"]) == {"mvs", "baseline", "baseline_20", "splats", "merged", "mvs_filtered"}
     seen = set(per_material["products"]["mvs"])
     assert seen and seen <= materials
     for name in ("mvs", "baseline", "merged"):
@@ -112,6 +112,25 @@ def test_three_products_side_by_side_with_scores_per_material(project):
         assert all(0.0 <= r["completeness"] <= 1.0 for r in rows.values())
         assert any(r["psnr"] is not None for r in rows.values()), name
     assert "Table 5 — per ground-truth material" in (layout.report_dir / "report.md").read_text()
+
+
+def test_the_filtered_mvs_control_is_the_mvs_part_of_merged(project):
+    """The control beside merged: the MVS Gaussians and survey points the merge kept, measured alone."""
+    from core.io import read_point_cloud
+    from fusion.convert_options import Source
+
+    _, project = project
+    layout = ProjectLayout(project)
+    products = json.loads(layout.metrics_json.read_text())["products"]
+    points = read_point_cloud(layout.merged_points_ply)
+    kept = int((points.fields["source"] == Source.MVS).sum())
+    assert 0 < kept < len(points) and products["mvs_filtered"]["c2c"]["count"] == kept
+    assert products["mvs_filtered"]["c2c"]["count"] <= products["mvs"]["c2c"]["count"]
+    full = products["mvs_filtered"]["images"]["full"]
+    assert np.isfinite(full["psnr"]) and full["psnr"] != products["merged"]["images"]["full"]["psnr"]
+    text = (layout.report_dir / "report.md").read_text()
+    assert "control: the MVS part of merged alone (no splats)" in text
+    assert "whole scene: 40 steps (its whole step budget)" in text  # each trained product's step budget
 
 
 def test_baseline_checkpoints_are_measured_as_products(project):
@@ -201,7 +220,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     merged = read_gaussian_ply(layout.merged_ply)  # a changed product: the merged set loses half its Gaussians
     write_gaussian_ply(layout.merged_ply, merged.subset(np.arange(len(merged) // 2)), extra_fields=True)
     changed = run_pipeline(copy, load_config(copy)).stages["eval"]
-    assert not changed.cached and changed.counts["reused"] == len(measured) - 1
+    assert not changed.cached and changed.counts["reused"] == len(measured) - 2  # merged and its MVS part
     images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
     assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
 

@@ -63,6 +63,25 @@ class HeldOutViews:
     names: tuple[str, ...] | None  # None: every view of the model
 
 
+FILTERED_MVS = "mvs_filtered"
+"""The control product beside ``merged``: its MVS part alone (the MVS Gaussians and survey points the merge kept,
+``source`` = MVS), so that what the merge's filter gains is told apart from what the splats add."""
+
+
+def _filtered_mvs(points_path: Path, gaussians_path: Path) -> tuple[Any, Any]:
+    """(survey points, Gaussians) of the merged product whose ``source`` is MVS."""
+    from core.io import read_point_cloud
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import Source
+
+    points, gaussians = read_point_cloud(points_path), read_gaussian_ply(gaussians_path)
+    for name, data in (("survey points", points), ("Gaussians", gaussians)):
+        if "source" not in data.fields:
+            raise ConfigError(f"the merged {name} have no 'source' field: the MVS part cannot be told apart")
+    is_mvs = np.asarray(points.fields["source"]) == Source.MVS
+    return points.subset(is_mvs), gaussians.subset(np.asarray(gaussians.fields["source"]) == Source.MVS)
+
+
 class EvalStage(Stage):
     name = "eval"
     Options = EvalStageOptions
@@ -269,6 +288,10 @@ class EvalStage(Stage):
             (layout.merged_points_ply, layout.merged_ply),
             lambda: (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply)),
         )
+        products[FILTERED_MVS] = ProductSource(
+            (layout.merged_points_ply, layout.merged_ply),
+            lambda: _filtered_mvs(layout.merged_points_ply, layout.merged_ply),
+        )
         return products
 
     def _per_material(self, ctx: StageContext, products, stored, reference, tau, images) -> dict[str, Any] | None:
@@ -335,7 +358,8 @@ def _clouds(ctx: StageContext) -> list[tuple[sizes.PlyVertices, bool]]:
     layout = ctx.layout
     checkpoints = sorted(layout.baseline_checkpoints_dir.glob("baseline_*.ply"))
     files = [(layout.fused_ply, True), (layout.baseline_splats, True), *((p, True) for p in checkpoints),
-             (layout.splats_export, False), (layout.merged_points_ply, True)]  # fmt: skip
+             (layout.splats_export, False), (layout.merged_points_ply, True),
+             (layout.merged_points_ply, True)]  # fmt: skip  # the last: FILTERED_MVS, a part of the merged points
     return [(sizes.ply_vertices(path), renders) for path, renders in files if path.is_file()]
 
 
