@@ -57,14 +57,16 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 PRODUCT_STAGES = {
     "mvs": ("mvs", "convert"),
     "baseline": ("baseline",),
-    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "merge"),
     "mvs_filtered": ("mvs", "classify", "masks", "convert", "merge"),  # the control: merged without its splats
+    "merged_no_background": ("mvs", "classify", "masks", "convert", "train", "clean", "merge"),
+    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "merge"),
 }
 PRODUCT_LABELS = {
     "mvs": "MVS only",
     "baseline": "whole-scene 3DGS",
     "merged": "hybrid",
     "mvs_filtered": "MVS as merged (no splats)",
+    "merged_no_background": "hybrid without background",
 }
 
 

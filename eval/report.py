@@ -282,7 +282,11 @@ def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
     stages = report.get("stages") or {}
     train = (stages.get("train") or {}).get("counts") or {}
     baseline = (stages.get("baseline") or {}).get("counts") or {}
-    notes = {"mvs": "no training", "mvs_filtered": "control: the MVS part of merged alone (no splats)"}
+    notes = {
+        "mvs": "no training",
+        "mvs_filtered": "control: the MVS part of merged alone (no splats)",
+        "merged_no_background": "control: merged without its background layer",
+    }
     notes["baseline"] = _training_note(baseline, "whole scene")
     notes["merged"] = notes["splats"] = _training_note(train, "splats in the masks")
     for name in report.get("products") or {}:

@@ -16,11 +16,14 @@ from core.errors import ConfigError
 
 
 class Source(IntEnum):
-    """Codes of the ``source`` field (uint8) carried by Gaussians and exported point clouds."""
+    """Codes of the ``source`` field (uint8) carried by Gaussians and exported point clouds: the one list of the
+    merged product's layers for every export. Survey products (C2C, LAS and point exports, mesh, measurement)
+    never hold ``BACKGROUND``."""
 
     UNKNOWN = 0
-    MVS = 1  # converted from the photogrammetric (MVS) cloud
-    SPLAT = 2  # trained Gaussian splat
+    MVS = 1  # the survey layer: converted from the photogrammetric (MVS) cloud
+    SPLAT = 2  # the fill layer: splats trained inside the region masks
+    BACKGROUND = 3  # the background layer: what the photos see beyond the survey region (fusion.background)
 
 
 class ConvertMode(str, Enum):

@@ -142,6 +142,11 @@ class ProjectLayout:
         return self.splats_dir / "cleaned.ply"
 
     @property
+    def background_splats(self) -> Path:
+        """The background layer: what the photos see beyond the survey region (``fusion.background``)."""
+        return self.splats_dir / "background.ply"
+
+    @property
     def snapshots_dir(self) -> Path:
         return self.splats_dir / "snapshots"
 
@@ -269,6 +274,7 @@ class ProjectLayout:
             "splats/trained.ply": self.trained_splats,
             "splats/cleaned.ply": self.cleaned_splats,
             "splats/snapshots/": self.snapshots_dir,
+            "splats/background.ply": self.background_splats,
             "splats/baseline.ply": self.baseline_splats,
             "splats/baseline_checkpoints/": self.baseline_checkpoints_dir,
             "export/mvs_gaussians.ply": self.mvs_gaussians,

@@ -215,8 +215,8 @@ def format_status(status: ProjectStatus) -> str:
         if s.seconds is not None:
             size = f"{format_bytes(s.bytes_written):>9}" if s.bytes_written else f"{'':9}"
             ran = f"{s.seconds:7.1f} s {s.peak_mb or 0:6.0f} MB peak {size}  {s.finished_at}"
-        lines.append(f"  {s.name:<9} {s.state:<8} {ran}".rstrip())
+        lines.append(f"  {s.name:<10} {s.state:<8} {ran}".rstrip())
         if s.summary and s.state == CURRENT:
-            lines.append(f"{'':13}{s.summary}")
-        lines += [f"{'':13}{reason}" for reason in s.reasons]
+            lines.append(f"{'':14}{s.summary}")
+        lines += [f"{'':14}{reason}" for reason in s.reasons]
     return "\n".join(lines)

@@ -139,11 +139,11 @@ def record_is_current(previous: StageRecord, stage: Stage, inputs: dict[str, str
 def describe(stage: Stage, record: StageRecord) -> str:
     """The stage's one-line summary for the terminal."""
     if record.skipped:
-        return f"  {stage.name:<9} skipped: {record.reason}"
+        return f"  {stage.name:<10} skipped: {record.reason}"
     if record.cached:
-        return f"  {stage.name:<9} up to date (nothing it depends on changed)"
+        return f"  {stage.name:<10} up to date (nothing it depends on changed)"
     what = stage.summary(record.counts)
-    return f"  {stage.name:<9} {record.seconds:7.1f} s  peak {record.peak_mb:5.0f} MB" + (f"  {what}" if what else "")
+    return f"  {stage.name:<10} {record.seconds:7.1f} s  peak {record.peak_mb:5.0f} MB" + (f"  {what}" if what else "")
 
 
 def _remove(paths: Iterable[Path]) -> None:

@@ -50,7 +50,7 @@ class Terminal:
         )
 
         progress = Progress(
-            TextColumn(f"{name:<9}" + " {task.description}"),
+            TextColumn(f"{name:<10}" + " {task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),

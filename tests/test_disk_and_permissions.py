@@ -142,7 +142,7 @@ def test_a_read_only_file_system_is_named(scene, mountable, capsys):
         assert err.startswith(f"hybridsplat: error: {project / '.hybridsplat.lock.json'}: cannot take the project's")
         assert "write lock: read-only file system" in err
         code = run_cli(["status", str(project)])  # a reader still reads
-        assert code == 0 and "sfm       current" in capsys.readouterr().out
+        assert code == 0 and "sfm        current" in capsys.readouterr().out
 
 
 def _unprivileged() -> list[str] | None:

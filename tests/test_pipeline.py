@@ -104,7 +104,9 @@ def test_three_products_side_by_side_with_scores_per_material(project):
     # per material: every material of the scene that the LiDAR saw, for every measured product
     materials = {m["name"] for m in json.loads((scene / "scene.json").read_text())["materials"]}
     per_material = json.loads(layout.per_material_json.read_text())
-    assert set(per_material["products"]) == {"mvs", "baseline", "baseline_20", "splats", "merged", "mvs_filtered"}
+    assert set(per_material["products"]) == {
+        "mvs", "baseline", "baseline_20", "splats", "merged", "mvs_filtered", "merged_no_background"
+    }  # fmt: skip
     seen = set(per_material["products"]["mvs"])
     assert seen and seen <= materials
     for name in ("mvs", "baseline", "merged"):
@@ -131,6 +133,37 @@ def test_the_filtered_mvs_control_is_the_mvs_part_of_merged(project):
     text = (layout.report_dir / "report.md").read_text()
     assert "control: the MVS part of merged alone (no splats)" in text
     assert "whole scene: 40 steps (its whole step budget)" in text  # each trained product's step budget
+
+
+def test_three_layers_the_survey_positions_untouched_and_the_background_in_the_viewer_product_only(project):
+    """merged.ply: survey (MVS), fill (splats) and background layers by ``source``; every survey Gaussian sits
+    exactly (bit for bit) where the MVS conversion put it; the survey points and C2C never see the background."""
+    from core.io import read_point_cloud
+    from fusion.convert_options import Source
+
+    _, project = project
+    layout = ProjectLayout(project)
+    merged = read_gaussian_ply(layout.merged_ply)
+    source = np.asarray(merged.fields["source"])
+    counts = json.loads(layout.manifest.read_text())["stages"]["merge"]["counts"]
+    assert counts["background"] == int((source == Source.BACKGROUND).sum()) > 0
+    assert counts["mvs"] == int((source == Source.MVS).sum())
+    assert counts["splats"] == int((source == Source.SPLAT).sum())
+    mvs = read_gaussian_ply(layout.mvs_gaussians)
+    survey = merged.subset(source == Source.MVS)
+    assert np.array_equal(survey.origin, mvs.origin)
+    known = {row.tobytes() for row in mvs.means}
+    assert all(row.tobytes() in known for row in survey.means)  # positions never change
+    background = merged.subset(source == Source.BACKGROUND)
+    region = np.linalg.norm(survey.means - survey.means.mean(0), axis=1).max()
+    assert np.linalg.norm(background.means - survey.means.mean(0), axis=1).min() > 2 * region
+    assert Source.BACKGROUND not in set(read_point_cloud(layout.merged_points_ply).fields["source"].tolist())
+    products = json.loads(layout.metrics_json.read_text())["products"]
+    with_bg, without = products["merged"]["images"]["full"], products["merged_no_background"]["images"]["full"]
+    assert with_bg["psnr"] > without["psnr"]  # the background layer draws what nothing else covers
+    names = ("merged", "merged_no_background")
+    figures = [{k: v for k, v in products[n]["c2c"].items() if k != "files"} for n in names]
+    assert figures[0] == figures[1]  # and no survey figure changes
 
 
 def test_baseline_checkpoints_are_measured_as_products(project):
@@ -220,7 +253,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     merged = read_gaussian_ply(layout.merged_ply)  # a changed product: the merged set loses half its Gaussians
     write_gaussian_ply(layout.merged_ply, merged.subset(np.arange(len(merged) // 2)), extra_fields=True)
     changed = run_pipeline(copy, load_config(copy)).stages["eval"]
-    assert not changed.cached and changed.counts["reused"] == len(measured) - 2  # merged and its MVS part
+    assert not changed.cached and changed.counts["reused"] == len(measured) - 3  # merged and its two controls
     images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
     assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
 

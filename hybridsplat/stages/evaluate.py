@@ -68,6 +68,21 @@ FILTERED_MVS = "mvs_filtered"
 ``source`` = MVS), so that what the merge's filter gains is told apart from what the splats add."""
 
 
+WITHOUT_BACKGROUND = "merged_no_background"
+"""The control beside ``merged``: the same product without its background layer (``source`` = BACKGROUND), so that
+what the background adds to the whole image is told apart from what the survey and fill layers do."""
+
+
+def _without_background(gaussians_path: Path) -> Any:
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import Source
+
+    gaussians = read_gaussian_ply(gaussians_path)
+    if "source" not in gaussians.fields:
+        return gaussians
+    return gaussians.subset(np.asarray(gaussians.fields["source"]) != Source.BACKGROUND)
+
+
 def _filtered_mvs(points_path: Path, gaussians_path: Path) -> tuple[Any, Any]:
     """(survey points, Gaussians) of the merged product whose ``source`` is MVS."""
     from core.io import read_point_cloud
@@ -288,6 +303,10 @@ class EvalStage(Stage):
             (layout.merged_points_ply, layout.merged_ply),
             lambda: (layout.merged_points_ply, read_gaussian_ply(layout.merged_ply)),
         )
+        products[WITHOUT_BACKGROUND] = ProductSource(
+            (layout.merged_points_ply, layout.merged_ply),
+            lambda: (layout.merged_points_ply, _without_background(layout.merged_ply)),
+        )
         products[FILTERED_MVS] = ProductSource(
             (layout.merged_points_ply, layout.merged_ply),
             lambda: _filtered_mvs(layout.merged_points_ply, layout.merged_ply),
@@ -359,7 +378,7 @@ def _clouds(ctx: StageContext) -> list[tuple[sizes.PlyVertices, bool]]:
     checkpoints = sorted(layout.baseline_checkpoints_dir.glob("baseline_*.ply"))
     files = [(layout.fused_ply, True), (layout.baseline_splats, True), *((p, True) for p in checkpoints),
              (layout.splats_export, False), (layout.merged_points_ply, True),
-             (layout.merged_points_ply, True)]  # fmt: skip  # the last: FILTERED_MVS, a part of the merged points
+             (layout.merged_points_ply, True), (layout.merged_points_ply, True)]  # fmt: skip  # the controls
     return [(sizes.ply_vertices(path), renders) for path, renders in files if path.is_file()]
 
 

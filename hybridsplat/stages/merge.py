@@ -28,7 +28,8 @@ class MergeStage(Stage):
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
         extra = [layout.cleaned_splats, layout.classified_points, layout.masks_dir, layout.dense_workspace.sparse]
-        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else [])]
+        background = [layout.background_splats] if layout.background_splats.is_file() else []
+        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else []), *background]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
@@ -45,6 +46,8 @@ class MergeStage(Stage):
         sets = [sizes.ply_vertices(layout.mvs_gaussians)]
         if self._hybrid(ctx):
             sets.append(sizes.ply_vertices(layout.cleaned_splats))
+        if layout.background_splats.is_file():
+            sets.append(sizes.ply_vertices(layout.background_splats))
         n = sum(s.count for s in sets)
         extras = sum(len(s.extras) for s in sets) + 3
         merged = sizes.gaussian_ply_bytes(n, max(s.sh_degree for s in sets), extras)
@@ -53,23 +56,24 @@ class MergeStage(Stage):
         return merged + points + splats + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
+        from core.gaussians import GaussianSet
         from core.io.gaussian_ply import read_gaussian_ply
-        from fusion.export import export_gaussian_ply, export_points
+        from fusion.export import ExportOptions, export_gaussian_ply, export_points
         from fusion.merge import merge_gaussians
 
         layout = ctx.layout
         mvs = read_gaussian_ply(layout.mvs_gaussians)
         extra: dict[str, Any] = {}
         if self._hybrid(ctx):
-            from fusion.export import ExportOptions
-
             products = self._hybrid_products(ctx, mvs)
             gaussians, points, stats, extra = products.gaussians, products.points, products.stats, products.counts
-            written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
         else:
             result = merge_gaussians(None, mvs)
             gaussians, points, stats = result.gaussians, result.gaussians, result.stats
-            written = export_gaussian_ply(layout.merged_ply, gaussians)
+        background = _background_layer(layout.background_splats, gaussians)
+        if background is not None:  # the viewer product only: the survey points never hold it
+            gaussians = GaussianSet.concatenate([gaussians, background])
+        written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
         export_points(layout.merged_points_ply, points)
         crs = ctx.config.input.crs
         if crs:  # the georeference sidecars and the LAS's WKT carry the CRS the user gave
@@ -83,7 +87,8 @@ class MergeStage(Stage):
         else:
             export_points(layout.merged_points_las, points)
         return {"merged": len(gaussians), "written": written.num_written, "mvs": stats.mvs_kept,
-                "splats": stats.splats_kept, "points": len(points), **extra}  # fmt: skip
+                "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
+                "points": len(points), **extra}  # fmt: skip
 
     def _hybrid_products(self, ctx: StageContext, mvs: Any) -> Any:
         """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply."""
@@ -107,8 +112,28 @@ class MergeStage(Stage):
         return hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
 
     def summary(self, counts: dict[str, Any]) -> str:
-        text = f"{counts['written']} Gaussians in the merged product"
+        layers = f"survey {counts['mvs']}, fill {counts['splats']}, background {counts.get('background', 0)}"
+        text = f"{counts['written']} Gaussians in the merged product ({layers})"
         if "point_splats" in counts:
             c = counts["point_splats"]
             text += f", {counts['points']} survey points ({c['kept']} of {c['input']} splats trustworthy)"
         return text
+
+
+def _background_layer(path: Path, merged: Any) -> Any:
+    """The background layer (splats/background.ply) with the merged set's fields (``source`` = BACKGROUND, the
+    others 0), or None when there is none."""
+    import numpy as np
+
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import Source
+
+    if not path.is_file():
+        return None
+    background = read_gaussian_ply(path)
+    if len(background) == 0:
+        return None
+    n = len(background)
+    background.fields = {k: np.zeros(n, dtype=np.asarray(v).dtype) for k, v in merged.fields.items()}
+    background.fields["source"] = np.full(n, Source.BACKGROUND, dtype=np.uint8)
+    return background

@@ -153,15 +153,17 @@ class MeshStage(Stage):
 
 
 def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianSet
-    """The merged Gaussians with their ``source`` field: from the 3DGS PLY's extra fields, else from the points file
-    the merge stage writes next to it (same Gaussians, same order: checked by count and position)."""
+    """The merged Gaussians of the survey and fill layers with their ``source`` field (the background layer is no
+    surface to mesh): from the 3DGS PLY's extra fields, else from the points file the merge stage writes next to it
+    (same Gaussians, same order: checked by count and position)."""
     from core.io.gaussian_ply import read_gaussian_ply
     from core.io.ply import read_ply
+    from fusion.convert_options import Source
 
     merged = read_gaussian_ply(merged_ply)
     if "source" in merged.fields:
         merged.fields["source"] = np.asarray(merged.fields["source"]).astype(np.uint8)
-        return merged
+        return merged.subset(merged.fields["source"] != Source.BACKGROUND)
     if not points_ply.is_file():
         raise DataError("the merged Gaussians carry no 'source' field and there is no points file next to them",
                         merged_ply)  # fmt: skip

@@ -1,0 +1,213 @@
+"""The background layer: what the photos see beyond the survey region (sky, a backdrop, distant surroundings).
+
+A training pixel is *background* when its ray leaves the survey region without meeting the cloud: the survey and
+fill Gaussians, rendered from its photo, leave it (nearly) transparent (accumulated opacity below
+``alpha_threshold``). Background Gaussians are seeded where those rays meet a far sphere around the survey region
+(``shell_radius`` × the region's radius, centred on it) and trained at reduced resolution on the background pixels
+only, with the survey and fill Gaussians frozen in front of them. Their positions stay on the shell (learning rate
+0), so no background Gaussian ever enters the survey region; an environment at infinity (a sky) is drawn without
+parallax error from any viewpoint well inside the shell. They are never part of a survey product (C2C, LAS and
+point exports, mesh, measurement): the ``source`` field marks them ``Source.BACKGROUND``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from core.cameras import Cameras
+from core.errors import ConfigError
+from core.gaussians import GaussianSet
+from fusion.train.options import TrainOptions
+from fusion.train.strategy import DefaultStrategy
+
+
+def _background_training() -> TrainOptions:
+    return TrainOptions(
+        iterations=300,
+        sh_degree=1,
+        sh_degree_interval=100,
+        lr_means=0.0,
+        min_iterations=300,
+        refine_until=0.5,
+        strategy=DefaultStrategy(cap=20_000, refine_start=50, refine_every=50),
+    )
+
+
+@dataclass(frozen=True)
+class BackgroundOptions:
+    """Options of :func:`train_background` (the ``background`` stage's options).
+
+    enabled: train a background layer when the photos see beyond the survey region. shell_radius: radius of the
+    seeding sphere in multiples of the survey region's radius (half the diagonal of the 1st–99th percentile box of
+    the survey Gaussians). max_image_size: longer side of the training photos (px): the background is smooth and
+    far, a reduced resolution suffices. seed_stride_px: one seed per this many pixels in each direction of the
+    background pixels (at training resolution). max_seeds: at most this many seeds (an even random subset).
+    alpha_threshold: a pixel whose survey + fill accumulated opacity is below this is background. min_share: no
+    background layer when the background pixels are less than this share of every training pixel.
+    training: the trainer's options (positions frozen: ``lr_means`` 0; the cap grows from the seeds).
+    """
+
+    enabled: bool = True
+    shell_radius: float = 8.0
+    max_image_size: int = 160
+    seed_stride_px: int = 3
+    max_seeds: int = 20_000
+    alpha_threshold: float = 0.5
+    min_share: float = 0.002
+    training: TrainOptions = field(default_factory=_background_training)
+
+    def __post_init__(self) -> None:
+        if not self.shell_radius > 1.0:
+            raise ConfigError(f"shell_radius must be > 1 (outside the survey region), got {self.shell_radius}")
+        if self.max_image_size < 16 or self.seed_stride_px < 1 or self.max_seeds < 1:
+            raise ConfigError("max_image_size must be >= 16, seed_stride_px and max_seeds >= 1")
+        if not 0.0 < self.alpha_threshold < 1.0 or not 0.0 <= self.min_share < 1.0:
+            raise ConfigError("alpha_threshold must lie in (0, 1) and min_share in [0, 1)")
+
+
+@dataclass(frozen=True)
+class SurveyRegion:
+    """The sphere that bounds the survey region: centre (local frame, metres) and radius (metres)."""
+
+    centre: np.ndarray
+    radius: float
+
+
+def survey_region(means: np.ndarray) -> SurveyRegion:
+    """The region of the survey Gaussians ``means`` (N, 3): the box of their 1st–99th percentiles per axis (a few
+    outliers far out do not inflate it), its centre and half its diagonal."""
+    if len(means) == 0:
+        raise ConfigError("no survey Gaussians: the survey region is undefined")
+    low, high = np.percentile(means, 1, axis=0), np.percentile(means, 99, axis=0)
+    return SurveyRegion((low + high) / 2, max(float(np.linalg.norm(high - low)) / 2, 1e-6))
+
+
+def background_masks(
+    cameras: Cameras, foreground: GaussianSet, scale: float, alpha_threshold: float
+) -> dict[str, np.ndarray]:
+    """Per view (name → (H, W) bool at ``scale`` × the camera's size): pixels the ``foreground`` Gaussians (survey +
+    fill, in the cameras' local frame) leave with accumulated opacity below ``alpha_threshold``."""
+    from fusion.render.scene import render_gaussian_set
+
+    masks = {}
+    for view in cameras:
+        camera = cameras.camera_of(view).scaled(scale)
+        result = render_gaussian_set(foreground, camera, view, cameras_origin=cameras.origin, background=(0, 0, 0))
+        masks[view.name] = result.alpha.detach().cpu().numpy() < alpha_threshold
+    return masks
+
+
+def shell_seeds(
+    cameras: Cameras,
+    images: Mapping[str, np.ndarray],
+    masks: Mapping[str, np.ndarray],
+    region: SurveyRegion,
+    options: BackgroundOptions,
+    seed: int,
+) -> GaussianSet:
+    """Degree-0 Gaussians where the rays of background pixels (every ``seed_stride_px``-th, at the masks' scale)
+    meet the sphere of radius ``shell_radius`` × ``region.radius`` around ``region.centre``, coloured by their
+    pixel; at most ``max_seeds`` (an even random subset, ``seed``)."""
+    from fusion.train.init import gaussians_from_points
+
+    radius = shell_radius(cameras, region, options.shell_radius)
+    points, colours = [], []
+    for view in cameras:
+        mask = masks.get(view.name)
+        if mask is None or view.name not in images or not mask.any():
+            continue
+        camera = cameras.camera_of(view)
+        rows, cols = np.nonzero(mask[:: options.seed_stride_px, :: options.seed_stride_px])
+        rows, cols = rows * options.seed_stride_px, cols * options.seed_stride_px
+        sy, sx = mask.shape[0] / camera.height, mask.shape[1] / camera.width
+        pixels = np.stack([(cols + 0.5) / sx, (rows + 0.5) / sy], axis=1)
+        ends = cameras.unproject(view, pixels, 1.0)
+        start = view.center
+        hits = _sphere_exit(start, ends - start, region.centre, radius)
+        points.append(hits)
+        image = np.asarray(images[view.name])
+        iy = np.clip((pixels[:, 1]).astype(int), 0, image.shape[0] - 1)
+        ix = np.clip((pixels[:, 0]).astype(int), 0, image.shape[1] - 1)
+        colours.append(_as_unit(image[iy, ix]))
+    if not points:
+        raise ConfigError("no background pixel in any training photo: nothing to seed")
+    points_all, colours_all = np.concatenate(points), np.concatenate(colours)
+    if len(points_all) > options.max_seeds:
+        keep = np.sort(np.random.default_rng(seed).choice(len(points_all), options.max_seeds, replace=False))
+        points_all, colours_all = points_all[keep], colours_all[keep]
+    return gaussians_from_points(points_all, colours_all, None, cameras.origin)
+
+
+def shell_radius(cameras: Cameras, region: SurveyRegion, multiple: float) -> float:
+    """Radius (metres) of the seeding sphere: ``multiple`` × the region's radius, and at least twice the distance
+    of the farthest camera from the region's centre (every camera inside the shell, far from it)."""
+    farthest = max(float(np.linalg.norm(view.center - region.centre)) for view in cameras)
+    return max(multiple * region.radius, 2.0 * farthest)
+
+
+def _as_unit(pixels: np.ndarray) -> np.ndarray:
+    values = np.asarray(pixels, dtype=np.float64)
+    return values / 255.0 if np.issubdtype(np.asarray(pixels).dtype, np.integer) else values
+
+
+def _sphere_exit(start: np.ndarray, directions: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Where rays from ``start`` (3,) along ``directions`` (N, 3) leave the sphere (``start`` lies inside it)."""
+    d = directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    offset = start - centre
+    b = d @ offset
+    c = float(offset @ offset) - radius**2
+    t = -b + np.sqrt(np.maximum(b * b - c, 0.0))
+    return start + t[:, None] * d
+
+
+@dataclass
+class BackgroundResult:
+    """The trained background Gaussians (local frame of the cameras), the trainer's result and counts."""
+
+    gaussians: GaussianSet
+    training: Any
+    counts: dict[str, Any]
+
+
+def train_background(
+    cameras: Cameras,
+    images: Mapping[str, np.ndarray],
+    foreground: GaussianSet,
+    options: BackgroundOptions,
+    seed: int,
+    progress: Callable[[Any], None] | None = None,
+) -> BackgroundResult | str:
+    """Train the background layer of ``images`` (name → (H, W, 3) photo at its camera's size) behind the frozen
+    ``foreground`` (survey + fill Gaussians, cameras' local frame); the reason when there is none to train."""
+    from fusion.train.masked import training_downscale
+    from fusion.train.trainer import train_splats
+
+    downscale = training_downscale(cameras, 1, options.max_image_size)
+    masks = background_masks(cameras, foreground, 1.0 / downscale, options.alpha_threshold)
+    share = sum(int(m.sum()) for m in masks.values()) / max(sum(m.size for m in masks.values()), 1)
+    if share < options.min_share:
+        return f"the photos see nothing beyond the survey region ({100 * share:.2f} % of the pixels)"
+    region = survey_region(foreground.with_origin(cameras.origin).means)
+    seeds = shell_seeds(cameras, images, masks, region, options, seed)
+    full = {name: _upsample(mask, images[name].shape[:2]) for name, mask in masks.items() if name in images}
+    training = options.training
+    cap = max(training.strategy.cap, 2 * len(seeds)) if isinstance(training.strategy, DefaultStrategy) else None
+    strategy = replace(training.strategy, cap=cap) if cap is not None else training.strategy
+    train_opts = replace(training, downscale=downscale, seed=seed, strategy=strategy)
+    result = train_splats(cameras, images, full, seeds, foreground, train_opts, progress)
+    counts = {"share": share, "seeds": len(seeds), "gaussians": len(result.splats), "downscale": downscale,
+              "shell_radius_m": shell_radius(cameras, region, options.shell_radius), "region_radius_m": region.radius,
+              "iterations": result.iterations, "stopped_early": result.stopped_early,
+              "holdout_psnr_db": result.history[-1].holdout_psnr if result.history else None}  # fmt: skip
+    return BackgroundResult(result.splats, result, counts)
+
+
+def _upsample(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A mask at reduced size, at ``shape`` (nearest pixel)."""
+    rows = np.minimum((np.arange(shape[0]) + 0.5) * mask.shape[0] / shape[0], mask.shape[0] - 1).astype(int)
+    cols = np.minimum((np.arange(shape[1]) + 0.5) * mask.shape[1] / shape[1], mask.shape[1] - 1).astype(int)
+    return mask[np.ix_(rows, cols)]
