@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum, IntEnum
+from typing import Any
 
 import numpy as np
 
@@ -24,6 +25,30 @@ class Source(IntEnum):
     MVS = 1  # the survey layer: converted from the photogrammetric (MVS) cloud
     SPLAT = 2  # the fill layer: splats trained inside the region masks
     BACKGROUND = 3  # the background layer: what the photos see beyond the survey region (fusion.background)
+
+
+LAYERS: dict[str, Source] = {"survey": Source.MVS, "fill": Source.SPLAT, "background": Source.BACKGROUND}
+"""The merged product's layers by name (``--layers survey,fill,background`` on export, render and view)."""
+
+
+def parse_layers(text: str) -> tuple[Source, ...]:
+    """``"survey,fill"`` → their ``source`` codes; :class:`ConfigError` naming the unknown word."""
+    words = [w.strip().lower() for w in text.split(",") if w.strip()]
+    unknown = [w for w in words if w not in LAYERS]
+    if unknown or not words:
+        raise ConfigError(f"--layers takes a comma-separated list of {', '.join(LAYERS)}, got {text!r}")
+    return tuple(LAYERS[w] for w in dict.fromkeys(words))
+
+
+def select_layers(gaussians: Any, layers: tuple[Source, ...] | None) -> Any:
+    """The Gaussians (a ``GaussianSet``) of ``layers`` (all when None). A set without a ``source`` field is one
+    survey layer: the MVS conversion of a cloud, or a splat file of another tool."""
+    if layers is None:
+        return gaussians
+    source = gaussians.fields.get("source")
+    if source is None:
+        return gaussians if Source.MVS in layers else gaussians.subset(np.zeros(len(gaussians), bool))
+    return gaussians.subset(np.isin(np.asarray(source).astype(np.int64), [int(c) for c in layers]))
 
 
 class ConvertMode(str, Enum):

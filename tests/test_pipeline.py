@@ -164,6 +164,39 @@ def test_three_layers_the_survey_positions_untouched_and_the_background_in_the_v
     names = ("merged", "merged_no_background")
     figures = [{k: v for k, v in products[n]["c2c"].items() if k != "files"} for n in names]
     assert figures[0] == figures[1]  # and no survey figure changes
+    assert "The merged product's layers" in (layout.report_dir / "report.md").read_text()
+
+
+def test_layers_are_chosen_on_export_render_and_view_and_named_in_the_sidecar(project, tmp_path, capsys):
+    from fusion.convert_options import Source
+    from hybridsplat.viewer.scene import load_project
+
+    _, project = project
+    layout = ProjectLayout(project)
+    sidecar = json.loads(layout.merged_ply.with_name("merged.origin.json").read_text())
+    assert sidecar["layers"] == {"survey": 1, "fill": 2, "background": 3}
+    out = tmp_path / "survey_fill.ply"
+    assert main_code(["export", str(layout.merged_ply), "--out", str(out), "--layers", "survey,fill",
+                      "--extra-fields", "--min-opacity", "0"]) == 0  # fmt: skip
+    kept = read_gaussian_ply(out)
+    merged = read_gaussian_ply(layout.merged_ply)
+    assert set(np.unique(kept.fields["source"]).astype(int)) == {Source.MVS, Source.SPLAT}
+    assert len(kept) == int((merged.fields["source"] != Source.BACKGROUND).sum())
+    renders = tmp_path / "renders"
+    args = ["render", str(layout.merged_ply), "--cameras", str(layout.dense_workspace.sparse), "--out", str(renders)]
+    assert main_code([*args, "--layers", "background"]) == 0
+    assert main_code([*args[:-1], str(tmp_path / "all")]) == 0
+    assert len(list(renders.glob("*.png"))) == len(list((tmp_path / "all").glob("*.png"))) > 0
+    only = load_project(project, layers=(Source.BACKGROUND,))
+    assert only.splats.total == int((merged.fields["source"] == Source.BACKGROUND).sum())
+    assert main_code(["export", str(layout.merged_ply), "--out", str(out), "--layers", "sky"]) == 2
+    assert "--layers takes a comma-separated list of survey, fill, background, got 'sky'" in capsys.readouterr().err
+
+
+def main_code(argv: list[str]) -> int:
+    from hybridsplat.cli import run_cli
+
+    return run_cli(argv)
 
 
 def test_baseline_checkpoints_are_measured_as_products(project):

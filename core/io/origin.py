@@ -28,14 +28,19 @@ def sidecar_path(path: str | PathLike[str]) -> Path:
     return p.with_name(p.stem + ".origin.json")
 
 
-def write_origin(path: str | PathLike[str], origin: np.ndarray, crs: str | None = None) -> Path:
-    """Write the sidecar for data file ``path``; returns the sidecar's path."""
+def write_origin(
+    path: str | PathLike[str], origin: np.ndarray, crs: str | None = None, layers: dict[str, int] | None = None
+) -> Path:
+    """Write the sidecar for data file ``path``; returns the sidecar's path. ``layers``: the names of the ``source``
+    codes the file holds (a merged product: ``{"survey": 1, "fill": 2, "background": 3}``), written as is."""
     origin = np.asarray(origin, dtype=np.float64).reshape(3)
     if not np.isfinite(origin).all():
         raise DataError(f"origin must be finite, got {origin.tolist()}", path)
     side = sidecar_path(path)
     # repr of a Python float round-trips float64 exactly.
-    payload = {"origin": [float(v) for v in origin], "units": "m", "crs": crs}
+    payload: dict = {"origin": [float(v) for v in origin], "units": "m", "crs": crs}
+    if layers is not None:
+        payload["layers"] = {str(k): int(v) for k, v in layers.items()}
     return write_json_atomic(side, payload)
 
 

@@ -8,6 +8,7 @@ import typer
 
 from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
+from fusion.convert_options import parse_layers, select_layers
 from fusion.export import export_gaussians, export_points
 from hybridsplat.commands.convert import export_options, print_export
 
@@ -23,6 +24,9 @@ def export(
     min_opacity: float = typer.Option(1 / 255, help="Drop Gaussians with opacity below this (0 keeps all)."),
     sh_degree: int | None = typer.Option(None, help="SH degree written to 3DGS PLY outputs (default: as read)."),
     extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
+    layers: str | None = typer.Option(
+        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+    ),
 ) -> None:
     """Export Gaussians to viewer formats (.ply, .splat) or point clouds with class/source fields (.ply, .las)."""
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
@@ -30,8 +34,9 @@ def export(
         check_output_file(path)
     from hybridsplat.project_lock import reading_project
 
+    chosen = parse_layers(layers) if layers is not None else None
     with reading_project(gaussians):
-        gs = read_gaussian_ply(gaussians)
+        gs = select_layers(read_gaussian_ply(gaussians), chosen)
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:

@@ -72,6 +72,9 @@ def render_command(
     ignore_distortion: bool = typer.Option(
         False, "--ignore-distortion", help="Render distorted cameras as their pinhole part instead of refusing."
     ),
+    layers: str | None = typer.Option(
+        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+    ),
 ) -> None:
     """Render a Gaussian PLY at the cameras of a COLMAP model and write PNGs (colour, optional depth/alpha)."""
     from rich.progress import Progress
@@ -87,10 +90,12 @@ def render_command(
     if depth_scale <= 0:
         raise ConfigError(f"--depth-scale must be positive, got {depth_scale}")
     check_output_dir(out)
+    from fusion.convert_options import parse_layers, select_layers
     from hybridsplat.project_lock import reading_project
 
+    chosen = parse_layers(layers) if layers is not None else None
     with reading_project(gaussians), reading_project(cameras):
-        splats = _load_gaussians(gaussians)  # inputs are checked before torch is imported
+        splats = select_layers(_load_gaussians(gaussians), chosen)  # inputs are checked before torch is imported
         model = _load_cameras(cameras)
     views = _select_views(model, images, cameras)
     from fusion.render import render_gaussian_set, resolve_backend

@@ -19,22 +19,27 @@ def view_command(
     max_points: int = typer.Option(1_000_000, "--max-points", min=1, help="Show at most this many MVS points."),
     sigma_px: float = typer.Option(1.0, "--sigma-px", min=0.01, help="Default σ of a pick in pixels."),
     seconds: float = typer.Option(0.0, "--seconds", min=0.0, help="Stop after this many seconds (0: until Ctrl-C)."),
+    layers: str | None = typer.Option(
+        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+    ),
 ) -> None:
     """Open the merged splats, MVS cloud, mesh and cameras in the browser; pick points, see error ellipsoids."""
     from dataclasses import replace
 
     from eval.measure.project import read_cameras
+    from fusion.convert_options import parse_layers
     from hybridsplat.project_lock import reading_project
     from hybridsplat.viewer.app import ViewerApp, ViewerOptions
     from hybridsplat.viewer.project import open_project
     from hybridsplat.viewer.scene import load_ply_alone, load_project
 
+    chosen = parse_layers(layers) if layers is not None else None
     with reading_project(target):  # the viewer shows what it read: the lock is held while it reads
         if target.is_dir():
-            scene = load_project(target, max_splats=max_splats, max_points=max_points)
+            scene = load_project(target, max_splats=max_splats, max_points=max_points, layers=chosen)
             files = open_project(target)
         else:
-            scene = load_ply_alone(target, max_splats=max_splats)
+            scene = load_ply_alone(target, max_splats=max_splats, layers=chosen)
             files = None
     if test_cameras is not None:
         scene = replace(scene, test_cameras=read_cameras(test_cameras))

@@ -14,7 +14,7 @@ from typing import Any
 from fusion.merge_options import MergeOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import ReportSection, Stage, StageContext
 
 
 class MergeStage(Stage):
@@ -76,13 +76,16 @@ class MergeStage(Stage):
         written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
         export_points(layout.merged_points_ply, points)
         crs = ctx.config.input.crs
-        if crs:  # the georeference sidecars and the LAS's WKT carry the CRS the user gave
+        from core.io.origin import write_origin
+        from fusion.convert_options import LAYERS
+
+        # the viewer product's sidecar names its layers (and the CRS the user gave)
+        write_origin(layout.merged_ply, gaussians.origin, crs, layers={k: int(v) for k, v in LAYERS.items()})
+        if crs:  # the survey points' sidecar and the LAS's WKT carry the CRS too
             from core.io.las import write_las
-            from core.io.origin import write_origin
             from fusion.export import gaussians_to_points
 
             write_las(layout.merged_points_las, gaussians_to_points(points), crs=crs)
-            write_origin(layout.merged_ply, gaussians.origin, crs)
             write_origin(layout.merged_points_ply, points.origin, crs)
         else:
             export_points(layout.merged_points_las, points)
@@ -110,6 +113,18 @@ class MergeStage(Stage):
             if any(n in codes for n in opts.needs_mvs_classes):
                 predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype("int64")
         return hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
+
+    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+        if not isinstance(counts.get("written"), int):
+            return None
+        line = (
+            f"The merged product (export/merged.ply) holds {counts['written']:,} Gaussians in three layers "
+            f"(its `source` field): survey {counts.get('mvs', 0):,} (the MVS Gaussians, positions as converted), "
+            f"fill {counts.get('splats', 0):,} (splats trained in the region masks), background "
+            f"{counts.get('background', 0):,} (what the photos see beyond the survey region; viewer product only). "
+            f"The survey points (merged_points.ply/.las) hold {counts.get('points', 0):,} points, no background."
+        )
+        return ReportSection("The merged product's layers", (line,))
 
     def summary(self, counts: dict[str, Any]) -> str:
         layers = f"survey {counts['mvs']}, fill {counts['splats']}, background {counts.get('background', 0)}"

@@ -154,9 +154,16 @@ def mesh_arrays(path: str | PathLike[str], frame_origin: np.ndarray) -> MeshArra
     return MeshArrays(local.astype(np.float32), np.asarray(mesh.faces, np.int32), colors)
 
 
-def load_project(project: str | PathLike[str], max_splats: int = 2_000_000, max_points: int = 1_000_000) -> ViewerScene:
-    """Read a project folder: cameras (sparse/), merged splats, MVS cloud and mesh when present."""
+def load_project(
+    project: str | PathLike[str],
+    max_splats: int = 2_000_000,
+    max_points: int = 1_000_000,
+    layers: tuple[int, ...] | None = None,
+) -> ViewerScene:
+    """Read a project folder: cameras (sparse/), merged splats (of ``layers``, ``Source`` codes; None: all), MVS
+    cloud and mesh when present."""
     from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import select_layers
 
     layout = open_project(project)
     cameras = read_cameras(layout.sparse)
@@ -164,22 +171,28 @@ def load_project(project: str | PathLike[str], max_splats: int = 2_000_000, max_
     origin = cameras_origin(layout, georef.origin)
     georef = Georeference(origin, georef.unit, georef.crs)
     merged = layout.merged_ply
-    splats = splat_arrays(read_gaussian_ply(merged), origin, max_splats) if merged.is_file() else None
+    splats = None
+    if merged.is_file():
+        splats = splat_arrays(select_layers(read_gaussian_ply(merged), layers), origin, max_splats)
     cloud = cloud_arrays(layout.fused_ply, origin, max_points) if layout.fused_ply.is_file() else None
     mesh_file = next((layout.mesh_path(f) for f in ("ply", "obj", "glb") if layout.mesh_path(f).is_file()), None)
     mesh = mesh_arrays(mesh_file, origin) if mesh_file is not None else None
     return ViewerScene(layout.root.resolve().name, cameras, Cameras(), georef, splats, cloud, mesh)
 
 
-def load_ply_alone(path: str | PathLike[str], max_splats: int = 2_000_000) -> ViewerScene:
-    """A 3DGS PLY without a project: splats only, no cameras (measurement needs a project)."""
+def load_ply_alone(
+    path: str | PathLike[str], max_splats: int = 2_000_000, layers: tuple[int, ...] | None = None
+) -> ViewerScene:
+    """A 3DGS PLY without a project: splats only (of ``layers``; None: all), no cameras (measurement needs a
+    project)."""
     from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import select_layers
 
     path = Path(path)
     if not path.is_file():
         raise InputFileError("file does not exist", path)
     georef = read_georeference(path)
-    gs = read_gaussian_ply(path)
+    gs = select_layers(read_gaussian_ply(path), layers)
     return ViewerScene(path.name, Cameras(), Cameras(), georef, splat_arrays(gs, georef.origin, max_splats))
 
 
