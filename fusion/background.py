@@ -49,6 +49,10 @@ class BackgroundOptions:
     alpha_threshold: a pixel whose survey + fill accumulated opacity is below this is background. min_share: no
     background layer when the background pixels are less than this share of every training pixel.
     training: the trainer's options (positions frozen: ``lr_means`` 0; the cap grows from the seeds).
+
+    The defaults were set before any measurement and not tuned on any view a figure is scored on: a shell well
+    outside every camera (parallax of a far environment below a pixel), 160 px (the background is smooth), 300
+    steps (a tenth of the fill's budget), SH degree 1 (a sky's gradient).
     """
 
     enabled: bool = True
