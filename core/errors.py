@@ -6,8 +6,20 @@ the CLI can print one readable line (``hybridsplat: <file>: <problem>``) and exi
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
+
+
+def exception_chain(err: BaseException) -> Iterator[BaseException]:
+    """``err``, then what caused it (``__cause__``, else ``__context__``), and so on; each exception once. A
+    library that re-raises an OSError or a KeyboardInterrupt as its own error keeps it in this chain."""
+    seen: set[int] = set()
+    link: BaseException | None = err
+    while link is not None and id(link) not in seen:
+        yield link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
 
 
 class HybridSplatError(Exception):

@@ -89,11 +89,12 @@ def _exit_code_of(err: HybridSplatError) -> int:
 def _os_error_code(err: OSError) -> int:
     """Exit status of an OSError outside a stage: full disk 4, refused by the system 5, else bad input when it
     names a file (an unwritable output, a folder where a file is expected), internal otherwise."""
-    import errno
+    from hybridsplat.disk_space import SPACE_ERRNOS
+    from hybridsplat.stage_failures import REFUSED_ERRNOS
 
-    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+    if err.errno in SPACE_ERRNOS:
         return EXIT_DISK_SPACE
-    if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.EMFILE, errno.ENFILE):
+    if err.errno in REFUSED_ERRNOS:
         return EXIT_REFUSED
     return EXIT_BAD_INPUT if err.filename is not None else EXIT_INTERNAL
 
@@ -199,14 +200,9 @@ def _signal_behind(err: BaseException) -> BaseException | None:
     """The KeyboardInterrupt or :class:`Terminated` that caused ``err``, if any. A signal that arrives while a numba
     kernel runs surfaces as ``SystemError: CPUDispatcher(...) returned a result with an exception set`` whose cause
     is the KeyboardInterrupt."""
-    seen: set[int] = set()
-    link: BaseException | None = err
-    while link is not None and id(link) not in seen:
-        if isinstance(link, (KeyboardInterrupt, Terminated)):
-            return link
-        seen.add(id(link))
-        link = link.__cause__ or link.__context__
-    return None
+    from core.errors import exception_chain
+
+    return next((e for e in exception_chain(err) if isinstance(e, (KeyboardInterrupt, Terminated))), None)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from os import PathLike
 from pathlib import Path
 
-from core.errors import DiskSpaceError
+from core.errors import DiskSpaceError, exception_chain
 
 RESERVE_BYTES = 1 << 20
 """Space kept free beyond a stage's estimate: the manifest, the stage's log and the lock's holder file (~100 kB)."""
@@ -23,7 +23,7 @@ RESERVE_BYTES = 1 << 20
 FULL_BELOW_BYTES = 1 << 20
 """A file system with less free than this after a failure is taken to have filled up during the stage."""
 
-_SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 
 
 def format_bytes(n: int | float) -> str:
@@ -93,19 +93,12 @@ def os_error_behind(err: BaseException, numbers: Iterable[int]) -> OSError | Non
     """The OSError with one of the errno ``numbers`` that caused ``err`` (or is ``err``), following the chain of
     causes and contexts (a library may re-raise it as its own error); None if there is none."""
     wanted = set(numbers)
-    seen: set[int] = set()
-    link: BaseException | None = err
-    while link is not None and id(link) not in seen:
-        if isinstance(link, OSError) and link.errno in wanted:
-            return link
-        seen.add(id(link))
-        link = link.__cause__ or link.__context__
-    return None
+    return next((e for e in exception_chain(err) if isinstance(e, OSError) and e.errno in wanted), None)
 
 
 def space_errno_behind(err: BaseException) -> OSError | None:
     """The out-of-space OSError (ENOSPC, EDQUOT) behind ``err``, if any."""
-    return os_error_behind(err, _SPACE_ERRNOS)
+    return os_error_behind(err, SPACE_ERRNOS)
 
 
 def disk_full_behind(err: BaseException, folder: str | PathLike[str]) -> bool:
