@@ -58,8 +58,9 @@ PRODUCT_STAGES = {
     "mvs": ("mvs", "convert"),
     "baseline": ("baseline",),
     "mvs_filtered": ("mvs", "classify", "masks", "convert", "merge"),  # the control: merged without its splats
-    "merged_no_background": ("mvs", "classify", "masks", "convert", "train", "clean", "merge"),
-    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "merge"),
+    "merged_no_background": ("mvs", "classify", "masks", "convert", "train", "clean", "appearance", "merge"),
+    "merged_unrefined": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "merge"),
+    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "appearance", "merge"),
 }
 PRODUCT_LABELS = {
     "mvs": "MVS only",
@@ -67,6 +68,7 @@ PRODUCT_LABELS = {
     "merged": "hybrid",
     "mvs_filtered": "MVS as merged (no splats)",
     "merged_no_background": "hybrid without background",
+    "merged_unrefined": "hybrid, survey layer as converted",
 }
 
 

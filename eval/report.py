@@ -286,9 +286,14 @@ def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
         "mvs": "no training",
         "mvs_filtered": "control: the MVS part of merged alone (no splats)",
         "merged_no_background": "control: merged without its background layer",
+        "merged_unrefined": "control: merged with its survey layer as converted (no appearance refinement)",
     }
     notes["baseline"] = _training_note(baseline, "whole scene")
     notes["merged"] = notes["splats"] = _training_note(train, "splats in the masks")
+    for stage, what in (("background", "background"), ("appearance", "survey appearance")):
+        steps = ((stages.get(stage) or {}).get("counts") or {}).get("iterations")
+        if steps:
+            notes["merged"] += f"; {what}: {steps} steps"
     for name in report.get("products") or {}:
         if name.startswith("baseline_") and name.split("_", 1)[1].isdigit():
             notes[name] = f"whole scene: {int(name.split('_', 1)[1])} steps (a checkpoint of the baseline)"

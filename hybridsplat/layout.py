@@ -147,6 +147,12 @@ class ProjectLayout:
         return self.splats_dir / "background.ply"
 
     @property
+    def survey_splats(self) -> Path:
+        """The survey layer with its appearance refined for viewers, one Gaussian per converted MVS Gaussian, same
+        order and positions (``fusion.appearance``)."""
+        return self.splats_dir / "survey.ply"
+
+    @property
     def snapshots_dir(self) -> Path:
         return self.splats_dir / "snapshots"
 
@@ -275,6 +281,7 @@ class ProjectLayout:
             "splats/cleaned.ply": self.cleaned_splats,
             "splats/snapshots/": self.snapshots_dir,
             "splats/background.ply": self.background_splats,
+            "splats/survey.ply": self.survey_splats,
             "splats/baseline.ply": self.baseline_splats,
             "splats/baseline_checkpoints/": self.baseline_checkpoints_dir,
             "export/mvs_gaussians.ply": self.mvs_gaussians,

@@ -11,6 +11,7 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError
 from core.io.gaussian_ply import read_gaussian_ply
 from data_synth import generate_scene
+from fusion.appearance import AppearanceOptions
 from fusion.train.masked import MaskedTrainingOptions, WholeSceneOptions
 from hybridsplat.cli import main
 from hybridsplat.config import InputOptions, ProjectConfig
@@ -23,6 +24,7 @@ from hybridsplat.stages import STAGES, stage_options_types
 FAST_STAGES = {
     "train": options_with(MaskedTrainingOptions, {"training.iterations": 40, "snapshot_iterations": [20]}),
     "baseline": options_with(WholeSceneOptions, {"enabled": True, "training.iterations": 40, "checkpoints": [20]}),
+    "appearance": options_with(AppearanceOptions, {"training.iterations": 60, "training.min_iterations": 60}),
 }
 
 
@@ -105,7 +107,7 @@ def test_three_products_side_by_side_with_scores_per_material(project):
     materials = {m["name"] for m in json.loads((scene / "scene.json").read_text())["materials"]}
     per_material = json.loads(layout.per_material_json.read_text())
     assert set(per_material["products"]) == {
-        "mvs", "baseline", "baseline_20", "splats", "merged", "mvs_filtered", "merged_no_background"
+        "mvs", "baseline", "baseline_20", "splats", "merged", "mvs_filtered", "merged_no_background", "merged_unrefined"
     }  # fmt: skip
     seen = set(per_material["products"]["mvs"])
     assert seen and seen <= materials
@@ -165,6 +167,37 @@ def test_three_layers_the_survey_positions_untouched_and_the_background_in_the_v
     figures = [{k: v for k, v in products[n]["c2c"].items() if k != "files"} for n in names]
     assert figures[0] == figures[1]  # and no survey figure changes
     assert "The merged product's layers" in (layout.report_dir / "report.md").read_text()
+
+
+def test_the_survey_layer_is_refined_for_viewers_only(project):
+    """splats/survey.ply: the converted MVS Gaussians row for row, positions bit for bit, appearance refined; the
+    viewer product takes it, the survey points keep the converted attributes, and the control without it is
+    measured beside merged with the same survey figures."""
+    from core.io import read_point_cloud
+    from fusion.convert_options import Source
+
+    _, project = project
+    layout = ProjectLayout(project)
+    converted, refined = read_gaussian_ply(layout.mvs_gaussians), read_gaussian_ply(layout.survey_splats)
+    assert np.array_equal(refined.means, converted.means) and np.array_equal(refined.origin, converted.origin)
+    assert refined.sh_degree == 3 and not np.array_equal(refined.sh_dc, converted.sh_dc)
+    merged = read_gaussian_ply(layout.merged_ply)
+    survey = merged.subset(np.asarray(merged.fields["source"]) == Source.MVS)
+    row_of = {row.tobytes(): i for i, row in enumerate(converted.means)}
+    rows = np.array([row_of[row.tobytes()] for row in survey.means])
+    np.testing.assert_array_equal(survey.sh_dc, refined.sh_dc[rows])  # the viewer product: refined
+    points = read_point_cloud(layout.merged_points_ply)
+    mvs_points = points.subset(np.asarray(points.fields["source"]) == Source.MVS)
+    point_rows = np.array([row_of[row.tobytes()] for row in mvs_points.positions])
+    alpha = 1 / (1 + np.exp(-converted.logit_opacities[point_rows].astype(np.float64)))
+    np.testing.assert_allclose(mvs_points.fields["opacity"], alpha, rtol=1e-6)  # the survey points: converted
+    products = json.loads(layout.metrics_json.read_text())["products"]
+    refined_psnr, unrefined_psnr = (products[n]["images"]["full"]["psnr"] for n in ("merged", "merged_unrefined"))
+    assert refined_psnr != unrefined_psnr
+    figures = [{k: v for k, v in products[n]["c2c"].items() if k != "files"} for n in ("merged", "merged_unrefined")]
+    assert figures[0] == figures[1]
+    record = json.loads(layout.manifest.read_text())["stages"]["appearance"]["counts"]
+    assert record["gaussians"] == len(converted) - record["unrefined_needs_splats"]
 
 
 def test_layers_are_chosen_on_export_render_and_view_and_named_in_the_sidecar(project, tmp_path, capsys):
@@ -286,7 +319,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     merged = read_gaussian_ply(layout.merged_ply)  # a changed product: the merged set loses half its Gaussians
     write_gaussian_ply(layout.merged_ply, merged.subset(np.arange(len(merged) // 2)), extra_fields=True)
     changed = run_pipeline(copy, load_config(copy)).stages["eval"]
-    assert not changed.cached and changed.counts["reused"] == len(measured) - 3  # merged and its two controls
+    assert not changed.cached and changed.counts["reused"] == len(measured) - 4  # merged and its three controls
     images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
     assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
 

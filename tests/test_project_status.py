@@ -70,7 +70,7 @@ def test_finished_then_one_option_changed(finished, tmp_path, capsys):
         config.write_text(before.replace("iterations = 40\n", "iterations = 50\n", 1))
         states = _states(project)
         stale = {n for n, s in states.items() if s == "stale"}
-        assert stale == {"train", "clean", "background", "merge", "eval", "report"}
+        assert stale == {"train", "clean", "background", "appearance", "merge", "eval", "report"}
         assert all(states[n] == "current" for n in ("sfm", "mvs", "classify", "masks", "convert"))
         text = _printed(capsys, str(project))
         assert "option training.iterations: 40 -> 50" in text and "after train, which will run first" in text

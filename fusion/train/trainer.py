@@ -129,6 +129,25 @@ def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: S
     state.sampler.record_loss(outcome.view, outcome.loss)
 
 
+def _log_scale_bounds(max_scales: np.ndarray | None, init: GaussianSet, schedule: TrainSchedule) -> torch.Tensor | None:
+    """log(``max_scales``) as an (N, 1) float32 tensor, checked against what the run may do to the set."""
+    if max_scales is None:
+        return None
+    bounds = np.asarray(max_scales, np.float64).reshape(-1)
+    if len(bounds) != len(init) or not (np.isfinite(bounds).all() and (bounds > 0).all()):
+        raise ConfigError(f"max_scales needs one finite σ > 0 (metres) per initial Gaussian ({len(init)}), "
+                          f"got {len(bounds)} values")  # fmt: skip
+    if len(init) > schedule.strategy.cap or schedule.densifying_until > 0:
+        raise ConfigError("max_scales needs a fixed set: the strategy must not densify (refine_start >= the end of "
+                          "densification) and the cap must hold every initial Gaussian")  # fmt: skip
+    return torch.from_numpy(np.log(bounds).astype(np.float32))[:, None]
+
+
+def _clamp_log_scales(state: TrainState, bounds: torch.Tensor) -> None:
+    with torch.no_grad():
+        state.params["log_scales"].copy_(torch.minimum(state.params["log_scales"], bounds))
+
+
 def train_splats(
     cameras: Cameras,
     images: Mapping[str, np.ndarray],
@@ -138,6 +157,7 @@ def train_splats(
     options: TrainOptions | None = None,
     progress: Callable[[StepInfo], None] | None = None,
     lpips: PerceptualNetwork | None = None,
+    max_scales: np.ndarray | None = None,
 ) -> TrainResult:
     """Train ``init`` (any origin) against ``images`` inside ``masks``, with ``context`` frozen beside it.
 
@@ -146,6 +166,9 @@ def train_splats(
     :class:`TrainResult`; deterministic for a given seed on the CPU.
     lpips: the frozen LPIPS network (an :class:`eval.lpips.LPIPS`), needed when ``options.lpips_weight`` > 0 and
     never called otherwise.
+    max_scales: (N,) per Gaussian of ``init``, metres: after every step each σ is clamped to at most it (a projection
+    onto the bound, as the appearance refinement of the survey layer needs); the set must keep its count and order,
+    so the strategy must not densify and ``init`` must fit its cap.
     """
     opts = options or TrainOptions()
     t0 = time.perf_counter()
@@ -156,6 +179,7 @@ def train_splats(
     scene = prepare_scene(cameras, images, masks, context, opts)
     side = min(min(v.width, v.height) for v in scene.views)
     schedule = TrainSchedule.from_options(opts, scene.scale, len(scene.views), side)
+    bounds = _log_scale_bounds(max_scales, init, schedule)
     state = initial_state(init, scene, schedule, opts)
     early_stop = EarlyStop.from_options(opts, schedule.densifying_until)
     window, history, stopped = EvalWindow(), [], False
@@ -165,6 +189,8 @@ def train_splats(
         index = state.sampler.next(state.step, schedule.mining_on(state.step))
         outcome = train_step(state, scene, schedule, opts, index, lpips)
         refine_after_step(state, scene, schedule)
+        if bounds is not None:
+            _clamp_log_scales(state, bounds)
         _record(window, state, scene, outcome)
         step = state.step
         if schedule.snapshot_after(step):

@@ -73,6 +73,19 @@ WITHOUT_BACKGROUND = "merged_no_background"
 what the background adds to the whole image is told apart from what the survey and fill layers do."""
 
 
+UNREFINED = "merged_unrefined"
+"""The control beside ``merged``: the same product with its survey layer as converted (the appearance stage's
+refinement undone), so that what the refinement adds is told apart from what the fill and background do."""
+
+
+def _converted_survey(gaussians: Any, converted_path: Path, gaussians_path: Path) -> Any:
+    """``gaussians`` with their survey rows given back the attributes of export/mvs_gaussians.ply."""
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.appearance import with_converted_survey
+
+    return with_converted_survey(gaussians, read_gaussian_ply(converted_path), gaussians_path)
+
+
 def _without_background(gaussians_path: Path) -> Any:
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.convert_options import Source
@@ -83,8 +96,9 @@ def _without_background(gaussians_path: Path) -> Any:
     return gaussians.subset(np.asarray(gaussians.fields["source"]) != Source.BACKGROUND)
 
 
-def _filtered_mvs(points_path: Path, gaussians_path: Path) -> tuple[Any, Any]:
-    """(survey points, Gaussians) of the merged product whose ``source`` is MVS."""
+def _filtered_mvs(points_path: Path, gaussians_path: Path, converted_path: Path) -> tuple[Any, Any]:
+    """(survey points, Gaussians) of the merged product whose ``source`` is MVS, with their converted attributes
+    (``converted_path``: export/mvs_gaussians.ply)."""
     from core.io import read_point_cloud
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.convert_options import Source
@@ -94,7 +108,8 @@ def _filtered_mvs(points_path: Path, gaussians_path: Path) -> tuple[Any, Any]:
         if "source" not in data.fields:
             raise ConfigError(f"the merged {name} have no 'source' field: the MVS part cannot be told apart")
     is_mvs = np.asarray(points.fields["source"]) == Source.MVS
-    return points.subset(is_mvs), gaussians.subset(np.asarray(gaussians.fields["source"]) == Source.MVS)
+    survey = gaussians.subset(np.asarray(gaussians.fields["source"]) == Source.MVS)
+    return points.subset(is_mvs), _converted_survey(survey, converted_path, gaussians_path)
 
 
 class EvalStage(Stage):
@@ -307,9 +322,14 @@ class EvalStage(Stage):
             (layout.merged_points_ply, layout.merged_ply),
             lambda: (layout.merged_points_ply, _without_background(layout.merged_ply)),
         )
+        products[UNREFINED] = ProductSource(
+            (layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),
+            lambda: (layout.merged_points_ply, _converted_survey(read_gaussian_ply(layout.merged_ply),
+                                                                 layout.mvs_gaussians, layout.merged_ply)),
+        )  # fmt: skip
         products[FILTERED_MVS] = ProductSource(
-            (layout.merged_points_ply, layout.merged_ply),
-            lambda: _filtered_mvs(layout.merged_points_ply, layout.merged_ply),
+            (layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),
+            lambda: _filtered_mvs(layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),
         )
         return products
 

@@ -28,8 +28,25 @@ class MergeStage(Stage):
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
         extra = [layout.cleaned_splats, layout.classified_points, layout.masks_dir, layout.dense_workspace.sparse]
-        background = [layout.background_splats] if layout.background_splats.is_file() else []
-        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else []), *background]
+        layers = [p for p in (self._background_file(ctx), self._survey_file(ctx)) if p is not None and p.is_file()]
+        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else []), *layers]
+
+    def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
+        """Which optional layer files the merge reads (a stage turned off leaves its file behind, unread)."""
+        return {"background": self._background_file(ctx) is not None, "survey": self._survey_file(ctx) is not None}
+
+    def _survey_file(self, ctx: StageContext) -> Path | None:
+        """splats/survey.ply (the survey layer's refined appearance) when the appearance stage is on."""
+        from fusion.appearance import AppearanceOptions
+
+        return ctx.layout.survey_splats if ctx.config.options("appearance", AppearanceOptions).enabled else None
+
+    def _background_file(self, ctx: StageContext) -> Path | None:
+        """splats/background.ply when the background stage is on."""
+        from fusion.background import BackgroundOptions
+
+        on = ctx.config.options("background", BackgroundOptions).enabled
+        return ctx.layout.background_splats if on else None
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
@@ -37,20 +54,22 @@ class MergeStage(Stage):
         return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las, *splats]
 
     def expected_bytes(self, ctx: StageContext) -> int:
-        """Bytes of the merge's products for n = the MVS Gaussians + (hybrid) the cleaned splats: merged.ply with
-        n Gaussians at the higher SH degree and both sets' extra fields + ``classification``, ``source``,
-        ``surface``; merged_points.ply and .las with n points and those fields + ``opacity``, ``scale`` and the
-        normals (3DGS properties at 4 bytes, point fields at 8 at most); export/splats.ply at most
-        splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
+        """Bytes of the merge's products for n = the MVS Gaussians + (hybrid) the cleaned splats + the background
+        layer: merged.ply with n Gaussians at the highest SH degree (the refined survey layer's included) and the
+        sets' extra fields + ``classification``, ``source``, ``surface``; merged_points.ply and .las with n points
+        and those fields + ``opacity``, ``scale`` and the normals (3DGS properties at 4 bytes, point fields at 8 at
+        most); export/splats.ply at most splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
         layout = ctx.layout
         sets = [sizes.ply_vertices(layout.mvs_gaussians)]
         if self._hybrid(ctx):
             sets.append(sizes.ply_vertices(layout.cleaned_splats))
-        if layout.background_splats.is_file():
-            sets.append(sizes.ply_vertices(layout.background_splats))
+        background, survey = self._background_file(ctx), self._survey_file(ctx)
+        if background is not None and background.is_file():
+            sets.append(sizes.ply_vertices(background))
         n = sum(s.count for s in sets)
         extras = sum(len(s.extras) for s in sets) + 3
-        merged = sizes.gaussian_ply_bytes(n, max(s.sh_degree for s in sets), extras)
+        refined = sizes.ply_vertices(survey) if survey is not None else sizes.PlyVertices()  # replaces the MVS set
+        merged = sizes.gaussian_ply_bytes(n, max(refined.sh_degree, *(s.sh_degree for s in sets)), extras)
         points = sizes.point_ply_bytes(n, extras + 5) + sizes.las_bytes(n, extras + 5)
         splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
         return merged + points + splats + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
@@ -63,14 +82,18 @@ class MergeStage(Stage):
 
         layout = ctx.layout
         mvs = read_gaussian_ply(layout.mvs_gaussians)
-        extra: dict[str, Any] = {}
+        refined = _refined_survey(self._survey_file(ctx), mvs)
+        extra: dict[str, Any] = {"survey_refined": refined is not None}
         if self._hybrid(ctx):
-            products = self._hybrid_products(ctx, mvs)
-            gaussians, points, stats, extra = products.gaussians, products.points, products.stats, products.counts
+            products = self._hybrid_products(ctx, mvs, refined)
+            gaussians, points, stats = products.gaussians, products.points, products.stats
+            extra.update(products.counts)
         else:
             result = merge_gaussians(None, mvs)
             gaussians, points, stats = result.gaussians, result.gaussians, result.stats
-        background = _background_layer(layout.background_splats, gaussians)
+            if refined is not None:  # the viewer set only: the survey points keep the converted attributes
+                gaussians = _same_rows(merge_gaussians(None, refined).gaussians, gaussians)
+        background = _background_layer(self._background_file(ctx), gaussians)
         if background is not None:  # the viewer product only: the survey points never hold it
             gaussians = GaussianSet.concatenate([gaussians, background])
         written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
@@ -93,10 +116,12 @@ class MergeStage(Stage):
                 "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
                 "points": len(points), **extra}  # fmt: skip
 
-    def _hybrid_products(self, ctx: StageContext, mvs: Any) -> Any:
-        """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply."""
+    def _hybrid_products(self, ctx: StageContext, mvs: Any, refined: Any) -> Any:
+        """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply; with ``refined`` (the
+        survey layer's refined appearance, one per MVS Gaussian) the viewer set takes it."""
         from core.io.gaussian_ply import read_gaussian_ply
         from fusion.export import export_gaussian_ply
+        from fusion.merge import merge_hybrid
         from fusion.survey import hybrid_products, view_tests
         from hybridsplat import project_io
 
@@ -112,14 +137,19 @@ class MergeStage(Stage):
             codes = project_io.read_needs_splats_class_codes(layout)
             if any(n in codes for n in opts.needs_mvs_classes):
                 predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype("int64")
-        return hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
+        products = hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
+        if refined is not None:
+            viewer = merge_hybrid(refined, splats, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
+            products.gaussians = _same_rows(viewer, products.gaussians)
+        return products
 
     def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
         if not isinstance(counts.get("written"), int):
             return None
         line = (
             f"The merged product (export/merged.ply) holds {counts['written']:,} Gaussians in three layers "
-            f"(its `source` field): survey {counts.get('mvs', 0):,} (the MVS Gaussians, positions as converted), "
+            f"(its `source` field): survey {counts.get('mvs', 0):,} (the MVS Gaussians, positions as converted"
+            f"{', appearance refined' if counts.get('survey_refined') else ''}), "
             f"fill {counts.get('splats', 0):,} (splats trained in the region masks), background "
             f"{counts.get('background', 0):,} (what the photos see beyond the survey region; viewer product only). "
             f"The survey points (merged_points.ply/.las) hold {counts.get('points', 0):,} points, no background."
@@ -135,7 +165,35 @@ class MergeStage(Stage):
         return text
 
 
-def _background_layer(path: Path, merged: Any) -> Any:
+def _refined_survey(path: Path | None, mvs: Any) -> Any:
+    """The survey layer with refined appearance (splats/survey.ply), checked row for row against the converted
+    MVS Gaussians; None without the file."""
+    import numpy as np
+
+    from core.errors import DataError
+    from core.io.gaussian_ply import read_gaussian_ply
+
+    if path is None or not path.is_file():
+        return None
+    refined = read_gaussian_ply(path)
+    if len(refined) != len(mvs) or not np.array_equal(refined.means, mvs.means):
+        raise DataError("does not hold the converted MVS Gaussians' positions row for row: run the appearance stage "
+                        "again", path)  # fmt: skip
+    return refined
+
+
+def _same_rows(viewer: Any, survey: Any) -> Any:
+    """``viewer`` (the merge of the refined survey layer) with the fields of ``survey`` (the same merge of the
+    converted one: the same rows, since the merge selects by position and class only)."""
+    import numpy as np
+
+    if len(viewer) != len(survey) or not np.array_equal(viewer.means, survey.means):
+        raise AssertionError("the refined and converted survey layers merged to different rows")
+    viewer.fields = dict(survey.fields)
+    return viewer
+
+
+def _background_layer(path: Path | None, merged: Any) -> Any:
     """The background layer (splats/background.ply) with the merged set's fields (``source`` = BACKGROUND, the
     others 0), or None when there is none."""
     import numpy as np
@@ -143,7 +201,7 @@ def _background_layer(path: Path, merged: Any) -> Any:
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.convert_options import Source
 
-    if not path.is_file():
+    if path is None or not path.is_file():
         return None
     background = read_gaussian_ply(path)
     if len(background) == 0:

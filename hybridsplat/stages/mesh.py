@@ -81,7 +81,8 @@ class MeshStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
-        return [layout.merged_ply, layout.merged_points_ply, layout.snapshots_dir, layout.sparse, layout.record("sfm")]
+        return [layout.merged_ply, layout.merged_points_ply, layout.mvs_gaussians, layout.snapshots_dir, layout.sparse,
+                layout.record("sfm")]  # fmt: skip
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         from core.io.origin import sidecar_path
@@ -116,6 +117,10 @@ class MeshStage(Stage):
         opts: MeshStageOptions = ctx.options(self)
         layout = ctx.layout
         merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
+        if layout.mvs_gaussians.is_file():  # the survey layer as converted: its refined appearance is for viewers
+            from fusion.appearance import with_converted_survey
+
+            merged = with_converted_survey(merged, read_gaussian_ply(layout.mvs_gaussians), layout.merged_ply)
         cameras = None
         if layout.sparse.is_dir():
             cameras = read_project_model(layout, layout.sparse)[0]

@@ -1,0 +1,196 @@
+"""Appearance refinement of the survey layer: the MVS Gaussians fitted to the photos with their positions frozen.
+
+The adaptive conversion (:mod:`fusion.convert`) gives each MVS point a fixed surfel: DC colour from the point, σ from
+the local spacing, opacity from its number of views. This refinement fits, on the whole of every training photo,
+their colour (spherical harmonics up to ``training.sh_degree``), opacity, scales and rotations, with the fill and
+background layers frozen beside them, so that the survey layer looks as good in a viewer as plain 3DGS while it
+stays the MVS geometry:
+
+- positions never change: the trainer's means learning rate is 0 and the result carries the input's float64 means
+  (bit for bit, not their float32 training-frame copies);
+- no Gaussian is added, removed or moved (the strategy never refines), so row *i* of the result is MVS point *i*;
+- every σ stays at most ``max_scale_spacings`` × the point's local spacing (the median distance to its
+  ``spacing_neighbours`` nearest MVS points, as the conversion measures it) or its converted σ if larger (a
+  projection after every step), so a survey Gaussian still stands for its point and never grows over a hole;
+- no survey Gaussian is made invisible: α is kept at least :data:`MIN_OPACITY` (above the 1/255 under which the
+  exporters drop a Gaussian), so the viewer product keeps one Gaussian per survey point.
+
+The survey products (points, LAS, C2C, the mesh, measurement) keep the converted attributes: only the viewer product
+(``export/merged.ply``) takes the refined ones. ``.splat`` files hold DC colour only: they get the refined DC colour,
+opacity, scales and rotations, not the higher SH bands.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from core.cameras import Cameras
+from core.errors import ConfigError
+from core.gaussians import GaussianSet
+from fusion.train.options import TrainOptions
+from fusion.train.strategy import DefaultStrategy
+
+#: the least α of a refined survey Gaussian (twice the exporters' threshold of 1/255)
+MIN_OPACITY = 2.0 / 255.0
+
+
+def _appearance_training() -> TrainOptions:
+    return TrainOptions(
+        iterations=2000,
+        sh_degree=3,
+        sh_degree_interval=100,
+        lr_means=0.0,
+        min_iterations=400,
+        strategy=DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0),
+    )
+
+
+@dataclass(frozen=True)
+class AppearanceOptions:
+    """Options of :func:`refine_survey_appearance` (the ``appearance`` stage's options).
+
+    enabled: refine the survey layer's appearance for the viewer product. max_image_size: longer side of the
+    training photos (px; 0 = full size). max_scale_spacings: the largest σ of a survey Gaussian, in multiples of
+    its point's local spacing (never below its converted σ). spacing_neighbours: neighbours of that spacing.
+    training: the trainer's options (positions frozen: ``lr_means`` must be 0; the strategy must not refine; its
+    cap is raised to the survey layer's count).
+
+    How the defaults were set (never on a scored view): the fill's resolution (640 px); a bound of one spacing
+    (2.5 × the conversion's σ of 0.4 spacings: neighbouring surfels overlap, none covers a hole; set before any
+    measurement); the conversion's 8 neighbours; SH degree 3 and the step budget by the PSNR on the trainer's
+    held-back training pixels (demo scene, docs/experiments/2026-11-27-survey-appearance.md): degree 3 above degree 1,
+    still rising at 1000 steps, so up to 2000 steps ended by the trainer's early stop on those pixels.
+    """
+
+    enabled: bool = True
+    max_image_size: int = 640
+    max_scale_spacings: float = 1.0
+    spacing_neighbours: int = 8
+    training: TrainOptions = field(default_factory=_appearance_training)
+
+    def __post_init__(self) -> None:
+        if self.max_image_size < 0:
+            raise ConfigError(f"max_image_size must be >= 0 (0: full size), got {self.max_image_size}")
+        if not self.max_scale_spacings > 0 or not 1 <= self.spacing_neighbours <= 64:
+            raise ConfigError("max_scale_spacings must be > 0 and spacing_neighbours in 1..64")
+        if self.training.lr_means != 0.0:
+            raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got "
+                              f"{self.training.lr_means}")  # fmt: skip
+        strategy = self.training.strategy
+        if not isinstance(strategy, DefaultStrategy) or strategy.refine_start < strategy.refine_stop:
+            raise ConfigError("the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
+                              "DefaultStrategy that never refines (refine_stop <= refine_start)")  # fmt: skip
+
+
+def scale_bounds(means: np.ndarray, log_scales: np.ndarray, multiple: float, neighbours: int) -> np.ndarray:
+    """(N,) the largest σ (metres) each Gaussian may reach: ``multiple`` × its point's local spacing (median
+    distance to the ``neighbours`` nearest other points, duplicates ignored, as :mod:`fusion.convert` measures it)
+    and never below its current largest σ. A point without a distinct neighbour keeps its current σ as bound."""
+    from core.knn.search import knn_grid_summary
+
+    current = np.exp(np.asarray(log_scales, np.float64).max(axis=1)) if len(means) else np.zeros(0)
+    if len(means) < 2:
+        return current
+    _, spacing = knn_grid_summary(np.asarray(means, np.float64), min(neighbours, len(means) - 1))
+    return np.maximum(multiple * spacing, current)
+
+
+@dataclass
+class AppearanceResult:
+    """The survey Gaussians with refined appearance (same rows, origin and float64 means as the input; SH at the
+    training degree), the trainer's result and counts."""
+
+    gaussians: GaussianSet
+    training: Any
+    counts: dict[str, Any]
+
+
+def refine_survey_appearance(
+    cameras: Cameras,
+    images: Mapping[str, np.ndarray],
+    survey: GaussianSet,
+    context: GaussianSet | None,
+    options: AppearanceOptions,
+    seed: int,
+    progress: Callable[[Any], None] | None = None,
+) -> AppearanceResult:
+    """Fit the appearance of ``survey`` (the MVS Gaussians of the survey layer, any origin) to ``images`` (name →
+    (H, W, 3) photo at its camera's size; the training photos only) with ``context`` (the fill and background
+    layers) frozen beside it, on every pixel. Positions are returned bit for bit."""
+    from fusion.train.masked import training_downscale
+    from fusion.train.trainer import train_splats
+
+    if len(survey) == 0:
+        raise ConfigError("no survey Gaussians: nothing to refine")
+    bounds = scale_bounds(survey.means, survey.log_scales, options.max_scale_spacings, options.spacing_neighbours)
+    downscale = training_downscale(cameras, options.training.downscale, options.max_image_size)
+    strategy = replace(options.training.strategy, cap=max(options.training.strategy.cap, len(survey)))
+    train_opts = replace(options.training, downscale=downscale, seed=seed, strategy=strategy)
+    result = train_splats(cameras, images, None, survey, context, train_opts, progress, max_scales=bounds)
+    trained = result.splats.with_origin(survey.origin)
+    least = np.float32(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
+    opacities = np.maximum(trained.logit_opacities, least)
+    refined = GaussianSet(survey.means.copy(), trained.log_scales, trained.quats, opacities, trained.sh_dc,
+                          trained.sh_rest, survey.origin.copy(), fields=dict(survey.fields))  # fmt: skip
+    at_bound = np.exp(refined.log_scales.astype(np.float64).max(axis=1)) >= bounds * (1 - 1e-5)
+    history = result.history
+    counts = {
+        "gaussians": len(refined),
+        "iterations": result.iterations,
+        "downscale": downscale,
+        "resolution": list(result.resolution),
+        "sh_degree": train_opts.sh_degree,
+        "at_scale_bound": int(at_bound.sum()),
+        "at_least_opacity": int((trained.logit_opacities < least).sum()),
+        "holdout_psnr_db_first": history[0].holdout_psnr if history else None,
+        "holdout_psnr_db": history[-1].holdout_psnr if history else None,
+        "context_gaussians": result.context_total,
+        "seconds_training": result.seconds,
+    }
+    return AppearanceResult(refined, result, counts)
+
+
+def with_converted_survey(merged: GaussianSet, converted: GaussianSet, source_path: Any = None) -> GaussianSet:
+    """``merged`` (a set with a ``source`` field, e.g. export/merged.ply) with its survey rows (``Source.MVS``) given
+    back the attributes of the converted MVS Gaussian at the same position (``converted``: export/mvs_gaussians.ply,
+    the same origin). The survey layer's positions are the conversion's bit for bit, so positions identify the rows;
+    of several converted Gaussians at one position, the first is taken. What the survey products (the mesh, the
+    controls that measure MVS) read instead of the refined appearance. Raises :class:`DataError` (naming
+    ``source_path``) when a survey row matches no converted Gaussian."""
+    from core.errors import DataError
+    from fusion.convert_options import Source
+
+    if "source" not in merged.fields:
+        raise DataError("the merged Gaussians have no 'source' field: the survey layer cannot be told apart",
+                        source_path)  # fmt: skip
+    rows = np.flatnonzero(np.asarray(merged.fields["source"]) == Source.MVS)
+    if len(rows) == 0:
+        return merged
+    if not np.array_equal(merged.origin, converted.origin):
+        raise DataError("the merged Gaussians and the converted MVS Gaussians have different origins", source_path)
+    keys = _position_keys(converted.means)
+    order = np.argsort(keys, kind="stable")
+    wanted = _position_keys(merged.means[rows])
+    at = np.minimum(np.searchsorted(keys[order], wanted), len(order) - 1)
+    found = keys[order][at] == wanted
+    if not found.all():
+        raise DataError(f"{int((~found).sum())} survey Gaussians of the merged product lie where no converted MVS "
+                        f"Gaussian does: the conversion changed since the merge", source_path)  # fmt: skip
+    index = order[at]
+    source = converted.with_sh_degree(merged.sh_degree)
+    out = merged.subset(np.arange(len(merged)))
+    out.log_scales[rows] = source.log_scales[index]
+    out.quats[rows] = source.quats[index]
+    out.logit_opacities[rows] = source.logit_opacities[index]
+    out.sh_dc[rows] = source.sh_dc[index]
+    out.sh_rest[rows] = source.sh_rest[index]  # type: ignore[index]
+    return out
+
+
+def _position_keys(means: np.ndarray) -> np.ndarray:
+    """One sortable key per row of (N, 3) float64 positions: their exact bytes."""
+    return np.ascontiguousarray(means, dtype=np.float64).view(np.dtype((np.void, 24))).reshape(-1)

@@ -1,0 +1,144 @@
+"""Appearance refinement of the survey layer (issue 29): the MVS Gaussians' colour, opacity, scales and rotations
+fitted to photos with positions frozen bit for bit, one Gaussian per point, σ within its spacing bound; and the
+survey products given back the converted attributes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core.cameras import Camera, Cameras, View
+from core.errors import ConfigError, DataError
+from core.gaussians import SH_C0, GaussianSet
+from fusion.appearance import AppearanceOptions, refine_survey_appearance, scale_bounds, with_converted_survey
+from fusion.convert_options import Source
+from fusion.train.options import TrainOptions
+from fusion.train.strategy import DefaultStrategy
+
+
+def _ring(n: int = 8, distance: float = 1.0) -> Cameras:
+    """``n`` cameras on a horizontal circle around the origin, looking at it; 48 × 36 px."""
+    cam = Camera.pinhole(40.0, 40.0, 24.0, 18.0, 48, 36)
+    views = {}
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        centre = distance * np.array([np.cos(a), np.sin(a), 0.0])
+        forward = -centre / np.linalg.norm(centre)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        rotation = np.stack([right, np.cross(forward, right), forward])  # rows: camera axes in world coordinates
+        views[i + 1] = View.from_matrix(i + 1, f"v{i}.png", 1, np.c_[rotation, -rotation @ centre])
+    return Cameras({1: cam}, views)
+
+
+def _ball(n: int = 600, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    d = rng.normal(size=(n, 3))
+    return 0.2 * d / np.linalg.norm(d, axis=1, keepdims=True) + np.array([1e-7, 0.0, 0.0])  # not exactly float32
+
+
+def _set(points: np.ndarray, rgb: np.ndarray, sigma: float, opacity_logit: float) -> GaussianSet:
+    n = len(points)
+    return GaussianSet(points, np.full((n, 3), np.log(sigma)), np.tile([1.0, 0, 0, 0], (n, 1)),
+                       np.full(n, opacity_logit), (rgb - 0.5) / SH_C0)  # fmt: skip
+
+
+def test_bounds_are_a_multiple_of_the_spacing_and_never_shrink_a_gaussian():
+    h = 0.01
+    grid = np.stack(np.meshgrid(np.arange(12), np.arange(12), indexing="ij"), -1).reshape(-1, 2) * h
+    points = np.c_[grid, np.zeros(len(grid))]
+    small = np.full((len(points), 3), np.log(0.1 * h))
+    bounds = scale_bounds(points, small, 1.5, 4)  # the 4 nearest of an interior grid point are all at h
+    interior = (grid[:, 0] > 0) & (grid[:, 0] < 11 * h) & (grid[:, 1] > 0) & (grid[:, 1] < 11 * h)
+    np.testing.assert_allclose(bounds[interior], 1.5 * h, rtol=1e-9)
+    large = np.full((len(points), 3), np.log(3 * h))
+    np.testing.assert_allclose(scale_bounds(points, large, 1.5, 4), 3 * h, rtol=1e-6)  # never below the σ it has
+
+
+def test_refinement_fits_the_colours_and_leaves_every_position_bit_for_bit():
+    from fusion.render.scene import render_gaussian_set
+
+    cameras, points = _ring(), _ball()
+    rgb = np.where(points[:, 2:3] > 0, [0.9, 0.2, 0.1], [0.1, 0.3, 0.9])  # the truth: red top, blue bottom
+    truth = _set(points, rgb, 0.03, 4.0)
+    images = {v.name: render_gaussian_set(truth, cameras.camera_of(v), v).colour.detach().numpy() for v in cameras}
+    converted = _set(points, np.full_like(rgb, 0.5), 0.012, 0.0)  # grey, half transparent, too small
+    training = TrainOptions(iterations=200, lr_means=0.0, sh_degree=1, sh_degree_interval=50, min_iterations=200,
+                            lr_sh_dc=0.02, lr_log_scales=0.02,
+                            strategy=DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0))  # fmt: skip
+    options = AppearanceOptions(max_image_size=48, max_scale_spacings=1.0, training=training)
+    result = refine_survey_appearance(cameras, images, converted, None, options, seed=0)
+    refined = result.gaussians
+    assert len(refined) == len(converted) and refined.means.dtype == np.float64
+    assert np.array_equal(refined.means, converted.means)  # bit for bit, not the float32 training copy
+    bounds = scale_bounds(points, converted.log_scales, 1.0, 8)
+    assert (np.exp(refined.log_scales.astype(np.float64)).max(axis=1) <= bounds * (1 + 1e-5)).all()
+    assert result.counts["at_scale_bound"] > 0  # the bound was reached, so it did bind
+
+    def error(gs: GaussianSet) -> float:
+        return float(np.mean([np.abs(render_gaussian_set(gs, cameras.camera_of(v), v).colour.detach().numpy()
+                                     - images[v.name]).mean() for v in cameras]))  # fmt: skip
+
+    before, after = error(converted), error(refined)
+    assert after < 0.35 * before, (before, after)
+
+
+def test_options_refuse_moving_positions_or_densifying():
+    with pytest.raises(ConfigError, match="lr_means"):
+        AppearanceOptions(training=TrainOptions(lr_means=1e-4, strategy=DefaultStrategy(refine_start=0,
+                                                                                        refine_stop=0)))  # fmt: skip
+    with pytest.raises(ConfigError, match="never refines"):
+        AppearanceOptions(training=TrainOptions(lr_means=0.0))
+    with pytest.raises(ConfigError):
+        AppearanceOptions(max_scale_spacings=0.0)
+
+
+def test_the_trainer_refuses_a_scale_bound_on_a_set_that_may_grow():
+    from fusion.train.trainer import train_splats
+
+    cameras, points = _ring(n=2), _ball(n=50)
+    gs = _set(points, np.full((50, 3), 0.5), 0.01, 0.0)
+    images = {v.name: np.full((36, 48, 3), 0.5) for v in cameras}
+    with pytest.raises(ConfigError, match="fixed set"):
+        train_splats(cameras, images, None, gs, None, TrainOptions(iterations=400), max_scales=np.full(50, 0.02))
+    with pytest.raises(ConfigError, match="one finite"):
+        train_splats(cameras, images, None, gs, None, TrainOptions(iterations=5), max_scales=np.full(49, 0.02))
+
+
+def test_survey_rows_get_the_converted_attributes_back():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(40, 3))
+    converted = _set(points, rng.uniform(size=(40, 3)), 0.01, 1.0)
+    converted.quats[:] = rng.normal(size=(40, 4)).astype(np.float32)
+    refined = converted.with_sh_degree(2)
+    refined.log_scales += 0.3
+    refined.logit_opacities -= 1.0
+    refined.sh_dc += 0.2
+    refined.sh_rest[:] = 0.1
+    refined.quats[:] = rng.normal(size=(40, 4)).astype(np.float32)
+    keep = np.flatnonzero(rng.uniform(size=40) < 0.7)
+    fill = _set(rng.normal(size=(7, 3)), rng.uniform(size=(7, 3)), 0.02, 0.5).with_sh_degree(2)
+    merged = GaussianSet.concatenate([refined.subset(keep[::-1]), fill])  # any order: rows are found by position
+    merged.fields["source"] = np.r_[np.full(len(keep), Source.MVS), np.full(7, Source.SPLAT)].astype(np.uint8)
+    restored = with_converted_survey(merged, converted)
+    expected = converted.with_sh_degree(2).subset(keep[::-1])
+    for name in ("means", "log_scales", "quats", "logit_opacities", "sh_dc", "sh_rest"):
+        np.testing.assert_array_equal(getattr(restored, name)[: len(keep)], getattr(expected, name))
+        np.testing.assert_array_equal(getattr(restored, name)[len(keep) :], getattr(fill, name))
+    moved = merged.subset(np.arange(len(merged)))
+    moved.means[0, 0] += 1e-9
+    with pytest.raises(DataError, match="no converted MVS"):
+        with_converted_survey(moved, converted, "merged.ply")
+
+
+def test_no_survey_gaussian_is_made_invisible():
+    from fusion.appearance import MIN_OPACITY
+
+    cameras, points = _ring(n=4), _ball(n=200)
+    images = {v.name: np.zeros((36, 48, 3)) for v in cameras}  # black photos: the fit wants every α at 0
+    converted = _set(points, np.full((200, 3), 0.5), 0.02, 2.0)
+    training = TrainOptions(iterations=100, lr_means=0.0, sh_degree=0, min_iterations=100, lr_opacities=0.2,
+                            strategy=DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0))  # fmt: skip
+    result = refine_survey_appearance(cameras, images, converted, None, AppearanceOptions(training=training), 0)
+    alpha = 1 / (1 + np.exp(-result.gaussians.logit_opacities.astype(np.float64)))
+    assert result.counts["at_least_opacity"] > 0 and alpha.min() >= MIN_OPACITY * (1 - 1e-5)
