@@ -181,12 +181,20 @@ def summarise(method: str, points: list[MeasuredPoint | None], truths: list[Trut
     )
 
 
-def render_views(project: Path, sfm: Cameras, names: set[str]) -> dict[str, np.ndarray]:
-    """Grey renders (H, W) float32 0–255 of the merged product at the SfM cameras (pinhole part)."""
+def render_views(
+    project: Path, sfm: Cameras, names: set[str], product: str = "merged"
+) -> dict[str, np.ndarray]:
+    """Grey renders (H, W) float32 0–255 of the merged product at the SfM cameras (pinhole part); ``product``
+    "merged_unrefined": the control with the survey layer as converted (export/mvs_gaussians.ply's attributes)."""
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.render import render_gaussian_set
 
-    gs = read_gaussian_ply(ProjectLayout(project).merged_ply)
+    layout = ProjectLayout(project)
+    gs = read_gaussian_ply(layout.merged_ply)
+    if product == "merged_unrefined":
+        from fusion.appearance import with_converted_survey
+
+        gs = with_converted_survey(gs, read_gaussian_ply(layout.mvs_gaussians), layout.merged_ply)
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -296,11 +304,17 @@ def _picks(cams: Cameras, pixels: dict[str, np.ndarray]) -> list[Pick]:
 
 
 def _refine_in_renders(
-    scene: Path, project: Path, sfm: Cameras, true_cams: Cameras, truths: list[Truth], noisy: list[dict]
+    scene: Path,
+    project: Path,
+    sfm: Cameras,
+    true_cams: Cameras,
+    truths: list[Truth],
+    noisy: list[dict],
+    product: str = "merged",
 ) -> tuple[list[MeasuredPoint | None], list[np.ndarray]]:
     """Method (b): per truth, the picks found by patch matching in the merged product rendered at the SfM cameras,
     triangulated (None with fewer than 2 picks); and every pick's error against the true projection (pixels)."""
-    renders = render_views(project, sfm, {n for t in truths for n in t.images})
+    renders = render_views(project, sfm, {n for t in truths for n in t.images}, product)
     photos = {n: _gray(scene / "images" / n) for n in renders}
     refined, pick_err = [], []
     for i, t in enumerate(truths):
@@ -325,6 +339,8 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--points", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
+    ap.add_argument("--product", choices=("merged", "merged_unrefined"), default="merged",
+                    help="what (b) matches in: the merged product, or the control with its survey layer as converted")  # fmt: skip
     ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
     ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
     ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
@@ -343,7 +359,7 @@ def main(argv: list[str] | None = None) -> None:
 
     a0 = [measure(_picks(true_cams, px), f"T{i}") for i, px in enumerate(noisy)]
     a = [measure(_picks(sfm, px), f"T{i}") for i, px in enumerate(noisy)]
-    refined, pick_err = _refine_in_renders(args.scene, args.project, sfm, true_cams, truths, noisy)
+    refined, pick_err = _refine_in_renders(args.scene, args.project, sfm, true_cams, truths, noisy, args.product)
 
     meta = json.loads((args.scene / "scene.json").read_text())
     gsd_mm = 1000 * float(meta.get("gsd_m") or float("nan"))
