@@ -181,9 +181,7 @@ def summarise(method: str, points: list[MeasuredPoint | None], truths: list[Trut
     )
 
 
-def render_views(
-    project: Path, sfm: Cameras, names: set[str], product: str = "merged"
-) -> dict[str, np.ndarray]:
+def render_views(project: Path, sfm: Cameras, names: set[str], product: str = "merged") -> dict[str, np.ndarray]:
     """Grey renders (H, W) float32 0–255 of the merged product at the SfM cameras (pinhole part); ``product``
     "merged_unrefined": the control with the survey layer as converted (export/mvs_gaussians.ply's attributes)."""
     from core.io.gaussian_ply import read_gaussian_ply
@@ -339,8 +337,12 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--points", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="JSON with every figure")
-    ap.add_argument("--product", choices=("merged", "merged_unrefined"), default="merged",
-                    help="what (b) matches in: the merged product, or the control with its survey layer as converted")  # fmt: skip
+    ap.add_argument(
+        "--product",
+        choices=("merged", "merged_unrefined"),
+        default="merged",
+        help="what (b) matches in: the merged product, or the control with its survey layer as converted",
+    )
     ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
     ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")
     ap.add_argument("--picks-out", type=Path, default=None, help="PICKS.json of the (a) picks, for hybridsplat measure")
