@@ -1,9 +1,11 @@
-"""Viewer-ready export of Gaussian sets: 3DGS PLY, antimatter15 ``.splat``, and point clouds (PLY / LAS / LAZ).
+"""Viewer-ready export of Gaussian sets: 3DGS PLY, antimatter15 ``.splat``, Niantic's SPZ (version 2), PlayCanvas'
+compressed PLY, and point clouds (PLY / LAS / LAZ).
 
 Every writer first applies :class:`ExportOptions` (:func:`prepare`): crop to an axis-aligned box given in world
 coordinates, drop Gaussians whose opacity α is below ``min_opacity`` (default 1/255: invisible once quantised to
-8 bits), and reduce (or zero-pad) the SH degree. Payloads are float32 in the set's local frame; the float64 origin
-goes to a ``<name>.origin.json`` sidecar (:mod:`core.io.origin`), so georeferenced scenes keep their millimetres.
+8 bits), and reduce (or zero-pad) the SH degree. Payloads are float32 (or quantised: :mod:`fusion.spz_format`,
+:mod:`fusion.compressed_ply_format` state their precision) in the set's local frame; the float64 origin goes to a
+``<name>.origin.json`` sidecar (:mod:`core.io.origin`), so georeferenced scenes keep their millimetres.
 
 Point-cloud export (for CloudCompare and survey tools): one point per Gaussian at its mean, colour from the SH DC
 term, and the fields ``source`` (uint8, :class:`fusion.convert.Source`), ``classification`` (uint8, the class codes
@@ -24,9 +26,11 @@ from core.io import write_point_cloud
 from core.io.gaussian_ply import write_gaussian_ply
 from core.io.origin import remove_origin, write_origin
 from core.pointcloud import PointCloud
+from fusion.compressed_ply_format import write_compressed_ply
 from fusion.convert_options import Source
 from fusion.merge import subset
 from fusion.splat_format import write_splat
+from fusion.spz_format import SPZ_VERSION, write_spz
 
 
 @dataclass(frozen=True)
@@ -35,8 +39,9 @@ class ExportOptions:
 
     ``crop_min`` / ``crop_max``: world coordinates (metres) of an axis-aligned box, both or neither; Gaussians whose
     mean lies outside are dropped (bounds inclusive). ``min_opacity``: α threshold (0 keeps everything).
-    ``sh_degree``: SH degree written to 3DGS PLY (None keeps the set's degree). ``extra_fields``: append the set's
-    fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties after ``rot_3``.
+    ``sh_degree``: SH degree written to 3DGS PLY, SPZ and compressed PLY (None keeps the set's degree).
+    ``extra_fields``: append the set's fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties
+    after ``rot_3``.
     """
 
     crop_min: tuple[float, float, float] | None = None
@@ -127,11 +132,42 @@ def export_splat(
     """Write an antimatter15 ``.splat`` (32 bytes per Gaussian, SH DC only) + origin sidecar when non-zero."""
     prep = prepare(gaussians, options)
     out = write_splat(path, prep.gaussians)
-    if np.any(prep.gaussians.origin != 0):
-        write_origin(out, prep.gaussians.origin)
-    else:
-        remove_origin(out)
+    _write_origin_sidecar(out, prep.gaussians)
     return _report(out, "splat", prep)
+
+
+def _write_origin_sidecar(path: Path, gaussians: GaussianSet) -> None:
+    if np.any(gaussians.origin != 0):
+        write_origin(path, gaussians.origin)
+    else:
+        remove_origin(path)
+
+
+def export_spz(path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None) -> ExportReport:
+    """Write Niantic's SPZ (version 2, gzip; positions in 24-bit fixed point around the local origin, 2^-12 m steps
+    unless the extent needs coarser ones) + origin sidecar when non-zero. See :mod:`fusion.spz_format`."""
+    prep = prepare(gaussians, options)
+    path = Path(path)
+    write_spz(path, prep.gaussians, version=SPZ_VERSION)
+    _write_origin_sidecar(path, prep.gaussians)
+    return _report(path, "spz", prep)
+
+
+def export_compressed_ply(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Write PlayCanvas' compressed PLY (chunks of 256, Morton order) + origin sidecar when non-zero. See
+    :mod:`fusion.compressed_ply_format`."""
+    prep = prepare(gaussians, options)
+    path = Path(path)
+    write_compressed_ply(path, prep.gaussians)
+    _write_origin_sidecar(path, prep.gaussians)
+    return _report(path, "compressed-ply", prep)
+
+
+def is_compressed_ply_path(path: str | PathLike[str]) -> bool:
+    """Whether ``path`` names a PlayCanvas compressed PLY (``*.compressed.ply``, any case)."""
+    return Path(path).name.lower().endswith(".compressed.ply")
 
 
 def gaussians_to_points(gaussians: GaussianSet) -> PointCloud:
@@ -168,16 +204,23 @@ def export_points(
 def export_gaussians(
     path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
 ) -> ExportReport:
-    """Dispatch on the suffix: ``.splat`` → :func:`export_splat`, ``.las``/``.laz`` → :func:`export_points`,
-    ``.ply`` → 3DGS PLY (:func:`export_gaussian_ply`); use :func:`export_points` for a point-cloud PLY."""
+    """Dispatch on the suffix: ``.splat`` → :func:`export_splat`, ``.spz`` → :func:`export_spz`,
+    ``.compressed.ply`` → :func:`export_compressed_ply`, ``.las``/``.laz`` → :func:`export_points`, ``.ply`` →
+    3DGS PLY (:func:`export_gaussian_ply`); use :func:`export_points` for a point-cloud PLY."""
     suffix = Path(path).suffix.lower()
     if suffix == ".splat":
         return export_splat(path, gaussians, options)
+    if suffix == ".spz":
+        return export_spz(path, gaussians, options)
+    if is_compressed_ply_path(path):
+        return export_compressed_ply(path, gaussians, options)
     if suffix in (".las", ".laz"):
         return export_points(path, gaussians, options)
     if suffix == ".ply":
         return export_gaussian_ply(path, gaussians, options)
-    raise FormatError(f"unknown export format {suffix!r}; expected .ply, .splat, .las or .laz", path)
+    raise FormatError(
+        f"unknown export format {suffix!r}; expected .ply, .compressed.ply, .splat, .spz, .las or .laz", path
+    )
 
 
 def _report(path: Path, fmt: str, prep: Prepared) -> ExportReport:

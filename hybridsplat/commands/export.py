@@ -9,26 +9,35 @@ import typer
 from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
 from fusion.convert_options import parse_layers, select_layers
-from fusion.export import export_gaussians, export_points
+from fusion.export import export_gaussians, export_points, is_compressed_ply_path
 from hybridsplat.commands.convert import export_options, print_export
 
 
 def export(
     gaussians: Path = typer.Argument(..., help="A 3DGS PLY (with its .origin.json sidecar when georeferenced)."),
     out: list[Path] = typer.Option(
-        ..., "--out", "-o", help="Output(s): .ply (3DGS PLY), .splat, or .las/.laz (centres; repeatable)."
+        ...,
+        "--out",
+        "-o",
+        help="Output(s): .ply (3DGS PLY), .compressed.ply (PlayCanvas), .spz (SPZ v2), .splat, or .las/.laz "
+        "(centres); repeatable.",
     ),
-    points: bool = typer.Option(False, help="Write .ply outputs as point clouds (class/source fields) instead."),
+    points: bool = typer.Option(
+        False, help="Write .ply outputs (not .compressed.ply) as point clouds (class/source fields) instead."
+    ),
     crop_min: tuple[float, float, float] | None = typer.Option(None, help="Crop box minimum X Y Z (world, metres)."),
     crop_max: tuple[float, float, float] | None = typer.Option(None, help="Crop box maximum X Y Z (world, metres)."),
     min_opacity: float = typer.Option(1 / 255, help="Drop Gaussians with opacity below this (0 keeps all)."),
-    sh_degree: int | None = typer.Option(None, help="SH degree written to 3DGS PLY outputs (default: as read)."),
+    sh_degree: int | None = typer.Option(
+        None, help="SH degree written to .ply, .compressed.ply and .spz outputs (default: as read)."
+    ),
     extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
     layers: str | None = typer.Option(
         None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
     ),
 ) -> None:
-    """Export Gaussians to viewer formats (.ply, .splat) or point clouds with class/source fields (.ply, .las)."""
+    """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .splat) or point clouds with class/source
+    fields (.ply, .las)."""
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
     for path in out:
         check_output_file(path)
@@ -40,7 +49,7 @@ def export(
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:
-            if points and path.suffix.lower() == ".ply":
+            if points and path.suffix.lower() == ".ply" and not is_compressed_ply_path(path):
                 reports.append(export_points(path, gs, options))
             else:
                 reports.append(export_gaussians(path, gs, options))
