@@ -41,7 +41,9 @@ class ExportOptions:
     mean lies outside are dropped (bounds inclusive). ``min_opacity``: α threshold (0 keeps everything).
     ``sh_degree``: SH degree written to 3DGS PLY, SPZ and compressed PLY (None keeps the set's degree).
     ``extra_fields``: append the set's fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties
-    after ``rot_3``.
+    after ``rot_3``. ``crs``: the coordinate reference system of the world coordinates (e.g. ``"EPSG:32633"``),
+    kept through the export: written to every output's ``.origin.json`` sidecar (written then even at a zero
+    origin) and as the WKT of a LAS/LAZ output; None writes none.
     """
 
     crop_min: tuple[float, float, float] | None = None
@@ -49,6 +51,7 @@ class ExportOptions:
     min_opacity: float = 1.0 / 255.0
     sh_degree: int | None = None
     extra_fields: bool = False
+    crs: str | None = None
 
     def __post_init__(self) -> None:
         if (self.crop_min is None) != (self.crop_max is None):
@@ -123,6 +126,8 @@ def export_gaussian_ply(
     options = options or ExportOptions()
     prep = prepare(gaussians, options)
     out = write_gaussian_ply(path, prep.gaussians, extra_fields=options.extra_fields)
+    if options.crs:
+        write_origin(out, prep.gaussians.origin, options.crs)
     return _report(out, "3dgs-ply", prep)
 
 
@@ -132,13 +137,14 @@ def export_splat(
     """Write an antimatter15 ``.splat`` (32 bytes per Gaussian, SH DC only) + origin sidecar when non-zero."""
     prep = prepare(gaussians, options)
     out = write_splat(path, prep.gaussians)
-    _write_origin_sidecar(out, prep.gaussians)
+    _write_origin_sidecar(out, prep.gaussians, options)
     return _report(out, "splat", prep)
 
 
-def _write_origin_sidecar(path: Path, gaussians: GaussianSet) -> None:
-    if np.any(gaussians.origin != 0):
-        write_origin(path, gaussians.origin)
+def _write_origin_sidecar(path: Path, gaussians: GaussianSet, options: ExportOptions | None) -> None:
+    crs = options.crs if options is not None else None
+    if np.any(gaussians.origin != 0) or crs:
+        write_origin(path, gaussians.origin, crs)
     else:
         remove_origin(path)
 
@@ -149,7 +155,7 @@ def export_spz(path: str | PathLike[str], gaussians: GaussianSet, options: Expor
     prep = prepare(gaussians, options)
     path = Path(path)
     write_spz(path, prep.gaussians, version=SPZ_VERSION)
-    _write_origin_sidecar(path, prep.gaussians)
+    _write_origin_sidecar(path, prep.gaussians, options)
     return _report(path, "spz", prep)
 
 
@@ -161,7 +167,7 @@ def export_compressed_ply(
     prep = prepare(gaussians, options)
     path = Path(path)
     write_compressed_ply(path, prep.gaussians)
-    _write_origin_sidecar(path, prep.gaussians)
+    _write_origin_sidecar(path, prep.gaussians, options)
     return _report(path, "compressed-ply", prep)
 
 
@@ -197,7 +203,16 @@ def export_points(
     if path.suffix.lower() not in (".ply", ".las", ".laz"):
         raise FormatError(f"point export needs .ply, .las or .laz, got {path.suffix!r}", path)
     prep = prepare(gaussians, options)
-    out = write_point_cloud(path, gaussians_to_points(prep.gaussians))
+    crs = options.crs if options is not None else None
+    points = gaussians_to_points(prep.gaussians)
+    if crs and path.suffix.lower() in (".las", ".laz"):
+        from core.io.las import write_las
+
+        out = write_las(path, points, crs=crs)
+    else:
+        out = write_point_cloud(path, points)
+        if crs:
+            write_origin(out, points.origin, crs)
     return _report(out, path.suffix.lower().lstrip("."), prep)
 
 

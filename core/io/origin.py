@@ -64,6 +64,18 @@ def read_origin(path: str | PathLike[str]) -> np.ndarray:
     return origin
 
 
+def read_crs(path: str | PathLike[str]) -> str | None:
+    """The CRS recorded next to data file ``path`` (e.g. ``"EPSG:32633"``); None without a sidecar or a CRS."""
+    side = sidecar_path(path)
+    if not side.exists():
+        return None
+    payload = read_json(side)
+    crs = payload.get("crs") if isinstance(payload, dict) else None
+    if crs is not None and not isinstance(crs, str):
+        raise FormatError(f"origin sidecar 'crs' must be a string or null, found {str(crs)[:60]}", side)
+    return crs or None
+
+
 def remove_origin(path: str | PathLike[str]) -> None:
     """Remove a stale sidecar (when a file is rewritten without an origin)."""
     side = sidecar_path(path)

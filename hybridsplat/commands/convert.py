@@ -31,9 +31,15 @@ def export_options(
     min_opacity: float,
     sh_degree: int | None,
     extra_fields: bool,
+    crs: str | None = None,
 ) -> ExportOptions:
     return ExportOptions(
-        crop_min=crop_min, crop_max=crop_max, min_opacity=min_opacity, sh_degree=sh_degree, extra_fields=extra_fields
+        crop_min=crop_min,
+        crop_max=crop_max,
+        min_opacity=min_opacity,
+        sh_degree=sh_degree,
+        extra_fields=extra_fields,
+        crs=crs,
     )
 
 

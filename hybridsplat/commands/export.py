@@ -38,14 +38,16 @@ def export(
 ) -> None:
     """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .splat) or point clouds with class/source
     fields (.ply, .las)."""
-    options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields)
     for path in out:
         check_output_file(path)
+    from core.io.origin import read_crs
     from hybridsplat.project_lock import reading_project
 
     chosen = parse_layers(layers) if layers is not None else None
     with reading_project(gaussians):
         gs = select_layers(read_gaussian_ply(gaussians), chosen)
+        crs = read_crs(gaussians)  # the input's CRS goes with every output
+    options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields, crs)
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:

@@ -1,0 +1,59 @@
+"""The input's CRS goes with every export (issue 33): each output's origin sidecar names it, a LAS output carries it
+as WKT, and an input without one gives outputs without one."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from core.gaussians import GaussianSet
+from core.io.gaussian_ply import write_gaussian_ply
+from core.io.origin import read_crs, sidecar_path, write_origin
+
+UTM = "EPSG:32633"
+OUTPUTS = ("g.ply", "g.splat", "g.spz", "g.compressed.ply", "g.las")
+
+
+def _georeferenced(path, crs: str | None):
+    rng = np.random.default_rng(0)
+    n = 300
+    origin = np.array([500_000.0, 4_000_000.0, 100.0])
+    gs = GaussianSet(rng.uniform(-5, 5, (n, 3)), np.full((n, 3), -3.0), np.tile([1.0, 0, 0, 0], (n, 1)),
+                     np.full(n, 2.0), rng.normal(size=(n, 3)), origin=origin)  # fmt: skip
+    write_gaussian_ply(path, gs)
+    write_origin(path, gs.origin, crs)
+    return gs
+
+
+@pytest.mark.parametrize("crs", [UTM, None])
+def test_every_output_keeps_the_input_crs(tmp_path, crs):
+    import laspy
+
+    from hybridsplat.cli import main
+
+    source = tmp_path / "in.ply"
+    gs = _georeferenced(source, crs)
+    out = tmp_path / "out"
+    out.mkdir()
+    main(["export", str(source), *(a for name in OUTPUTS for a in ("--out", str(out / name)))])
+    for name in OUTPUTS:
+        path = out / name
+        if path.suffix == ".las":
+            parsed = laspy.read(path).header.parse_crs()
+            assert (parsed.to_epsg() if parsed is not None else None) == (32633 if crs else None), name
+            continue
+        side = json.loads(sidecar_path(path).read_text())
+        assert side["origin"] == gs.origin.tolist() and side["crs"] == crs, name
+        assert read_crs(path) == crs
+
+
+def test_a_crs_that_is_not_a_string_is_refused(tmp_path):
+    from core.errors import FormatError
+
+    path = tmp_path / "in.ply"
+    _georeferenced(path, UTM)
+    sidecar_path(path).write_text(json.dumps({"origin": [0, 0, 0], "units": "m", "crs": 32633}))
+    with pytest.raises(FormatError, match="crs"):
+        read_crs(path)
