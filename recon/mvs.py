@@ -3,6 +3,12 @@
 ``run_mvs(sparse_dir, image_dir, dense_dir, options)`` undistorts the images into a COLMAP dense workspace,
 computes depth + normal maps with the chosen backend and fuses them with ``pycolmap.stereo_fusion`` into
 ``dense/fused.ply`` + ``dense/fused.ply.vis``.
+
+Held-out photos (``MvsOptions.held_out``) are undistorted with the others (evaluation renders at their poses) but on
+every backend they are no reference (no depth or normal map), no source (their pixels are never read for another
+photo's depth) and not fused: both backends take their sources from :func:`recon.view_selection.select_views` with
+the held-out photos excluded (COLMAP through an explicit ``stereo/patch-match.cfg``), and ``stereo/fusion.cfg`` lists
+only the photos that got maps.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ import numpy as np
 from core.errors import ConfigError, InputFileError, ReconstructionError
 from core.options import enum_choice, runtime_factory
 from recon.colmap_log import native_output_to
-from recon.mvs_colmap import colmap_available, run_patch_match
+from recon.mvs_colmap import COLMAP_NUM_SOURCES, colmap_available, patch_match_problems, run_patch_match
 from recon.mvs_cpu_options import CpuMvsOptions
 from recon.view_selection import select_views
 from recon.workspace import DenseWorkspace, read_array, setup_dense_workspace, write_array
@@ -83,7 +89,8 @@ class MvsReport:
     seconds_fusion: float = 0.0
     valid_fraction: dict[str, float] = field(default_factory=dict)  # per image, after the geometric filter
     num_points: int = 0
-    warnings: list[str] = field(default_factory=list)  # COLMAP warnings (one line each) when a log was kept
+    # COLMAP's warnings (one line each) when a log was kept, and photos the COLMAP backend left without a depth map
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def megapixels(self) -> float:
@@ -131,18 +138,9 @@ def run_mvs(
     warnings += log.warnings if log else []
     t_undistort = time.perf_counter() - t0
     if backend is MvsBackend.COLMAP:
-        t1 = time.perf_counter()
         with native_output_to(log_path) as log:
-            run_patch_match(ws.root, options.max_image_size)
-        warnings += log.warnings if log else []
-        report = _report_for(ws, backend.value)
-        if options.held_out:  # PatchMatch computed every view; held-out ones are left out of fusion
-            import pycolmap
-
-            rec = pycolmap.Reconstruction(str(ws.sparse))
-            names = [rec.image(i).name for i in sorted(rec.reg_image_ids())]
-            ws.write_fusion_cfg([n for n in names if n not in options.held_out])
-        report.seconds_depth = time.perf_counter() - t1
+            report = compute_depth_maps_colmap(ws, options)
+        warnings += (log.warnings if log else []) + report.warnings
     else:
         report = compute_depth_maps_cpu(ws, options, progress)
     report.seconds_undistort = t_undistort
@@ -153,12 +151,38 @@ def run_mvs(
     return report
 
 
-def _report_for(ws: DenseWorkspace, backend: str):
+def compute_depth_maps_colmap(ws: DenseWorkspace, options: MvsOptions = MvsOptions()) -> MvsReport:
+    """Run COLMAP PatchMatch (CUDA) on an undistorted workspace: photometric, then geometric maps + normals.
+
+    Writes ``stereo/patch-match.cfg`` first (see :func:`recon.mvs_colmap.patch_match_problems`: no held-out photo is
+    a reference or a source), then ``stereo/fusion.cfg`` with the references. Photos left without a source get no
+    map; each is named in ``MvsReport.warnings``. Raises :class:`ReconstructionError` when fewer than 2 photos have
+    sources, :class:`ConfigError` when pycolmap has no CUDA.
+    """
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(ws.sparse))
-    sizes = [(int(rec.image(i).camera.width), int(rec.image(i).camera.height)) for i in sorted(rec.reg_image_ids())]
-    return MvsReport(backend=backend, num_views=len(sizes), image_sizes=sizes)
+    problems = patch_match_problems(rec, options.held_out, COLMAP_NUM_SOURCES)
+    if len(problems) < 2:
+        raise ReconstructionError(
+            f"dense reconstruction needs at least 2 photos with source photos (shared sparse points), got "
+            f"{len(problems)} ({len(options.held_out)} held out)",
+            ws.sparse,
+        )
+    ws.write_patch_match_cfg(problems)
+    t0 = time.perf_counter()
+    run_patch_match(ws.root, options.max_image_size)
+    seconds = time.perf_counter() - t0
+    ws.write_fusion_cfg(list(problems))
+    by_name = {rec.image(i).name: rec.image(i) for i in rec.reg_image_ids()}
+    sizes = [(int(by_name[n].camera.width), int(by_name[n].camera.height)) for n in problems]
+    report = MvsReport(backend=MvsBackend.COLMAP.value, num_views=len(problems), image_sizes=sizes)
+    report.seconds_depth = seconds
+    report.warnings = [
+        f"{name}: no depth map (no source photo shares sparse points with it at a usable angle)"
+        for name in sorted(set(by_name) - set(problems) - set(options.held_out))
+    ]
+    return report
 
 
 def _load_gray(path: Path) -> np.ndarray:
@@ -284,11 +308,11 @@ def fuse(
     import pycolmap
 
     ws = ws if isinstance(ws, DenseWorkspace) else DenseWorkspace(Path(ws))
-    cfg = ws.stereo / "fusion.cfg"
-    if not cfg.is_file():
+    names = ws.fused_names()
+    if names is None:
         rec = pycolmap.Reconstruction(str(ws.sparse))
-        ws.write_fusion_cfg([rec.image(i).name for i in sorted(rec.reg_image_ids())])
-    names = [n for n in cfg.read_text(encoding="utf-8").split("\n") if n.strip()]
+        names = [rec.image(i).name for i in sorted(rec.reg_image_ids())]
+        ws.write_fusion_cfg(names)
     kinds = {ws.map_kind(n) for n in names}
     if None in kinds:
         missing = [n for n in names if ws.map_kind(n) is None]

@@ -5,7 +5,9 @@ Layout (what ``pycolmap.stereo_fusion`` reads and ``pycolmap.undistort_images`` 
     dense/
       images/NAME                      undistorted (pinhole) images, possibly downscaled
       sparse/                          the undistorted model: cameras, images AND 3D points with tracks
-      stereo/fusion.cfg                one image name per line
+      stereo/patch-match.cfg           PatchMatch's problems: per reference photo a line with its name, then a line
+                                       with its source photos (comma-separated names, or ``__auto__, N``)
+      stereo/fusion.cfg                one image name per line: the photos that have depth maps and are fused
       stereo/depth_maps/NAME.{geometric,photometric}.bin
       stereo/normal_maps/NAME.{geometric,photometric}.bin
       fused.ply, fused.ply.vis         the fused cloud and, per point, the images that see it
@@ -19,6 +21,7 @@ facing the camera. COLMAP's dense stage back-projects array element (row, col) a
 from __future__ import annotations
 
 import shutil
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
@@ -32,6 +35,9 @@ from core.io.colmap_scan import scan_model
 from core.pointcloud import PointCloud
 
 MAP_SUFFIXES = ("geometric", "photometric")
+# Source-list keywords of COLMAP's patch-match.cfg (src/colmap/mvs/patch_match.cc, PatchMatchController::ReadProblems).
+PATCH_MATCH_KEYWORDS = ("__all__", "__auto__")
+_SPACE = " \t\n\r\f\v"  # what COLMAP's StringTrim removes (std::isspace in the C locale)
 
 
 # -- map files --------------------------------------------------------------------------------------
@@ -103,10 +109,47 @@ class DenseWorkspace:
         for sub in (self.images, self.sparse, self.stereo / "depth_maps", self.stereo / "normal_maps"):
             sub.mkdir(parents=True, exist_ok=True)
 
-    def write_fusion_cfg(self, names: list[str]) -> None:
+    @property
+    def fusion_cfg(self) -> Path:
+        return self.stereo / "fusion.cfg"
+
+    @property
+    def patch_match_cfg(self) -> Path:
+        return self.stereo / "patch-match.cfg"
+
+    def write_fusion_cfg(self, names: Sequence[str]) -> None:
         """``stereo/fusion.cfg``: the images to fuse, one per line."""
-        with atomic_path(self.stereo / "fusion.cfg") as tmp:
+        for name in names:
+            check_cfg_name(name, self.fusion_cfg)
+        with atomic_path(self.fusion_cfg) as tmp:
             tmp.write_text("".join(f"{n}\n" for n in names), encoding="utf-8")
+
+    def fused_names(self) -> list[str] | None:
+        """The image names of ``stereo/fusion.cfg`` (the photos the dense reconstruction used), None when absent."""
+        return read_fusion_cfg(self.fusion_cfg) if self.fusion_cfg.is_file() else None
+
+    def write_patch_match_cfg(self, problems: Mapping[str, Sequence[str]]) -> None:
+        """``stereo/patch-match.cfg`` for COLMAP PatchMatch: per reference image name (in the mapping's order) its
+        explicit, non-empty list of source image names.
+
+        Only the listed references get depth maps and only the listed sources are read for them. Raises
+        :class:`FormatError` for an empty source list (COLMAP's reader would take the next reference's name as the
+        sources) and for names COLMAP's reader would change (see :func:`check_cfg_name`).
+        """
+        lines: list[str] = []
+        for ref, sources in problems.items():
+            check_cfg_name(ref, self.patch_match_cfg, in_list=True)
+            if not sources:
+                raise FormatError(f"reference image {ref!r} has no source images", self.patch_match_cfg)
+            for src in sources:
+                check_cfg_name(src, self.patch_match_cfg, in_list=True)
+                if src in PATCH_MATCH_KEYWORDS:
+                    raise FormatError(
+                        f"image name {src!r} is a keyword of COLMAP's patch-match.cfg", self.patch_match_cfg
+                    )
+            lines += [ref, ", ".join(sources)]
+        with atomic_path(self.patch_match_cfg) as tmp:
+            tmp.write_text("".join(f"{line}\n" for line in lines), encoding="utf-8")
 
     def map_kind(self, name: str) -> str | None:
         """'geometric' or 'photometric' when both maps of ``name`` exist (geometric preferred), else None."""
@@ -114,6 +157,55 @@ class DenseWorkspace:
             if self.depth_map(name, kind).is_file() and self.normal_map(name, kind).is_file():
                 return kind
         return None
+
+
+# -- COLMAP's configuration files (stereo/fusion.cfg, stereo/patch-match.cfg) --------------------------------
+def check_cfg_name(name: str, path: str | PathLike[str] | None = None, in_list: bool = False) -> None:
+    """Raise :class:`FormatError` for an image name that COLMAP's cfg readers would not read back as written.
+
+    COLMAP trims each line and drops empty ones; in patch-match.cfg (``in_list``) it also skips lines starting with
+    '#' and splits source lists at ',' and ';'. So no name may be empty, hold a line break or surrounding white
+    space, and a patch-match.cfg name may not start with '#' nor hold ',' or ';'.
+    """
+    bad = not name or name != name.strip(_SPACE) or "\n" in name or "\r" in name
+    if in_list:
+        bad = bad or name.startswith("#") or "," in name or ";" in name
+    if bad:
+        what = "patch-match.cfg (no ',', ';', leading '#'," if in_list else "fusion.cfg (no"
+        raise FormatError(
+            f"image name {name!r} cannot be written to COLMAP's {what} line breaks or surrounding white space): "
+            "rename the photo",
+            path,
+        )
+
+
+def read_fusion_cfg(path: str | PathLike[str]) -> list[str]:
+    """Image names of a ``fusion.cfg`` as COLMAP reads them: each line trimmed, empty lines skipped."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("fusion.cfg does not exist", path)
+    lines = (line.strip(_SPACE) for line in path.read_text(encoding="utf-8").split("\n"))
+    return [line for line in lines if line]
+
+
+def read_patch_match_cfg(path: str | PathLike[str]) -> list[tuple[str, list[str]]]:
+    """The problems of a ``patch-match.cfg`` as COLMAP's ``PatchMatchController::ReadProblems`` parses them.
+
+    Returns (reference name, source names) in file order; keywords are kept as written (``["__auto__", "20"]``,
+    ``["__all__"]``). Lines are trimmed; empty lines and lines starting with '#' are skipped; the remaining lines
+    pair up as reference, sources; sources split at ',' and ';', each trimmed, empty elements dropped. A trailing
+    reference without a sources line is ignored, as COLMAP does.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError("patch-match.cfg does not exist", path)
+    lines = [line.strip(_SPACE) for line in path.read_text(encoding="utf-8").split("\n")]
+    lines = [line for line in lines if line and not line.startswith("#")]
+    problems = []
+    for ref, sources in zip(lines[0::2], lines[1::2], strict=False):
+        names = [e.strip(_SPACE) for e in sources.replace(";", ",").split(",")]
+        problems.append((ref, [n for n in names if n]))
+    return problems
 
 
 def setup_dense_workspace(

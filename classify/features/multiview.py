@@ -1,8 +1,9 @@
 """Multi-view features: how the photos and the per-view depth maps agree about each fused point.
 
-For every point and every registered view whose frustum holds it (z > 0, inside the image): the depth map at
-the projection is compared with the point's depth (agree / sees past the point / empty); for the views that
-fused the point (its visibility) the photo colour, a 3×3 grey patch and the viewing ray are accumulated.
+For every point and every view of the dense reconstruction (the fused photos: held-out ones never take part) whose
+frustum holds it (z > 0, inside the image): the depth map at the projection is compared with the point's depth
+(agree / sees past the point / empty); for the views that fused the point (its visibility) the photo colour, a 3×3
+grey patch and the viewing ray are accumulated.
 Specular and transparent surfaces change colour with the viewpoint (high ``color_std_views``, low ``ncc_views``);
 virtual points behind mirrors and points refracted through glass sit in front of surfaces other views see
 (``depth_freespace``); textureless surfaces give flat patches (low ``ncc_views``).
@@ -58,7 +59,13 @@ class ViewData:
 
 
 def views_from_workspace(dense_dir: str | Path, cache: int = 64) -> ViewData:
-    """:class:`ViewData` of a COLMAP dense workspace (``dense/sparse``, ``dense/images``, ``dense/stereo``)."""
+    """:class:`ViewData` of a COLMAP dense workspace (``dense/sparse``, ``dense/images``, ``dense/stereo``).
+
+    Only the photos of the dense reconstruction take part: those of ``stereo/fusion.cfg`` (every registered photo
+    when the workspace has none). Held-out photos are registered and undistorted for evaluation but never fused, so
+    neither their camera, their photo nor any depth map of theirs reaches a feature; the loaders refuse other names
+    (``KeyError``).
+    """
     from core.io.colmap import read_model
     from core.io.images import read_image
     from recon.workspace import DenseWorkspace, read_array
@@ -67,13 +74,25 @@ def views_from_workspace(dense_dir: str | Path, cache: int = 64) -> ViewData:
     if not ws.sparse.is_dir():
         raise InputFileError("dense workspace has no sparse/ model", ws.root)
     cameras, _ = read_model(ws.sparse)
+    fused = ws.fused_names()
+    if fused is not None:
+        keep = set(fused)
+        views = {i: v for i, v in cameras.views.items() if v.name in keep}
+        cameras = Cameras(cameras.cameras, views, cameras.origin)
+    names = frozenset(v.name for v in cameras)
+
+    def _check(name: str) -> None:
+        if name not in names:
+            raise KeyError(f"{name!r} is not a photo of the dense reconstruction (held out, or not registered)")
 
     @lru_cache(maxsize=cache)
     def image(name: str) -> np.ndarray:
+        _check(name)
         return read_image(ws.images / name)
 
     @lru_cache(maxsize=cache)
     def depth(name: str) -> np.ndarray | None:
+        _check(name)
         kind = ws.map_kind(name)
         if kind is None:
             path = ws.depth_map(name, "geometric")

@@ -1,6 +1,9 @@
 """Stage ``mvs``: depth and normal maps per photo, fused by COLMAP into the dense cloud (PROJECT/dense).
 
-Held-out photos are undistorted with the others (for evaluation) but never used for depth or fusion.
+Held-out photos are undistorted with the others (for evaluation) but never used for depth or fusion, on every
+backend: they get no depth or normal map, are no other photo's source (their pixels are never read for depth) and are
+not in ``dense/stereo/fusion.cfg`` (COLMAP PatchMatch runs the explicit ``dense/stereo/patch-match.cfg`` that
+:mod:`recon.mvs` writes).
 """
 
 from __future__ import annotations
@@ -48,11 +51,11 @@ class MvsStage(Stage):
     def expected_bytes(self, ctx: StageContext) -> int:
         """Bytes of the dense workspace, the record and COLMAP's log, for n registered photos of W × H px (the
         largest camera, +10 % a side for undistortion, capped at ``max_image_size``): per photo its undistorted RGB
-        PNG and 32·W·H bytes of photometric and geometric depth (4 bytes a pixel) and normal (12) maps (COLMAP
-        computes held-out photos too); a fused point per ``fusion.min_num_pixels`` pixels of the fused photos, 27
-        bytes in fused.ply and 4 in fused.ply.vis, plus 4 bytes a fused pixel in the .vis; a copy of the sparse
-        model (+256 bytes a photo); the configuration 4 KiB + 1 KiB a photo; the record 64 KiB + 256 bytes a photo;
-        the log 64 KiB + 8 KiB a photo."""
+        PNG and 32·W·H bytes of photometric and geometric depth (4 bytes a pixel) and normal (12) maps (counted for
+        held-out photos too, which get none: a small over-estimate); a fused point per ``fusion.min_num_pixels``
+        pixels of the fused photos, 27 bytes in fused.ply and 4 in fused.ply.vis, plus 4 bytes a fused pixel in the
+        .vis; a copy of the sparse model (+256 bytes a photo); the configuration 4 KiB + 1 KiB a photo; the record
+        64 KiB + 256 bytes a photo; the log 64 KiB + 8 KiB a photo."""
         opts: MvsOptions = ctx.options(self)
         n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
         width, height = _dense_size(ctx.layout.sparse, opts.max_image_size)
