@@ -14,7 +14,7 @@ of the classifier; 0 where unknown), ``opacity`` (α, float32) and ``scale`` (la
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
 
@@ -82,6 +82,7 @@ class ExportReport:
     num_written: int
     sh_degree: int
     origin: tuple[float, float, float]
+    notes: list[str] = field(default_factory=list)  # format-specific lines (a tileset's transform, placement)
 
 
 @dataclass
@@ -171,6 +172,26 @@ def export_compressed_ply(
     return _report(path, "compressed-ply", prep)
 
 
+def export_tileset(
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+) -> ExportReport:
+    """Write a 3D Tiles 1.1 tileset of glTF ``KHR_gaussian_splatting`` tiles at ``path`` (a ``tileset.json``; the
+    GLBs go into one folder per layer beside it), placed on the earth through ``options.crs`` (its root transform;
+    no CRS: the origin as translation). See :mod:`fusion.tiles3d`."""
+    from fusion.tiles3d import write_splat_tileset
+
+    prep = prepare(gaussians, options)
+    summary = write_splat_tileset(prep.gaussians, path, options.crs if options is not None else None)
+    report = _report(Path(path), "3d-tiles", prep)
+    report.notes = summary.lines()
+    return report
+
+
+def is_tileset_path(path: str | PathLike[str]) -> bool:
+    """Whether ``path`` names a 3D Tiles tileset (``tileset.json`` or any ``*.json``)."""
+    return Path(path).suffix.lower() == ".json"
+
+
 def is_compressed_ply_path(path: str | PathLike[str]) -> bool:
     """Whether ``path`` names a PlayCanvas compressed PLY (``*.compressed.ply``, any case)."""
     return Path(path).name.lower().endswith(".compressed.ply")
@@ -220,7 +241,8 @@ def export_gaussians(
     path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
 ) -> ExportReport:
     """Dispatch on the suffix: ``.splat`` → :func:`export_splat`, ``.spz`` → :func:`export_spz`,
-    ``.compressed.ply`` → :func:`export_compressed_ply`, ``.las``/``.laz`` → :func:`export_points`, ``.ply`` →
+    ``.compressed.ply`` → :func:`export_compressed_ply`, ``.json`` → :func:`export_tileset` (3D Tiles),
+    ``.las``/``.laz`` → :func:`export_points`, ``.ply`` →
     3DGS PLY (:func:`export_gaussian_ply`); use :func:`export_points` for a point-cloud PLY."""
     suffix = Path(path).suffix.lower()
     if suffix == ".splat":
@@ -229,12 +251,16 @@ def export_gaussians(
         return export_spz(path, gaussians, options)
     if is_compressed_ply_path(path):
         return export_compressed_ply(path, gaussians, options)
+    if is_tileset_path(path):
+        return export_tileset(path, gaussians, options)
     if suffix in (".las", ".laz"):
         return export_points(path, gaussians, options)
     if suffix == ".ply":
         return export_gaussian_ply(path, gaussians, options)
     raise FormatError(
-        f"unknown export format {suffix!r}; expected .ply, .compressed.ply, .splat, .spz, .las or .laz", path
+        f"unknown export format {suffix!r}; expected .ply, .compressed.ply, .splat, .spz, .las, .laz or "
+        "tileset.json (3D Tiles)",
+        path,
     )
 
 

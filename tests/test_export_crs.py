@@ -57,3 +57,23 @@ def test_a_crs_that_is_not_a_string_is_refused(tmp_path):
     sidecar_path(path).write_text(json.dumps({"origin": [0, 0, 0], "units": "m", "crs": 32633}))
     with pytest.raises(FormatError, match="crs"):
         read_crs(path)
+
+
+def test_a_tileset_export_is_placed_on_the_earth_by_the_input_crs(tmp_path):
+    import pyproj
+
+    from fusion.gltf_splats import read_splat_glb
+    from hybridsplat.cli import main
+
+    source = tmp_path / "in.ply"
+    gs = _georeferenced(source, UTM)
+    out = tmp_path / "tiles" / "tileset.json"
+    out.parent.mkdir()
+    main(["export", str(source), "--out", str(out)])
+    tileset = json.loads(out.read_text())
+    assert tileset["asset"]["version"] == "1.1"
+    transform = np.asarray(tileset["root"]["transform"], np.float64).reshape(4, 4).T  # column-major
+    ecef = pyproj.Transformer.from_crs(UTM, "EPSG:4978", always_xy=True).transform(*gs.origin)
+    np.testing.assert_allclose(transform[:3, 3], ecef, atol=0.5)  # the local frame sits at the origin, on the earth
+    glbs = sorted(out.parent.rglob("*.glb"))
+    assert glbs and sum(len(read_splat_glb(p).to_gaussians()) for p in glbs) == len(gs)

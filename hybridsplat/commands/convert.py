@@ -49,6 +49,8 @@ def print_export(report: ExportReport) -> None:
         f"(cropped {report.dropped_crop}, below opacity {report.dropped_opacity}), SH degree {report.sh_degree}, "
         f"origin {list(report.origin)}"
     )
+    for line in report.notes:
+        typer.echo(f"  {line}")
 
 
 def convert(

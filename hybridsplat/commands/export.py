@@ -19,8 +19,9 @@ def export(
         ...,
         "--out",
         "-o",
-        help="Output(s): .ply (3DGS PLY), .compressed.ply (PlayCanvas), .spz (SPZ v2), .splat, or .las/.laz "
-        "(centres); repeatable.",
+        help="Output(s): .ply (3DGS PLY), .compressed.ply (PlayCanvas), .spz (SPZ v2), .splat, tileset.json "
+        "(3D Tiles of glTF KHR_gaussian_splatting, placed on the earth by the input's CRS), or .las/.laz (centres); "
+        "repeatable.",
     ),
     points: bool = typer.Option(
         False, help="Write .ply outputs (not .compressed.ply) as point clouds (class/source fields) instead."
