@@ -1,8 +1,9 @@
 """Synthetic survey scenes with exact ground truth.
 
-``generate_scene("tiny", out_dir, seed=0)`` ray-traces a preset (tiny, tabletop, aerial, demo, textured) on the CPU
-and writes photos, held-out photos, true COLMAP cameras, the GT mesh with material ids, a simulated LiDAR cloud,
-depth and label maps and ``scene.json`` (layout in :mod:`data_synth.layout`); ``load_scene(dir)`` reads it back.
+``generate_scene("tiny", out_dir, seed=0)`` ray-traces a preset (tiny, tabletop, aerial, demo, textured, or the
+procedural random-object / random-aerial, whose layout and rig the seed draws) on the CPU and writes photos,
+held-out photos, true COLMAP cameras, the GT mesh with material ids, a simulated LiDAR cloud, depth and label maps
+and ``scene.json`` (layout in :mod:`data_synth.layout`); ``load_scene(dir)`` reads it back.
 """
 
 from data_synth.generate import generate_scene

@@ -22,7 +22,7 @@ from data_synth import writer
 from data_synth.layout import SceneLayout
 from data_synth.lidar import simulate_lidar
 from data_synth.materials import MATERIALS, Material, material_by_id
-from data_synth.presets import Preset, apply_overrides, get_preset, preset_summary
+from data_synth.presets import Preset, apply_overrides, get_preset, preset_for_seed, preset_summary
 from data_synth.raytrace import RayTracer
 from data_synth.rig import build_cameras
 from data_synth.scenes import LAYOUTS
@@ -32,7 +32,7 @@ from data_synth.textures import TextureField
 ProgressFn = Callable[[str, int, int], None]
 """``progress(stage, done, total)``: called as work advances (stage names: render, lidar, stats, write)."""
 
-_STREAM = {"layout": 1, "train": 2, "test": 3, "lidar": 4, "stats": 5}
+_STREAM = {"layout": 1, "train": 2, "test": 3, "lidar": 4, "stats": 5, "rig": 6}
 
 
 def _rng(seed: int, purpose: str, index: int = 0) -> np.random.Generator:
@@ -47,7 +47,8 @@ def generate_scene(
     overwrite: bool = False,
     **overrides: object,
 ) -> Path:
-    """Generate the scene ``preset`` (tiny, tabletop, aerial, demo, textured) into ``out_dir`` and return its path.
+    """Generate the scene ``preset`` (tiny, tabletop, aerial, demo, textured, random-object, random-aerial) into
+    ``out_dir`` and return its path.
 
     ``overrides`` are preset overrides (see :func:`data_synth.presets.apply_overrides`: views, test_views,
     width, height, supersample, max_depth, noise, georef, origin). An existing non-empty ``out_dir`` is
@@ -55,7 +56,8 @@ def generate_scene(
     """
     if not isinstance(seed, int) or seed < 0:
         raise ConfigError(f"seed must be a non-negative integer, got {seed!r}")
-    p = apply_overrides(get_preset(preset), **overrides)
+    seeded, layout_info = preset_for_seed(get_preset(preset), _rng(seed, "layout"), _rng(seed, "rig"))
+    p = apply_overrides(seeded, **overrides)
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
         raise ConfigError("output folder exists and is not empty; choose another or pass overwrite", out)
@@ -87,6 +89,8 @@ def generate_scene(
         writer.write_mesh(layout.mesh, mesh, origin)
         writer.write_cloud(layout, cloud)
         info = _scene_info(p, seed, origin, train, test, used, views.depths, spread, gradients, len(cloud))
+        if layout_info is not None:  # a procedural preset: what the seed drew
+            info["layout"] = layout_info
         writer.write_scene_json(layout, info)
         report("write", 1, 1)
         _move_into_place(tmp_root, out)

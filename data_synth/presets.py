@@ -1,5 +1,7 @@
 """Scene presets (frozen dataclasses) and their overrides.
 
+Fixed layouts (a new seed only jitters the same objects by about a centimetre and reseeds the textures):
+
 - ``tiny``: unit-test scene, 10 training + 2 test views at 96×72, seconds to generate.
 - ``tabletop``: artefact scale (~0.5 m of objects on a 1 m table), 72 training views at 640×480 on three rings.
 - ``demo``: ``tabletop`` reduced to the size of the built-in demo (every material; 24 training + 4 test views at
@@ -7,6 +9,32 @@
 - ``textured``: ``demo`` with every object textured and no wire cage, seen from farther away: only
   collaborative materials and (almost) no MVS holes, nothing needs splats (the pipeline should skip training).
 - ``aerial``: UAV scale (200 m terrain, switchgear yard with a 28 m pylon), nadir grid at 40 m + obliques at 60 m.
+
+Procedural families (:mod:`data_synth.procedural`): the seed draws the whole layout, for scoring how classifiers
+and pipeline defaults generalise to scenes they never saw:
+
+- ``random-object``: 4–10 objects (boxes, cylinders upright or lying, spheres, panels, rods, wire cages, mounds,
+  model buildings; from 1 mm thin members to 20 cm) on a 0.9–1.2 m table of wood, noise or stone texture, inside
+  a disc of 0.22–0.39 m radius (an object that finds no free place is left out); an orbit rig of 2 or 3 rings
+  between 15° and 70° elevation at 2.6–3.4 times the objects' extent (72 training views in all, 8 test views,
+  640×480), four terrestrial LiDAR stations around it.
+- ``random-aerial``: 5–14 objects (buildings 8–22 m with a roof, cabinets, tanks, spherical tanks, walls, poles,
+  lattice towers 10–25 m high, spoil mounds) on a 52–84 × 44–68 m yard slab (gravel or blank concrete) in hilly
+  grass terrain (220 m); a nadir grid at 35–55 m (at least 12 m above the tallest object), 60–80 % forward and
+  50–70 % side overlap (so the number of views follows the seed), four oblique passes at 1.2–1.6 times the nadir
+  height tilted 35–50°, airborne LiDAR lines covering the block.
+
+For both, the seed also draws the objects' materials from the whole legend (:mod:`data_synth.materials`): thin
+members get the thin materials, every other object a collaborative (textured at the scale its pattern suits) or a
+non-collaborative one (textureless, metal, mirror, glass), with at least one of each per layout; and the sun
+(azimuth 0–360°, elevation 25–70°). The rig's ranges belong to the preset (:attr:`Preset.rig_ranges`), the objects'
+to the layout (:data:`data_synth.procedural.FAMILIES`). ``scene.json`` records the drawn layout under ``layout``
+(support, and per object its shape, sizes, pose, materials and bounding box) and the drawn rig under ``rig``.
+
+Seed convention for the procedural families: seeds 0–99 (:data:`TUNING_SEEDS`) are for choosing defaults and
+training (classifiers, thresholds, pipeline options); seeds 100–199 (:data:`SCORING_SEEDS`) are reserved for
+scoring: a figure that reports generalisation is measured on them, and nothing it compares may have been chosen
+or trained on them.
 """
 
 from __future__ import annotations
@@ -14,14 +42,22 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
+import numpy as np
+
 from core.errors import ConfigError
 from data_synth.lidar import AirborneScan, RangeNoise, TerrestrialScan
 from data_synth.lighting import Environment
+from data_synth.procedural import AerialRigRanges, OrbitRigRanges, draw_layout, draw_rig, nadir_overlap
 from data_synth.raytrace import RenderSettings
 from data_synth.rig import AerialRig, OrbitRig
 
 GEOREF_ORIGIN = (500000.0, 5000000.0, 300.0)
 """A UTM-like origin (easting, northing, height) used by ``georef=True``."""
+
+TUNING_SEEDS = range(0, 100)
+"""Seeds of the procedural presets for choosing defaults and training (see the module docstring)."""
+SCORING_SEEDS = range(100, 200)
+"""Seeds of the procedural presets reserved for scoring generalisation: never tune or train on them."""
 
 
 @dataclass(frozen=True)
@@ -33,6 +69,9 @@ class Preset:
     render: supersampling and bounce depth. environment: sun and sky. texture_scale: multiplies every
     material's pattern size. origin: world coordinates of the local origin (metres).
     stats_points: surface samples per material for the cross-view colour statistics.
+    rig_ranges: set for a procedural preset (``layout`` is then a family of :mod:`data_synth.procedural`): the
+    seed draws the rig, the LiDAR scan and the sun from these ranges (:func:`preset_for_seed`); ``rig``, ``lidar``
+    and ``environment`` are the bases they start from (views, test views, field of view, scan step, sky).
     """
 
     name: str
@@ -47,6 +86,7 @@ class Preset:
     texture_scale: float = 1.0
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     stats_points: int = 300
+    rig_ranges: OrbitRigRanges | AerialRigRanges | None = None
 
     @property
     def n_train(self) -> int:
@@ -125,6 +165,19 @@ PRESETS["textured"] = replace(
     rig=replace(PRESETS["demo"].rig, radius_m=1.4, elevations_deg=(40.0, 60.0)),
 )
 
+PRESETS["random-object"] = replace(
+    PRESETS["tabletop"],
+    name="random-object",
+    layout="random_object",
+    rig_ranges=OrbitRigRanges(),
+)
+PRESETS["random-aerial"] = replace(
+    PRESETS["aerial"],
+    name="random-aerial",
+    layout="random_aerial",
+    rig_ranges=AerialRigRanges(),
+)
+
 OVERRIDES = ("views", "test_views", "width", "height", "supersample", "max_depth", "noise", "georef", "origin")
 
 
@@ -134,6 +187,24 @@ def get_preset(name: str) -> Preset:
         return PRESETS[name]
     except KeyError:
         raise ConfigError(f"unknown preset {name!r}; choose one of: {', '.join(PRESETS)}") from None
+
+
+def preset_for_seed(
+    preset: Preset, layout_rng: np.random.Generator, rig_rng: np.random.Generator
+) -> tuple[Preset, dict[str, object] | None]:
+    """The preset a seed makes of ``preset``, and the description of its drawn layout.
+
+    A fixed preset is returned as it is, with ``None``. A procedural one (``rig_ranges`` set) gets the rig, the
+    LiDAR scan and the sun drawn from ``rig_rng`` around the layout that ``layout_rng`` draws (the same layout
+    as ``LAYOUTS[preset.layout](layout_rng)`` builds), and the description is ``scene.json``'s ``layout``.
+    """
+    if preset.rig_ranges is None:
+        return preset, None
+    layout = draw_layout(preset.layout, layout_rng)
+    rig, lidar, environment = draw_rig(
+        preset.rig_ranges, layout, preset.rig, preset.lidar, preset.environment, preset.width / preset.height, rig_rng
+    )
+    return replace(preset, rig=rig, lidar=lidar, environment=environment), layout.describe()
 
 
 def apply_overrides(preset: Preset, **overrides: object) -> Preset:
@@ -197,7 +268,8 @@ def apply_overrides(preset: Preset, **overrides: object) -> Preset:
 
 
 def preset_summary(preset: Preset) -> dict[str, object]:
-    """A JSON-ready description of the preset's rig and settings (for ``scene.json``)."""
+    """A JSON-ready description of the preset's rig and settings (for ``scene.json``); a procedural preset adds
+    its ``rig_ranges`` and, for an aerial block, the ``nadir_overlap`` (forward, side) of the final grid."""
 
     def as_dict(obj: object) -> dict[str, object]:
         out: dict[str, object] = {"type": type(obj).__name__}
@@ -208,6 +280,12 @@ def preset_summary(preset: Preset) -> dict[str, object]:
             out[f.name] = [list(x) if isinstance(x, tuple) else x for x in v] if isinstance(v, tuple) else v
         return out
 
+    procedural: dict[str, object] = {}
+    if preset.rig_ranges is not None:
+        procedural["rig_ranges"] = as_dict(preset.rig_ranges)
+        if isinstance(preset.rig, AerialRig):
+            forward, side = nadir_overlap(preset.rig, preset.width, preset.height)
+            procedural["nadir_overlap"] = {"forward": round(forward, 4), "side": round(side, 4)}
     return {
         "rig": as_dict(preset.rig),
         "lidar": as_dict(preset.lidar),
@@ -215,4 +293,5 @@ def preset_summary(preset: Preset) -> dict[str, object]:
         "render": as_dict(preset.render),
         "environment": as_dict(preset.environment),
         "texture_scale": preset.texture_scale,
+        **procedural,
     }

@@ -1,5 +1,6 @@
 """Scene layouts: which objects, where, made of what. Each builder takes a seeded generator (small jitters of
-positions and orientations) and returns a :class:`SceneMesh` in the local frame (metres, z up)."""
+positions and orientations; the whole layout for the procedural families ``random_object`` and ``random_aerial``)
+and returns a :class:`SceneMesh` in the local frame (metres, z up)."""
 
 from __future__ import annotations
 
@@ -172,9 +173,18 @@ def build_aerial(rng: np.random.Generator) -> SceneMesh:
     return b.build()
 
 
+def build_procedural(rng: np.random.Generator, family: str) -> SceneMesh:
+    """A layout drawn from ``rng`` by the procedural family ``family`` (:mod:`data_synth.procedural`)."""
+    from data_synth.procedural import build_layout_mesh  # imported here: it builds on this module's wire_cage
+
+    return build_layout_mesh(family, rng)
+
+
 LAYOUTS: dict[str, Callable[[np.random.Generator], SceneMesh]] = {
     "tiny": build_tiny,
     "tabletop": build_tabletop,
     "aerial": build_aerial,
     "tabletop_textured": lambda rng: build_tabletop(rng, collaborative_only=True),
+    "random_object": lambda rng: build_procedural(rng, "random_object"),
+    "random_aerial": lambda rng: build_procedural(rng, "random_aerial"),
 }

@@ -10,7 +10,13 @@ import typer
 
 def synth(
     out: Path = typer.Option(..., "--out", "-o", help="Folder to create (must not exist or be empty)."),
-    preset: str = typer.Option("tiny", "--preset", "-p", help="Scene preset: tiny, tabletop, aerial or demo."),
+    preset: str = typer.Option(
+        "tiny",
+        "--preset",
+        "-p",
+        help="Scene preset: tiny, tabletop, demo, textured, aerial; random-object, random-aerial (layout drawn "
+        "from the seed; seeds 100-199 are for scoring, 0-99 for tuning).",
+    ),
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of every random choice (same seed, same bytes)."),
     views: int | None = typer.Option(None, "--views", min=1, help="Training views (default: the preset's)."),
     test_views: int | None = typer.Option(None, "--test-views", min=0, help="Held-out test views."),
