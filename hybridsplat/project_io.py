@@ -54,6 +54,20 @@ def read_project_model(layout: ProjectLayout, path: Path) -> tuple[Cameras, Poin
     return read_model_at(path, model_origin(layout))
 
 
+def read_training_photos(
+    layout: ProjectLayout, held_out: set[str] | frozenset[str]
+) -> tuple[Cameras, dict[str, np.ndarray]]:
+    """The dense workspace's cameras without the ``held_out`` photos (never trained on) and their undistorted photos
+    by name (the whole images a layer is trained on)."""
+    from core.io.images import read_image
+
+    ws = layout.dense_workspace
+    cameras, _ = read_project_model(layout, ws.sparse)
+    views = {i: v for i, v in cameras.views.items() if v.name not in held_out}
+    cameras = Cameras(cameras.cameras, views, cameras.origin)
+    return cameras, {v.name: read_image(ws.images / v.name) for v in cameras}
+
+
 # ------------------------------------------------------------------------------------------------- masks: a record
 
 

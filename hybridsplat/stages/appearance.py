@@ -49,18 +49,12 @@ class AppearanceStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         import numpy as np
 
-        from core.cameras import Cameras
         from core.gaussians import GaussianSet
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
-        from core.io.images import read_image
         from hybridsplat import project_io
 
-        layout, ws = ctx.layout, ctx.layout.dense_workspace
-        cameras, _ = project_io.read_project_model(layout, ws.sparse)
-        held_out = set(ctx.source.holdout_names)
-        views = {i: v for i, v in cameras.views.items() if v.name not in held_out}  # never trained on
-        cameras = Cameras(cameras.cameras, views, cameras.origin)
-        images = {v.name: read_image(ws.images / v.name) for v in cameras}
+        layout = ctx.layout
+        cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
         mvs = read_gaussian_ply(layout.mvs_gaussians)
         needs = (project_io.needs_splats_per_gaussian(layout, mvs) if layout.classified_points.is_file()
                  else np.zeros(len(mvs), bool))  # fmt: skip
