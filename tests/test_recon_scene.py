@@ -1,8 +1,9 @@
-"""A small synthetic scene with exact ground truth for the recon tests (open3d ray casting).
+"""A small synthetic scene with exact ground truth for the recon tests (analytic ray/box casting in float64).
 
 A textured ground plane with a textured box and a textureless slab, seen by an orbit of pinhole cameras.
 Textures are procedural value noise on world coordinates, so every view sees the same surface pattern.
-The module also checks itself (rendered depth against the analytic plane depth).
+The module also checks itself (rendered depth against the analytic plane depth). It needs numpy alone, so that the
+GPU tests that build on it run on a machine without open3d (bench/run_gpu_paths.sh).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ class Scene:
     images: dict[str, np.ndarray]  # name -> (H, W, 3) uint8
     depths: dict[str, np.ndarray]  # name -> (H, W) float64 z-depth at pixel centres, inf = background
     materials: dict[str, np.ndarray]  # name -> (H, W) int, -1 = background
-    mesh: object  # open3d.t.geometry.TriangleMesh (legacy mesh kept for sampling)
+    boxes: list[tuple[np.ndarray, np.ndarray]]  # axis-aligned boxes (min corner, max corner), metres
     gt_points: np.ndarray  # (M, 3) dense surface samples
     gt_material: np.ndarray  # (M,)
     size: float  # scene extent (m)
@@ -80,20 +81,36 @@ def _look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> np.n
     return np.concatenate([R, (-R @ center)[:, None]], axis=1)
 
 
-def make_scene(num_views: int = 10, width: int = 200, height: int = 150, seed: int = 0, radius: float = 3.2) -> Scene:
-    import open3d as o3d
+# (min corner, max corner, material): the ground plane, a textured box and a textureless slab (metres)
+BOXES = (
+    ((-2.0, -2.0, -0.02), (2.0, 2.0, 0.0), TEXTURED),
+    ((-0.6, -0.5, 0.0), (0.4, 0.3, 0.6), TEXTURED),
+    ((0.6, 0.3, 0.0), (1.3, 1.0, 0.25), TEXTURELESS),
+)
 
-    plane = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 0.02).translate((-2.0, -2.0, -0.02))
-    box = o3d.geometry.TriangleMesh.create_box(1.0, 0.8, 0.6).translate((-0.6, -0.5, 0.0))
-    slab = o3d.geometry.TriangleMesh.create_box(0.7, 0.7, 0.25).translate((0.6, 0.3, 0.0))
-    parts = [(plane, TEXTURED), (box, TEXTURED), (slab, TEXTURELESS)]
-    scene = o3d.t.geometry.RaycastingScene()
-    geom_material = {}
-    legacy = o3d.geometry.TriangleMesh()
-    for mesh, mat in parts:
-        gid = scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-        geom_material[gid] = mat
-        legacy += mesh
+
+def _box_triangles(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 8 corners and 12 triangles of an axis-aligned box (for area-uniform surface sampling)."""
+    corners = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)], dtype=np.float64)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return corners, np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
+
+
+def _cast(origins: np.ndarray, dirs: np.ndarray, boxes) -> tuple[np.ndarray, np.ndarray]:
+    """Ray parameter of the first hit (inf where none) and the index of the box hit (-1), by the slab method."""
+    best_t = np.full(len(dirs), np.inf)
+    best_box = np.full(len(dirs), -1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / dirs
+        for k, (lo, hi, _) in enumerate(boxes):
+            t1, t2 = (np.asarray(lo) - origins) * inv, (np.asarray(hi) - origins) * inv
+            near, far = np.minimum(t1, t2).max(axis=1), np.maximum(t1, t2).min(axis=1)
+            hit = (near <= far) & (near > 0) & (near < best_t)
+            best_t[hit], best_box[hit] = near[hit], k
+    return best_t, best_box
+
+
+def make_scene(num_views: int = 10, width: int = 200, height: int = 150, seed: int = 0, radius: float = 3.2) -> Scene:
     fx = 0.9 * width
     cam = Camera.pinhole(fx, fx, width / 2, height / 2, width, height)
     views = {}
@@ -105,20 +122,15 @@ def make_scene(num_views: int = 10, width: int = 200, height: int = 150, seed: i
     rows, cols = np.mgrid[0:height, 0:width]
     pix = np.stack([cols + 0.5, rows + 0.5], axis=-1).reshape(-1, 2).astype(np.float64)
     dirs_cam = cam.unproject(pix)  # unit z
+    box_material = np.array([m for _, _, m in BOXES])
     images, depths, materials = {}, {}, {}
     for view in cams:
-        R = view.rotation
-        dirs = dirs_cam @ R  # world directions
+        dirs = dirs_cam @ view.rotation  # world directions
         origin = np.broadcast_to(view.center, dirs.shape)
-        rays = o3d.core.Tensor(np.concatenate([origin, dirs], axis=1).astype(np.float32))
-        hit = scene.cast_rays(rays)
-        t = hit["t_hit"].numpy().astype(np.float64)
-        gid = hit["geometry_ids"].numpy()
+        t, box = _cast(origin, dirs, BOXES)
         ok = np.isfinite(t)
         pts = origin + dirs * np.where(ok, t, 0)[:, None]
-        mat = np.full(len(t), -1)
-        for g, m in geom_material.items():
-            mat[ok & (gid == g)] = m
+        mat = np.where(ok, box_material[box], -1)
         val = _noise(pts, seed)
         val = np.where(mat == TEXTURELESS, 0.55, val)
         shade = 0.25 + 0.7 * val
@@ -127,7 +139,10 @@ def make_scene(num_views: int = 10, width: int = 200, height: int = 150, seed: i
         images[view.name] = (np.clip(rgb, 0, 1) * 255).round().astype(np.uint8).reshape(height, width, 3)
         depths[view.name] = np.where(ok, t, np.inf).reshape(height, width)  # dirs have unit z: t is z-depth
         materials[view.name] = mat.reshape(height, width)
-    pts = _sample_surface(np.asarray(legacy.vertices), np.asarray(legacy.triangles), 200_000, seed + 1)
+    meshes = [_box_triangles(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi, _ in BOXES]
+    vertices = np.concatenate([v for v, _ in meshes])
+    triangles = np.concatenate([f + 8 * k for k, (_, f) in enumerate(meshes)])
+    pts = _sample_surface(vertices, triangles, 200_000, seed + 1)
     # material of a sample: inside the slab's bounds
     inslab = (
         (pts[:, 0] >= 0.6 - 1e-6)
@@ -139,7 +154,8 @@ def make_scene(num_views: int = 10, width: int = 200, height: int = 150, seed: i
     )
     keep = pts[:, 2] >= -1e-6  # top of the ground plane and objects
     gt_mat = np.where(inslab, TEXTURELESS, TEXTURED)
-    return Scene(cams, images, depths, materials, legacy, pts[keep], gt_mat[keep], 4.0)
+    boxes = [(np.asarray(lo, float), np.asarray(hi, float)) for lo, hi, _ in BOXES]
+    return Scene(cams, images, depths, materials, boxes, pts[keep], gt_mat[keep], 4.0)
 
 
 def write_scene(scene: Scene, root: Path, num_points: int = 800, seed: int = 0) -> Path:
