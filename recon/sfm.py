@@ -1,4 +1,5 @@
-"""Structure from motion with pycolmap: SIFT features, matching, incremental mapping or known-pose triangulation.
+"""Structure from motion with pycolmap: SIFT features, matching, mapping (incremental, global or hierarchical) or
+known-pose triangulation.
 
 ``run_sfm(image_dir, out_dir, options)`` → the largest COLMAP model written to ``out_dir`` plus an
 :class:`SfmReport`. ``triangulate_known_poses(cameras, image_dir, out_dir, options)`` keeps the given cameras
@@ -37,7 +38,7 @@ import shutil
 import tempfile
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -54,10 +55,73 @@ Progress = Callable[[str, int, int], None]
 
 
 class Matcher(str, Enum):
+    """Which photo pairs are matched. exhaustive: every pair; sequential: neighbours in name order (capture order);
+    spatial: the nearest photos by position prior (EXIF GPS, or ``--reference`` centres when given); vocabtree:
+    retrieval with a COLMAP vocabulary tree file; auto: :func:`resolve_matcher`."""
+
+    AUTO = "auto"
     EXHAUSTIVE = "exhaustive"
     SEQUENTIAL = "sequential"
     SPATIAL = "spatial"
     VOCABTREE = "vocabtree"
+
+
+# auto matches every pair up to this many photos (11 175 pairs; COLMAP's documentation advises exhaustive matching
+# up to a few hundred photos); beyond it, spatial where priors cover PRIOR_COVERAGE of the photos.
+EXHAUSTIVE_MAX_PHOTOS = 150
+PRIOR_COVERAGE = 0.9
+
+
+def resolve_matcher(
+    matcher: Matcher | str, num_photos: int, num_with_priors: int, has_vocab_tree: bool
+) -> tuple[Matcher, str]:
+    """The concrete matcher and why. ``auto``: exhaustive up to :data:`EXHAUSTIVE_MAX_PHOTOS` photos; above, spatial
+    when position priors cover :data:`PRIOR_COVERAGE` of them, else vocabtree when a tree file is given, else
+    sequential (the photos' name order taken as capture order, which the reason says)."""
+    chosen = enum_choice(Matcher, matcher, "matcher")
+    if chosen is not Matcher.AUTO:
+        return chosen, "chosen"
+    if num_photos <= EXHAUSTIVE_MAX_PHOTOS:
+        return Matcher.EXHAUSTIVE, f"{num_photos} photos <= {EXHAUSTIVE_MAX_PHOTOS}"
+    if num_with_priors >= PRIOR_COVERAGE * num_photos:
+        return Matcher.SPATIAL, f"{num_with_priors}/{num_photos} photos with position priors"
+    if has_vocab_tree:
+        return Matcher.VOCABTREE, f"{num_photos} photos, few position priors, a vocabulary tree given"
+    return Matcher.SEQUENTIAL, (
+        f"{num_photos} photos, position priors for {num_with_priors} and no vocabulary tree: matched in name order "
+        "(give --reference or photos with GPS for spatial matching)"
+    )
+
+
+class Mapper(str, Enum):
+    """How poses and points are recovered from the matches (COLMAP 4.2 through pycolmap).
+
+    incremental: COLMAP's incremental mapper (``incremental_mapping``): registers one photo at a time, with bundle
+    adjustments in between; robust, and its cost grows faster than linearly with the photos. global: GLOMAP
+    (``global_mapping``): rotation averaging and global positioning of every photo at once, then one bundle
+    adjustment; one to two orders of magnitude faster on large sets (Pan et al., ECCV 2024). hierarchical:
+    ``hierarchical_mapping``: the scene partitioned into overlapping clusters, each mapped incrementally, merged.
+    auto: :func:`resolve_mapper`.
+    """
+
+    AUTO = "auto"
+    INCREMENTAL = "incremental"
+    GLOBAL = "global"
+    HIERARCHICAL = "hierarchical"
+
+
+# auto picks the global mapper from this many photos: below it incremental mapping takes seconds to a few minutes
+# (fountain-P11's 11 photos: see docs/experiments/2026-11-27-sfm-mappers.md) and registers photos one by one with
+# checks a global solve does not make; above it its cost dominates SfM.
+GLOBAL_MAPPER_MIN_PHOTOS = 200
+
+
+def resolve_mapper(mapper: Mapper | str, num_photos: int) -> Mapper:
+    """The concrete mapper: ``auto`` is incremental below :data:`GLOBAL_MAPPER_MIN_PHOTOS` photos, global from there."""
+    chosen = enum_choice(Mapper, mapper, "mapper")
+    if chosen is Mapper.AUTO:
+        return Mapper.GLOBAL if num_photos >= GLOBAL_MAPPER_MIN_PHOTOS else Mapper.INCREMENTAL
+    return chosen
 
 
 @dataclass(frozen=True)
@@ -71,7 +135,9 @@ class SfmOptions:
     alignment to reference camera centres (metres); None = 2 % of their extent (:func:`recon.align.align_to_reference`).
     """
 
-    matcher: Matcher = Matcher.EXHAUSTIVE  # sequential for video-like sequences, vocabtree for > ~500 photos
+    matcher: Matcher = Matcher.AUTO  # see Matcher and resolve_matcher
+    mapper: Mapper = Mapper.AUTO  # see Mapper and resolve_mapper
+    spatial_neighbours: int = 50  # spatial matcher: nearest photos by prior matched with each (COLMAP's default)
     max_image_size: int = 1600  # feature extraction works on images downscaled to this longer side (px)
     max_num_features: int = 8192
     camera_model: str = "SIMPLE_RADIAL"  # COLMAP model for unknown cameras (e.g. OPENCV for strong distortion)
@@ -90,6 +156,9 @@ class SfmOptions:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "matcher", enum_choice(Matcher, self.matcher, "matcher"))
+        object.__setattr__(self, "mapper", enum_choice(Mapper, self.mapper, "mapper"))
+        if int(self.spatial_neighbours) < 1:
+            raise ConfigError(f"spatial_neighbours must be >= 1, got {self.spatial_neighbours}")
         if self.align_threshold_m is not None and not self.align_threshold_m > 0:
             raise ConfigError(
                 f"align_threshold_m must be > 0 (or none: 2 % of the extent), got {self.align_threshold_m}"
@@ -121,6 +190,9 @@ class SfmReport:
     mean_reprojection_error: float = 0.0
     mean_track_length: float = 0.0
     num_models: int = 1
+    mapper: str = ""  # the mapper that ran (auto resolved); empty for known-pose triangulation
+    matcher: str = ""  # the matcher that ran (auto resolved) and why
+    position_priors: str = ""  # where the spatial matcher's priors came from: "", "exif" or "reference"
     seconds_features: float = 0.0
     seconds_matching: float = 0.0
     seconds_mapping: float = 0.0
@@ -168,7 +240,13 @@ def check_images(image_dir: str | Path, names: list[str] | None = None) -> Image
 
 
 def _extract_and_match(
-    db: Path, image_dir: Path, check: ImageCheck, options: SfmOptions, per_image: bool, report: SfmReport
+    db: Path,
+    image_dir: Path,
+    check: ImageCheck,
+    options: SfmOptions,
+    per_image: bool,
+    report: SfmReport,
+    priors: Mapping[str, np.ndarray] | None = None,
 ):
     import pycolmap
 
@@ -191,18 +269,22 @@ def _extract_and_match(
     )  # fmt: skip
     report.seconds_features = time.perf_counter() - t0
     t1 = time.perf_counter()
+    m, why = _choose_matcher(db, check, options, priors, report)
+    report.matcher = f"{m.value} ({why})"
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = _colmap_threads(options)
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = int(options.seed)  # unseeded: thread-local generators, order-dependent
     kw = {"matching_options": matching, "verification_options": verification, "device": pycolmap.Device.cpu}
-    m = Matcher(options.matcher)
     if m is Matcher.EXHAUSTIVE:
         pycolmap.match_exhaustive(db, **kw)
     elif m is Matcher.SEQUENTIAL:
         pycolmap.match_sequential(db, **kw)
     elif m is Matcher.SPATIAL:
-        pycolmap.match_spatial(db, **kw)
+        pairing = pycolmap.SpatialPairingOptions()
+        pairing.max_num_neighbors = int(options.spatial_neighbours)
+        pairing.ignore_z = report.position_priors == "exif"  # GPS heights are poor; a reference's are not
+        pycolmap.match_spatial(db, pairing_options=pairing, **kw)
     else:
         if not options.vocab_tree_path:
             raise ConfigError("the vocabtree matcher needs vocab_tree_path (a COLMAP vocabulary tree file)")
@@ -210,6 +292,49 @@ def _extract_and_match(
         pairing.vocab_tree_path = str(options.vocab_tree_path)
         pycolmap.match_vocabtree(db, pairing_options=pairing, **kw)
     report.seconds_matching = time.perf_counter() - t1
+
+
+def _choose_matcher(
+    db: Path, check: ImageCheck, options: SfmOptions, priors: Mapping[str, np.ndarray] | None, report: SfmReport
+) -> tuple[Matcher, str]:
+    """Resolve the matcher from the photos and their priors; for spatial matching, make the priors consistent.
+
+    COLMAP reads EXIF GPS into the database as WGS84 priors at extraction. Given ``priors`` (``--reference``
+    centres, metres) replace them when they cover :data:`PRIOR_COVERAGE` of the photos: one coordinate system for
+    every photo, and a surveyed reference is the better prior. Raises :class:`ConfigError` for spatial matching
+    without priors.
+    """
+    import pycolmap
+
+    names = set(check.valid)
+    given = {n: np.asarray(c, np.float64) for n, c in (priors or {}).items() if n in names}
+    use_given = len(given) >= PRIOR_COVERAGE * len(names)
+    with pycolmap.Database.open(str(db)) as database:
+        exif = database.num_pose_priors()
+        m, why = resolve_matcher(
+            options.matcher, len(names), len(given) if use_given else exif, bool(options.vocab_tree_path)
+        )
+        if m is not Matcher.SPATIAL:
+            return m, why
+        if use_given:
+            database.clear_pose_priors()
+            local = np.mean(np.stack(list(given.values())), axis=0)  # priors near 0: UTM-sized values lose nothing
+            for im in database.read_all_images():
+                if im.name in given:
+                    prior = pycolmap.PosePrior(
+                        position=given[im.name] - local,
+                        coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                        corr_data_id=im.data_id,
+                    )
+                    database.write_pose_prior(prior)
+            report.position_priors = "reference"
+        elif exif:
+            report.position_priors = "exif"
+        else:
+            raise ConfigError(
+                "spatial matching needs position priors: photos with EXIF GPS, or camera centres (--reference)"
+            )
+    return m, why
 
 
 def _unregistered_reasons(
@@ -283,6 +408,46 @@ def _mapper_options(options: SfmOptions):
     return mapper
 
 
+def _global_options(options: SfmOptions):
+    """GLOMAP pipeline options with every seed set and, when deterministic, one thread."""
+    import pycolmap
+
+    pycolmap.set_random_seed(int(options.seed))
+    opts = pycolmap.GlobalPipelineOptions()
+    opts.num_threads = _colmap_threads(options)
+    opts.random_seed = int(options.seed)
+    opts.mapper.num_threads = _colmap_threads(options)
+    opts.mapper.random_seed = int(options.seed)
+    opts.min_model_size = 2
+    return opts
+
+
+def _hierarchical_options(options: SfmOptions):
+    """Hierarchical pipeline options: incremental mapping per cluster (seeded), one worker when deterministic."""
+    import pycolmap
+
+    opts = pycolmap.HierarchicalPipelineOptions()
+    opts.incremental_options = _mapper_options(options)
+    opts.incremental_options.min_model_size = 2
+    opts.num_threads = _colmap_threads(options)
+    opts.num_workers = 1 if options.deterministic else -1
+    return opts
+
+
+def _map(mapper: Mapper, db: Path, image_dir: Path, out: Path, options: SfmOptions) -> dict:
+    """Run one of COLMAP's mappers on a matched database; the models it built, by index."""
+    import pycolmap
+
+    out.mkdir(parents=True, exist_ok=True)
+    if mapper is Mapper.GLOBAL:
+        return pycolmap.global_mapping(db, image_dir, out, options=_global_options(options))
+    if mapper is Mapper.HIERARCHICAL:
+        return pycolmap.hierarchical_mapping(db, image_dir, out, options=_hierarchical_options(options))
+    incremental = _mapper_options(options)
+    incremental.min_model_size = 2
+    return pycolmap.incremental_mapping(db, image_dir, out, options=incremental)
+
+
 def _robust_bundle_adjustment(rec, loss_px: float, deterministic: bool = True) -> None:
     import pycolmap
 
@@ -349,12 +514,14 @@ def run_sfm(
     options: SfmOptions = SfmOptions(),
     log_path: str | Path | None = None,
     image_names: list[str] | None = None,
+    position_priors: Mapping[str, np.ndarray] | None = None,
 ):
     """Full SfM; writes the largest model to ``out_dir``. Returns (``pycolmap.Reconstruction``, :class:`SfmReport`).
 
     image_names: the photos of ``image_dir`` to use (default: every photo at its top level). log_path: append
-    COLMAP's output there instead of the terminal. Raises :class:`ReconstructionError` when no model can be built
-    (images do not overlap).
+    COLMAP's output there instead of the terminal. position_priors: image name → camera centre (metres, any
+    Cartesian frame, e.g. ``--reference``): the spatial matcher's priors (see :func:`_choose_matcher`); they do not
+    constrain the mapping. Raises :class:`ReconstructionError` when no model can be built (images do not overlap).
     """
     image_dir, out_dir = Path(image_dir), Path(out_dir)
     _camera_model(options.camera_model)
@@ -364,24 +531,31 @@ def run_sfm(
         report.warnings.append("images have different sizes: one camera per image")
     with native_output_to(log_path) as log:
         try:
-            rec = _run_sfm(image_dir, out_dir, options, check, report)
+            rec = _run_sfm(image_dir, out_dir, options, check, report, position_priors)
         finally:
             if log is not None:
                 report.warnings.extend(log.warnings)
     return rec, report
 
 
-def _run_sfm(image_dir: Path, out_dir: Path, options: SfmOptions, check: ImageCheck, report: SfmReport):
-    import pycolmap
+def _run_sfm(
+    image_dir: Path,
+    out_dir: Path,
+    options: SfmOptions,
+    check: ImageCheck,
+    report: SfmReport,
+    priors: Mapping[str, np.ndarray] | None,
+):
 
     with tempfile.TemporaryDirectory(prefix="hybridsplat_sfm_") as tmpname:
         tmp = Path(tmpname)
         db = _db_path(options, tmp)
-        _extract_and_match(db, image_dir, check, options, check.mixed_sizes or not options.single_camera, report)
-        mapper = _mapper_options(options)
-        mapper.min_model_size = 2
+        per_image = check.mixed_sizes or not options.single_camera
+        _extract_and_match(db, image_dir, check, options, per_image, report, priors)
+        mapper = resolve_mapper(options.mapper, len(check.valid))
+        report.mapper = mapper.value
         t0 = time.perf_counter()
-        models = pycolmap.incremental_mapping(db, image_dir, tmp / "models", options=mapper)
+        models = _map(mapper, db, image_dir, tmp / "models", options)
         report.seconds_mapping = time.perf_counter() - t0
         if not models:
             report.unregistered = _unregistered_reasons(db, check.valid, set(), {})
@@ -446,7 +620,8 @@ def _triangulate_known_poses(cameras: Cameras, image_dir: Path, out_dir: Path, o
     with tempfile.TemporaryDirectory(prefix="hybridsplat_tri_") as tmpname:
         tmp = Path(tmpname)
         db = _db_path(options, tmp)
-        _extract_and_match(db, image_dir, check, options, True, report)
+        centres = {v.name: v.center for v in cameras}  # the spatial matcher's priors, when auto picks it
+        _extract_and_match(db, image_dir, check, options, True, report, centres)
         rec = pycolmap.Reconstruction()
         with pycolmap.Database.open(str(db)) as database:
             db_images = {im.name: im for im in database.read_all_images()}

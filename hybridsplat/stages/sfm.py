@@ -28,10 +28,17 @@ class SfmStage(Stage):
         CliOption(
             "single_camera", "--single-camera/--camera-per-photo", help="One camera for all photos, or one per photo."
         ),
-        CliOption("matcher", help="exhaustive | sequential | spatial | vocabtree."),
+        CliOption(
+            "matcher",
+            help="auto (exhaustive up to 150 photos; then spatial with GPS or --reference priors, else sequential) | "
+            "exhaustive | sequential | spatial | vocabtree.",
+        ),
+        CliOption(
+            "mapper", help="auto (incremental below 200 photos, else global) | incremental | global | hierarchical."
+        ),
         CliOption("max_image_size", help="Features are extracted at this longer side (px)."),
     )
-    run_options = command_options[:3]
+    run_options = command_options[:4]
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         src = ctx.source
@@ -75,8 +82,14 @@ class SfmStage(Stage):
             cameras = from_reconstruction(read_reconstruction(src.known_cameras))
             rec, report = triangulate_known_poses(cameras, src.image_dir, layout.sparse, sfm_options)
         else:
-            rec, report = run_sfm(src.image_dir, layout.sparse, sfm_options, image_names=list(src.spec.image_names))
             reference, reference_origin = _reference_centers(ctx)
+            rec, report = run_sfm(
+                src.image_dir,
+                layout.sparse,
+                sfm_options,
+                image_names=list(src.spec.image_names),
+                position_priors=reference or None,
+            )
             if reference:
                 aligned = align_to_reference(rec, reference, opts.align_threshold_m, seed=ctx.config.seed)
                 report.alignment = aligned.result
@@ -94,6 +107,9 @@ class SfmStage(Stage):
             "points": report.num_points,
             "reprojection_error_px": report.mean_reprojection_error,
         }
+        if report.mapper:
+            counts["mapper"] = report.mapper
+        counts["matcher"] = report.matcher
         if report.alignment is not None:
             counts["alignment_rms_m"] = report.alignment.rms_inliers
             counts["alignment_inliers"] = report.alignment.num_inliers
