@@ -1,11 +1,12 @@
 """Viewer-ready export of Gaussian sets: 3DGS PLY, antimatter15 ``.splat``, Niantic's SPZ (version 2), PlayCanvas'
-compressed PLY, and point clouds (PLY / LAS / LAZ).
+compressed PLY and SOG (``.sog`` bundle or unbundled ``meta.json``), and point clouds (PLY / LAS / LAZ).
 
 Every writer first applies :class:`ExportOptions` (:func:`prepare`): crop to an axis-aligned box given in world
 coordinates, drop Gaussians whose opacity α is below ``min_opacity`` (default 1/255: invisible once quantised to
 8 bits), and reduce (or zero-pad) the SH degree. Payloads are float32 (or quantised: :mod:`fusion.spz_format`,
-:mod:`fusion.compressed_ply_format` state their precision) in the set's local frame; the float64 origin goes to a
-``<name>.origin.json`` sidecar (:mod:`core.io.origin`), so georeferenced scenes keep their millimetres.
+:mod:`fusion.compressed_ply_format`, :mod:`fusion.sog_format` state their precision) in the set's local frame; the
+float64 origin goes to a ``<name>.origin.json`` sidecar (:mod:`core.io.origin`), so georeferenced scenes keep their
+millimetres.
 
 Point-cloud export (for CloudCompare and survey tools): one point per Gaussian at its mean, colour from the SH DC
 term, and the fields ``source`` (uint8, :class:`fusion.convert.Source`), ``classification`` (uint8, the class codes
@@ -29,6 +30,7 @@ from core.pointcloud import PointCloud
 from fusion.compressed_ply_format import write_compressed_ply
 from fusion.convert_options import Source
 from fusion.merge import subset
+from fusion.sog_format import is_sog_path, write_sog
 from fusion.splat_format import write_splat
 from fusion.spz_format import SPZ_VERSION, write_spz
 
@@ -39,7 +41,7 @@ class ExportOptions:
 
     ``crop_min`` / ``crop_max``: world coordinates (metres) of an axis-aligned box, both or neither; Gaussians whose
     mean lies outside are dropped (bounds inclusive). ``min_opacity``: α threshold (0 keeps everything).
-    ``sh_degree``: SH degree written to 3DGS PLY, SPZ and compressed PLY (None keeps the set's degree).
+    ``sh_degree``: SH degree written to 3DGS PLY, SPZ, compressed PLY and SOG (None keeps the set's degree).
     ``extra_fields``: append the set's fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties
     after ``rot_3``. ``crs``: the coordinate reference system of the world coordinates (e.g. ``"EPSG:32633"``),
     kept through the export: written to every output's ``.origin.json`` sidecar (written then even at a zero
@@ -172,6 +174,16 @@ def export_compressed_ply(
     return _report(path, "compressed-ply", prep)
 
 
+def export_sog(path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None) -> ExportReport:
+    """Write PlayCanvas' SOG (version 2; a ``.sog`` bundle, or ``meta.json`` and its WebP images in its folder;
+    Morton order, codebooks, SH palette) + origin sidecar when non-zero. See :mod:`fusion.sog_format`."""
+    prep = prepare(gaussians, options)
+    path = Path(path)
+    write_sog(path, prep.gaussians)
+    _write_origin_sidecar(path, prep.gaussians, options)
+    return _report(path, "sog", prep)
+
+
 def export_tileset(
     path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
 ) -> ExportReport:
@@ -241,7 +253,8 @@ def export_gaussians(
     path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
 ) -> ExportReport:
     """Dispatch on the suffix: ``.splat`` → :func:`export_splat`, ``.spz`` → :func:`export_spz`,
-    ``.compressed.ply`` → :func:`export_compressed_ply`, ``.json`` → :func:`export_tileset` (3D Tiles),
+    ``.compressed.ply`` → :func:`export_compressed_ply`, ``.sog`` and ``…meta.json`` → :func:`export_sog`, other
+    ``.json`` → :func:`export_tileset` (3D Tiles),
     ``.las``/``.laz`` → :func:`export_points`, ``.ply`` →
     3DGS PLY (:func:`export_gaussian_ply`); use :func:`export_points` for a point-cloud PLY."""
     suffix = Path(path).suffix.lower()
@@ -251,6 +264,8 @@ def export_gaussians(
         return export_spz(path, gaussians, options)
     if is_compressed_ply_path(path):
         return export_compressed_ply(path, gaussians, options)
+    if is_sog_path(path):
+        return export_sog(path, gaussians, options)
     if is_tileset_path(path):
         return export_tileset(path, gaussians, options)
     if suffix in (".las", ".laz"):
@@ -258,8 +273,8 @@ def export_gaussians(
     if suffix == ".ply":
         return export_gaussian_ply(path, gaussians, options)
     raise FormatError(
-        f"unknown export format {suffix!r}; expected .ply, .compressed.ply, .splat, .spz, .las, .laz or "
-        "tileset.json (3D Tiles)",
+        f"unknown export format {suffix!r}; expected .ply, .compressed.ply, .splat, .spz, .sog, .las, .laz, "
+        "meta.json (SOG, unbundled) or tileset.json (3D Tiles)",
         path,
     )
 

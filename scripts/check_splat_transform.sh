@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Documented check: our 3DGS PLY and .splat exports load in PlayCanvas' splat-transform (an independent reader used
+# Documented check: our 3DGS PLY, .splat and .sog exports load in PlayCanvas' splat-transform (an independent reader used
 # by SuperSplat), which refuses PLY files with missing or unsupported properties ("Unsupported data", exit 1).
 #
 # Usage: scripts/check_splat_transform.sh [WORKDIR]
@@ -88,5 +88,28 @@ for mode in ("paper", "adaptive"):
     if len(rows) != len(ours):
         sys.exit(f"FAIL: {mode}.splat: splat-transform read {len(rows)} rows, we wrote {len(ours)}")
     print(f"OK {mode}.splat: {len(rows)} Gaussians read by splat-transform")
+EOF
+# SOG: our .sog bundle (fusion/sog_format.py) read back by splat-transform, compared with our own reader.
+"$PY" -m hybridsplat export "$WORK/paper.ply" --out "$WORK/paper.sog" --min-opacity 0
+"$ST" -w "$WORK/paper.sog" "$WORK/paper.sog.ply" > "$WORK/paper.sog.log" 2>&1 \
+  || { cat "$WORK/paper.sog.log"; echo "FAIL: splat-transform rejected paper.sog" >&2; exit 1; }
+"$PY" - "$WORK" <<'EOF'
+import sys
+from pathlib import Path
+import numpy as np
+import plyfile
+from fusion.sog_format import read_sog
+
+work = Path(sys.argv[1])
+ours = read_sog(work / "paper.sog")
+v = plyfile.PlyData.read(str(work / "paper.sog.ply"))["vertex"].data
+if len(v) != len(ours):
+    sys.exit(f"FAIL: paper.sog: splat-transform read {len(v)} splats, we wrote {len(ours)}")
+xyz = np.c_[v["x"], v["y"], v["z"]].astype(np.float64)
+dc = np.c_[v["f_dc_0"], v["f_dc_1"], v["f_dc_2"]].astype(np.float64)
+err, dc_err = np.abs(xyz - ours.positions).max(), np.abs(dc - ours.sh_dc).max()
+if err > 1e-5 * max(1.0, np.abs(xyz).max()) or dc_err > 1e-6:
+    sys.exit(f"FAIL: paper.sog values differ: xyz {err}, f_dc {dc_err}")
+print(f"OK paper.sog: {len(v)} Gaussians read by splat-transform, max |Δ| xyz {err:.2e} m, f_dc {dc_err:.2e}")
 EOF
 echo "splat-transform check passed (files in $WORK)"

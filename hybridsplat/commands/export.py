@@ -19,7 +19,8 @@ def export(
         ...,
         "--out",
         "-o",
-        help="Output(s): .ply (3DGS PLY), .compressed.ply (PlayCanvas), .spz (SPZ v2), .splat, tileset.json "
+        help="Output(s): .ply (3DGS PLY), .compressed.ply (PlayCanvas), .spz (SPZ v2), .sog or meta.json "
+        "(PlayCanvas SOG, bundled or unbundled), .splat, tileset.json "
         "(3D Tiles of glTF KHR_gaussian_splatting, placed on the earth by the input's CRS), or .las/.laz (centres); "
         "repeatable.",
     ),
@@ -30,14 +31,14 @@ def export(
     crop_max: tuple[float, float, float] | None = typer.Option(None, help="Crop box maximum X Y Z (world, metres)."),
     min_opacity: float = typer.Option(1 / 255, help="Drop Gaussians with opacity below this (0 keeps all)."),
     sh_degree: int | None = typer.Option(
-        None, help="SH degree written to .ply, .compressed.ply and .spz outputs (default: as read)."
+        None, help="SH degree written to .ply, .compressed.ply, .spz and .sog outputs (default: as read)."
     ),
     extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
     layers: str | None = typer.Option(
         None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
     ),
 ) -> None:
-    """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .splat) or point clouds with class/source
+    """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .sog, .splat) or point clouds with class/source
     fields (.ply, .las)."""
     for path in out:
         check_output_file(path)
