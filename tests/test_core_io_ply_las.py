@@ -193,3 +193,19 @@ def test_atomic_writes_get_normal_permissions(tmp_path):
     mask = os.umask(0)
     os.umask(mask)
     assert (tmp_path / "perm.ply").stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_las_written_chunk_by_chunk_reads_back_at_utm_coordinates(tmp_path):
+    """write_las_chunks: three chunks around a UTM origin, read back to the 1 mm integer step (±0.5 mm), in order."""
+    from core.io.las import write_las_chunks
+
+    rng = np.random.default_rng(3)
+    origin = np.array([2_600_123.4567, 1_200_456.789, 432.1])
+    local = rng.uniform(-500, 500, (25_000, 3))
+    count = write_las_chunks(tmp_path / "c.laz", (local[i : i + 10_000] for i in range(0, len(local), 10_000)), origin)
+    back = read_las(tmp_path / "c.laz")
+    assert count == len(back) == len(local)
+    np.testing.assert_allclose(back.world_positions, local + origin, atol=0.5e-3 + 1e-9, rtol=0)
+    with pytest.raises(DataError, match=".las or .laz"):
+        write_las_chunks(tmp_path / "c.ply", iter([local]), origin)
+    assert not (tmp_path / "c.ply").exists()

@@ -11,6 +11,7 @@ scalar fields as extra dims.
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterable
 from os import PathLike
 from pathlib import Path
 
@@ -222,3 +223,42 @@ def write_las(
     with atomic_path(path) as tmp:
         las.write(str(tmp), do_compress=path.suffix.lower() == ".laz")
     return path
+
+
+def write_las_chunks(
+    path: str | PathLike[str],
+    chunks: Iterable[np.ndarray],
+    origin: np.ndarray,
+    *,
+    scale: float = 0.001,
+    crs: str | None = None,
+) -> int:
+    """Write positions given chunk by chunk ((n, 3) float64 metres relative to ``origin``, world = origin + local) as
+    LAS 1.4 / LAZ with bounded memory (one chunk at a time; laspy fills in the bounds and counts on close),
+    atomically. The offset is ``origin`` rounded to ``scale``. Returns the number of points written. Positions only:
+    :func:`write_las` writes colours, classes and fields of an in-memory cloud."""
+    path = Path(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        raise DataError(f"LAS output needs a .las or .laz suffix, got {path.suffix!r}", path)
+    origin = np.asarray(origin, dtype=np.float64)
+    offset = np.round(origin / scale) * scale
+    header = laspy.LasHeader(point_format=6, version="1.4")
+    header.scales = np.array([scale] * 3)
+    header.offsets = offset
+    if crs:
+        import pyproj
+
+        header.add_crs(pyproj.CRS.from_user_input(crs))
+    limit = np.iinfo(np.int32).max
+    count = 0
+    with atomic_path(path) as tmp:
+        with laspy.open(tmp, mode="w", header=header, do_compress=path.suffix.lower() == ".laz") as writer:
+            for chunk in chunks:
+                ints = np.round((np.asarray(chunk, dtype=np.float64) + (origin - offset)) / scale)
+                if ints.size and np.abs(ints).max() > limit:
+                    raise DataError(f"coordinates span more than ±{limit * scale:.0f} m from the offset", path)
+                record = laspy.ScaleAwarePointRecord.zeros(len(ints), header=header)
+                record.X, record.Y, record.Z = (ints[:, k].astype(np.int32) for k in range(3))
+                writer.write_points(record)
+                count += len(ints)
+    return count
