@@ -32,7 +32,7 @@ from fusion.convert_options import Source
 from fusion.merge import subset
 from fusion.sog_format import is_sog_path, write_sog
 from fusion.splat_format import write_splat
-from fusion.spz_format import SPZ_VERSION, write_spz
+from fusion.spz_format import SPZ_VERSION, SPZ_WRITABLE_VERSIONS, write_spz
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,8 @@ class ExportOptions:
     ``extra_fields``: append the set's fields (``source``, ``classification``…) to the 3DGS PLY as float32 properties
     after ``rot_3``. ``crs``: the coordinate reference system of the world coordinates (e.g. ``"EPSG:32633"``),
     kept through the export: written to every output's ``.origin.json`` sidecar (written then even at a zero
-    origin) and as the WKT of a LAS/LAZ output; None writes none.
+    origin) and as the WKT of a LAS/LAZ output; None writes none. ``spz_version``: 2 (default: every SPZ reader) or
+    3 (smallest-three rotations, exact near 180°; see :mod:`fusion.spz_format`).
     """
 
     crop_min: tuple[float, float, float] | None = None
@@ -54,6 +55,7 @@ class ExportOptions:
     sh_degree: int | None = None
     extra_fields: bool = False
     crs: str | None = None
+    spz_version: int = SPZ_VERSION
 
     def __post_init__(self) -> None:
         if (self.crop_min is None) != (self.crop_max is None):
@@ -70,6 +72,8 @@ class ExportOptions:
             raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
         if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
             raise ConfigError(f"sh_degree must be 0, 1, 2 or 3, got {self.sh_degree}")
+        if self.spz_version not in SPZ_WRITABLE_VERSIONS:
+            raise ConfigError(f"spz_version must be one of {SPZ_WRITABLE_VERSIONS}, got {self.spz_version}")
 
 
 @dataclass
@@ -157,7 +161,7 @@ def export_spz(path: str | PathLike[str], gaussians: GaussianSet, options: Expor
     unless the extent needs coarser ones) + origin sidecar when non-zero. See :mod:`fusion.spz_format`."""
     prep = prepare(gaussians, options)
     path = Path(path)
-    write_spz(path, prep.gaussians, version=SPZ_VERSION)
+    write_spz(path, prep.gaussians, version=SPZ_VERSION if options is None else options.spz_version)
     _write_origin_sidecar(path, prep.gaussians, options)
     return _report(path, "spz", prep)
 

@@ -303,6 +303,10 @@ def test_cli_export_writes_spz_and_its_sidecar(tmp_path):
     world = d.positions + d.origin
     truth = gs.means.astype(np.float32).astype(np.float64) + GEO_ORIGIN  # what the 3DGS PLY holds
     assert np.abs(world - truth).max() <= POSITION_BOUND
+    assert _cli(["export", tmp_path / "in.ply", "--out", tmp_path / "Y.spz", "--spz-version", "3"]) == 0
+    assert read_spz(tmp_path / "Y.spz").header.version == 3
+    assert _cli(["export", tmp_path / "in.ply", "--out", tmp_path / "Z.spz", "--spz-version", "4"]) != 0
+    assert not (tmp_path / "Z.spz").exists()
 
 
 # -- independent readers and the reference writer (optional: node + splat-transform) -----------------------------

@@ -14,6 +14,7 @@ from core.io.colmap_vis import read_vis
 from core.pointcloud import PointCloud
 from fusion.convert_options import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions
 from fusion.export import ExportOptions, ExportReport, export_gaussians
+from fusion.spz_format import SPZ_VERSION
 
 
 def load_cloud(path: Path, visibility: Path | None = None) -> PointCloud:
@@ -32,6 +33,7 @@ def export_options(
     sh_degree: int | None,
     extra_fields: bool,
     crs: str | None = None,
+    spz_version: int = SPZ_VERSION,
 ) -> ExportOptions:
     return ExportOptions(
         crop_min=crop_min,
@@ -40,6 +42,7 @@ def export_options(
         sh_degree=sh_degree,
         extra_fields=extra_fields,
         crs=crs,
+        spz_version=spz_version,
     )
 
 

@@ -10,6 +10,7 @@ from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
 from fusion.convert_options import parse_layers, select_layers
 from fusion.export import export_gaussians, export_points, is_compressed_ply_path
+from fusion.spz_format import SPZ_VERSION
 from hybridsplat.commands.convert import export_options, print_export
 
 
@@ -34,6 +35,9 @@ def export(
         None, help="SH degree written to .ply, .compressed.ply, .spz and .sog outputs (default: as read)."
     ),
     extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
+    spz_version: int = typer.Option(
+        SPZ_VERSION, help="SPZ version of .spz outputs: 2 (every reader) or 3 (rotations exact near 180°)."
+    ),
     layers: str | None = typer.Option(
         None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
     ),
@@ -49,7 +53,7 @@ def export(
     with reading_project(gaussians):
         gs = select_layers(read_gaussian_ply(gaussians), chosen)
         crs = read_crs(gaussians)  # the input's CRS goes with every output
-    options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields, crs)
+    options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields, crs, spz_version)
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:
