@@ -30,7 +30,7 @@ from core.io.gaussian_ply import write_gaussian_ply
 from core.io.origin import read_origin, sidecar_path
 from fusion import spz_format
 from fusion.export import ExportOptions, export_gaussians, export_spz
-from fusion.spz_format import encode_spz, read_spz, write_spz
+from fusion.spz_format import encode_spz, fixed_point_fits, read_spz, write_spz
 
 GEO_ORIGIN = np.array([500000.0, 4000000.0, 100.0])
 
@@ -300,6 +300,9 @@ def test_cli_export_writes_spz_and_its_sidecar(tmp_path):
     np.testing.assert_array_equal(read_origin(tmp_path / "X.spz"), GEO_ORIGIN)
     d = read_spz(tmp_path / "X.spz")
     assert d.header.version == 2 and len(d) == 1500 and d.header.sh_degree == 3
+    bits = d.header.fractional_bits  # the finest step the local extent allows, not the reference's fixed 12
+    local = gs.means.astype(np.float32).astype(np.float64)
+    assert bits > 12 and fixed_point_fits(local, bits) and (bits == 23 or not fixed_point_fits(local, bits + 1))
     world = d.positions + d.origin
     truth = gs.means.astype(np.float32).astype(np.float64) + GEO_ORIGIN  # what the 3DGS PLY holds
     assert np.abs(world - truth).max() <= POSITION_BOUND
