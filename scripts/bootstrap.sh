@@ -54,3 +54,24 @@ if [ ! -f "$LPIPS_WEIGHTS" ]; then
     echo "bootstrap: warning: no LPIPS weights were built; LPIPS is left out of the image metrics" >&2
   fi
 fi
+
+# Independent readers the export tests check our files with (splat-transform, gltf-validator, loaders.gl), pinned
+# with their lock in scripts/node_tools/ and installed into node_tools/ (git-ignored). Optional: without npm or the
+# npm registry those tests skip, the rest of the project is unaffected.
+NODE_TOOLS=node_tools
+NODE_STAMP=$NODE_TOOLS/.installed-$(cat scripts/node_tools/package.json scripts/node_tools/package-lock.json | sha1sum | cut -c1-12)
+if [ ! -f "$NODE_STAMP" ]; then
+  if command -v npm >/dev/null 2>&1; then
+    echo "bootstrap: installing the pinned npm readers into $NODE_TOOLS/ (export tests)" >&2
+    mkdir -p "$NODE_TOOLS"
+    cp scripts/node_tools/package.json scripts/node_tools/package-lock.json "$NODE_TOOLS"/
+    if (cd "$NODE_TOOLS" && npm ci --silent --no-fund --no-audit >/dev/null 2>&1); then
+      rm -f "$NODE_TOOLS"/.installed-*
+      touch "$NODE_STAMP"
+    else
+      echo "bootstrap: warning: npm could not install the readers; the export tests that use them will skip" >&2
+    fi
+  else
+    echo "bootstrap: no npm; the export tests that use splat-transform / gltf-validator will skip" >&2
+  fi
+fi

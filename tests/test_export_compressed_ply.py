@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import plyfile
 import pytest
+from node_tools import splat_transform
 
 from core.errors import DataError, FormatError
 from core.gaussians import SH_C0, GaussianSet
@@ -297,17 +296,7 @@ def test_cli_export_writes_compressed_ply_even_with_points(tmp_path):
 
 # -- an independent reader (optional: node + splat-transform) ------------------------------------------------------
 def _splat_transform() -> str:
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed (needed by @playcanvas/splat-transform)")
-    candidates = [
-        os.environ.get("HYBRIDSPLAT_SPLAT_TRANSFORM", ""),
-        "/tmp/hybridsplat-splat-transform/node_modules/.bin/splat-transform",
-        shutil.which("splat-transform") or "",
-    ]
-    for c in candidates:
-        if c and Path(c).is_file():
-            return c
-    pytest.skip("@playcanvas/splat-transform not installed: run scripts/check_splat_transform.sh once")
+    return splat_transform()
 
 
 def test_splat_transform_reads_our_compressed_ply_with_our_values(tmp_path):

@@ -14,8 +14,6 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
-import shutil
 import subprocess
 import zipfile
 from pathlib import Path
@@ -23,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import plyfile
 import pytest
+from node_tools import splat_transform
 from PIL import Image
 
 from core.errors import DataError, FormatError, InputFileError
@@ -347,17 +346,7 @@ def test_cli_export_writes_sog_bundle_and_folder(tmp_path):
 
 # -- an independent reader (optional: node + splat-transform) ------------------------------------------------------
 def _splat_transform() -> str:
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed (needed by @playcanvas/splat-transform)")
-    candidates = [
-        os.environ.get("HYBRIDSPLAT_SPLAT_TRANSFORM", ""),
-        "/tmp/hybridsplat-splat-transform/node_modules/.bin/splat-transform",
-        shutil.which("splat-transform") or "",
-    ]
-    for c in candidates:
-        if c and Path(c).is_file():
-            return c
-    pytest.skip("@playcanvas/splat-transform not installed: run scripts/check_splat_transform.sh once")
+    return splat_transform()
 
 
 @pytest.mark.parametrize(("name", "degree"), [("g.sog", 3), ("u/meta.json", 1), ("z.sog", 0)])

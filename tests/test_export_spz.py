@@ -14,8 +14,6 @@ from __future__ import annotations
 import gzip
 import json
 import math
-import os
-import shutil
 import struct
 import subprocess
 import warnings
@@ -23,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from node_tools import splat_transform
 
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import GaussianSet
@@ -340,17 +339,7 @@ for (const file of job.load) {
 
 
 def _splat_transform() -> str:
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed (needed by @playcanvas/splat-transform)")
-    candidates = [
-        os.environ.get("HYBRIDSPLAT_SPLAT_TRANSFORM", ""),
-        "/tmp/hybridsplat-splat-transform/node_modules/.bin/splat-transform",
-        shutil.which("splat-transform") or "",
-    ]
-    for c in candidates:
-        if c and Path(c).is_file():
-            return c
-    pytest.skip("@playcanvas/splat-transform not installed: run scripts/check_splat_transform.sh once")
+    return splat_transform()
 
 
 def _reference_module(st: str) -> Path:

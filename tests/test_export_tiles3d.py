@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import shutil
 import struct
 import subprocess
 import warnings
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 import pytest
+from node_tools import gltf_tools_prefix
 
 from core.errors import ConfigError, DataError, FormatError
 from core.gaussians import SH_C0, GaussianSet, sigmoid
@@ -492,13 +492,7 @@ def test_colour_space_is_recorded_and_linear_colours_are_not_decoded():
 
 
 def _tool_prefix() -> Path:
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed")
-    prefix = Path(os.environ.get("GT_PREFIX", "/tmp/hybridsplat-gltf-tools"))
-    needed = [prefix / "node_modules" / "gltf-validator", prefix / "node_modules" / "@loaders.gl" / "3d-tiles"]
-    if not all(p.is_dir() for p in needed):
-        pytest.skip("gltf-validator / @loaders.gl/3d-tiles not installed: run scripts/check_gltf_tiles.sh once")
-    return prefix
+    return gltf_tools_prefix()
 
 
 def test_gltf_validator_and_loaders_gl_accept_our_tiles_at_the_right_place(tmp_path):

@@ -4,13 +4,12 @@ and its CSV dump holds our numbers. Skips when node or the npm package are absen
 
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from node_tools import splat_transform
 
 from core.gaussians import GaussianSet
 from core.io.gaussian_ply import gaussian_property_names
@@ -22,17 +21,7 @@ C0 = 0.28209479177387814
 
 
 def _splat_transform() -> str:
-    if shutil.which("node") is None:
-        pytest.skip("node is not installed (needed by @playcanvas/splat-transform)")
-    candidates = [
-        os.environ.get("HYBRIDSPLAT_SPLAT_TRANSFORM", ""),
-        "/tmp/hybridsplat-splat-transform/node_modules/.bin/splat-transform",
-        shutil.which("splat-transform") or "",
-    ]
-    for c in candidates:
-        if c and Path(c).is_file():
-            return c
-    pytest.skip("@playcanvas/splat-transform not installed: run scripts/check_splat_transform.sh once")
+    return splat_transform()
 
 
 def _run(st: str, src: Path, dst: Path) -> tuple[int, str, dict[str, np.ndarray]]:
