@@ -7,6 +7,15 @@ from dataclasses import dataclass, field
 from core.errors import ConfigError
 from fusion.clean_options import SurveyPointOptions
 
+VIEWER_FORMATS = {
+    "spz": "merged.spz",
+    "sog": "merged.sog",
+    "compressed-ply": "merged.compressed.ply",
+    "splat": "merged.splat",
+    "3dtiles": "tiles/tileset.json",
+}
+"""Viewer formats the merge stage can write beside export/merged.ply: name → path under export/."""
+
 
 @dataclass(frozen=True)
 class MergeOptions:
@@ -22,6 +31,8 @@ class MergeOptions:
         glass (chosen on the benchmark's training scenes; docs/experiments/2026-11-27-pipeline-defaults.md).
     surface_test: mark the splats that may shape a mesh (the ``surface`` field of merged.ply, see
         :func:`fusion.clean.surface_splat_options`); off: every Gaussian gets ``surface = 1``.
+    viewer_formats: the viewer product (merged.ply's Gaussians) also written in these formats, each beside it in
+        export/ (:data:`VIEWER_FORMATS`: file name per format), with the origin sidecar and the CRS.
     """
 
     keep_needs_splats: bool = False
@@ -30,8 +41,12 @@ class MergeOptions:
     needs_mvs_max_rim_spacing: float | None = 0.5
     needs_mvs_classes: tuple[str, ...] = ("textureless",)
     surface_test: bool = True
+    viewer_formats: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        unknown = [f for f in self.viewer_formats if f not in VIEWER_FORMATS]
+        if unknown:
+            raise ConfigError(f"unknown viewer format(s) {unknown}; choose from {', '.join(VIEWER_FORMATS)}")
         rim = self.needs_mvs_max_rim_spacing
         if rim is not None and not rim > 0:
             raise ConfigError(f"needs_mvs_max_rim_spacing must be > 0 or none, got {rim}")

@@ -184,6 +184,14 @@ class ProjectLayout:
         """The product for splat viewers (3DGS PLY, local coordinates; origin in ``merged.origin.json``)."""
         return self.export_dir / "merged.ply"
 
+    def merged_viewer(self, fmt: str) -> Path:
+        """The viewer product in another format (``fusion.merge_options.VIEWER_FORMATS``), e.g. export/merged.spz."""
+        from fusion.merge_options import VIEWER_FORMATS
+
+        if fmt not in VIEWER_FORMATS:
+            raise ValueError(f"viewer format must be one of {tuple(VIEWER_FORMATS)}, got {fmt!r}")
+        return self.export_dir / VIEWER_FORMATS[fmt]
+
     @property
     def merged_points_ply(self) -> Path:
         return self.export_dir / "merged_points.ply"
@@ -287,6 +295,7 @@ class ProjectLayout:
             "export/mvs_gaussians.ply": self.mvs_gaussians,
             "export/splats.ply": self.splats_export,
             "export/merged.ply": self.merged_ply,
+            **{f"export/{name}": self.export_dir / name for name in _viewer_names()},
             "export/merged_points.ply": self.merged_points_ply,
             "export/merged_points.las": self.merged_points_las,
             **{f"export/mesh.{f}": self.mesh_path(f) for f in MESH_FORMATS},
@@ -302,3 +311,9 @@ class ProjectLayout:
             "logs/": self.logs_dir,
         }
         return {name: path.relative_to(self.root) for name, path in paths.items()}
+
+
+def _viewer_names() -> list[str]:
+    from fusion.merge_options import VIEWER_FORMATS
+
+    return list(VIEWER_FORMATS.values())

@@ -15,10 +15,11 @@ DEMO_STAGES: dict[str, dict[str, Any]] = {
     "mesh": {"budget": 2_000},
     "train": {"training.iterations": 600},
     "baseline": {"enabled": True, "training.iterations": 1_000},
+    "merge": {"viewer_formats": ["spz", "sog"]},
 }
 """The demo's stage options (option paths as in config.toml): a small mesh and CPU-sized training budgets for the
 hybrid and the whole-scene baseline, so that every stage of the demo scene runs in minutes on 2 cores
-(``bench/bench_pipeline.py`` sweeps the budgets)."""
+(``bench/bench_pipeline.py`` sweeps the budgets), and the viewer product also as SPZ and SOG."""
 
 
 def _run_input(

@@ -3,7 +3,8 @@
 With cleaned splats (splats/cleaned.ply) and a classified cloud, the hybrid (:func:`fusion.survey.hybrid_products`:
 trusted MVS Gaussians + splats, a ``source`` and a ``surface`` field per Gaussian, and the point product of the
 Gaussians whose geometry is trustworthy); the splats alone also go to export/splats.ply. Without them, the
-converted MVS cloud.
+converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
+3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable).
 """
 
 from __future__ import annotations
@@ -14,13 +15,21 @@ from typing import Any
 from fusion.merge_options import MergeOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import ReportSection, Stage, StageContext
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
 
 class MergeStage(Stage):
     name = "merge"
     Options = MergeOptions
     title = "merge and export"
+    command_options = (
+        CliOption(
+            "viewer_formats",
+            "--viewer-format",
+            help="Also write the viewer product as spz | sog | compressed-ply | splat | 3dtiles (repeatable).",
+        ),
+    )
+    run_options = command_options
 
     def _hybrid(self, ctx: StageContext) -> bool:
         return ctx.layout.cleaned_splats.is_file() and ctx.layout.classified_points.is_file()
@@ -51,7 +60,8 @@ class MergeStage(Stage):
     def outputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
         splats = [layout.splats_export] if self._hybrid(ctx) else []
-        return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las, *splats]
+        viewer = [layout.merged_viewer(f) for f in ctx.options(self).viewer_formats]
+        return [layout.merged_ply, layout.merged_points_ply, layout.merged_points_las, *splats, *viewer]
 
     def expected_bytes(self, ctx: StageContext) -> int:
         """Bytes of the merge's products for n = the MVS Gaussians + (hybrid) the cleaned splats + the background
@@ -72,7 +82,9 @@ class MergeStage(Stage):
         merged = sizes.gaussian_ply_bytes(n, max(refined.sh_degree, *(s.sh_degree for s in sets)), extras)
         points = sizes.point_ply_bytes(n, extras + 5) + sizes.las_bytes(n, extras + 5)
         splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
-        return merged + points + splats + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
+        formats = ctx.options(self).viewer_formats  # each at most the PLY's size; a tileset adds its JSON (12 %)
+        viewer = sum(int(merged * (1.12 if f == "3dtiles" else 1.0)) + sizes.SIDECAR_BYTES for f in formats)
+        return merged + points + splats + viewer + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.gaussians import GaussianSet
@@ -112,6 +124,10 @@ class MergeStage(Stage):
             write_origin(layout.merged_points_ply, points.origin, crs)
         else:
             export_points(layout.merged_points_las, points)
+        for fmt in ctx.options(self).viewer_formats:
+            from fusion.export import export_gaussians
+
+            export_gaussians(layout.merged_viewer(fmt), gaussians, ExportOptions(crs=crs))
         return {"merged": len(gaussians), "written": written.num_written, "mvs": stats.mvs_kept,
                 "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
                 "points": len(points), **extra}  # fmt: skip
