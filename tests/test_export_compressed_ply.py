@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import plyfile
 import pytest
-from node_tools import splat_transform
+from npm_readers import splat_transform
 
 from core.errors import DataError, FormatError
 from core.gaussians import SH_C0, GaussianSet

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from node_tools import splat_transform
+from npm_readers import splat_transform
 
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import GaussianSet

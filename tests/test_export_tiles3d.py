@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pyproj
 import pytest
-from node_tools import gltf_tools_prefix
+from npm_readers import gltf_tools_prefix
 
 from core.errors import ConfigError, DataError, FormatError
 from core.gaussians import SH_C0, GaussianSet, sigmoid

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from node_tools import splat_transform
+from npm_readers import splat_transform
 
 from core.gaussians import GaussianSet
 from core.io.gaussian_ply import gaussian_property_names
