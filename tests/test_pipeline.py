@@ -403,10 +403,9 @@ def test_photo_folder_with_a_georeferenced_reference_in_millimetres(tmp_path, ca
     assert "(mm)" in report and f"{c2c['mean'] * 1000:.3g}" in report  # lengths printed in the user's unit
 
 
-def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp_path):
-    """``run ... --viewer-format spz --viewer-format sog --viewer-format 3dtiles`` again on a copy of the project:
-    only the merge reruns; the same Gaussians as merged.ply (those a viewer sees: opacity ≥ 1/255), its origin beside
-    each file."""
+def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp_path, capsys):
+    """The merge stage again on a copy of the project with ``viewer_formats`` (what ``run --viewer-format`` sets):
+    the same Gaussians as merged.ply (those a viewer sees: opacity ≥ 1/255), its origin beside each file."""
     import shutil
 
     from core.io.origin import read_origin
@@ -417,8 +416,9 @@ def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp
     copy = tmp_path / "p"
     shutil.copytree(original, copy)
     layout = ProjectLayout(copy)
-    formats = ["--viewer-format", "spz", "--viewer-format", "sog", "--viewer-format", "3dtiles"]
-    assert main_code(["run", str(scene), "--out", str(copy), "--quiet", *formats]) == 0
+    from hybridsplat.commands.common import run_project_stage
+
+    run_project_stage(copy, "merge", {"viewer_formats": ["spz", "sog", "3dtiles"]}, quiet=True)
     merged = read_gaussian_ply(layout.merged_ply)
     visible = int((merged.logit_opacities >= np.log(1 / 254)).sum())  # α ≥ 1/255
     assert len(read_spz(layout.merged_viewer("spz"))) == len(read_sog(layout.merged_viewer("sog")).positions) == visible
@@ -426,4 +426,5 @@ def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp
         np.testing.assert_array_equal(read_origin(layout.merged_viewer(fmt)), read_origin(layout.merged_ply))
     assert json.loads(layout.merged_viewer("3dtiles").read_text())["asset"]["version"] == "1.1"
     assert 'viewer_formats = ["spz", "sog", "3dtiles"]' in (copy / "config.toml").read_text()
-    assert main_code(["run", str(scene), "--out", str(copy), "--viewer-format", "jpeg"]) == 2
+    assert main_code(["run", str(scene), "--out", str(tmp_path / "q"), "--viewer-format", "jpeg"]) == 2
+    assert "unknown viewer format(s) ['jpeg']" in capsys.readouterr().err
