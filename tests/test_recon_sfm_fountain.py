@@ -52,4 +52,5 @@ def test_fountain_photos_register_with_default_options(tmp_path: Path):
     # independent truth: LiDAR-registered camera centres, compared after a similarity alignment
     gt = {v.name: v.center for v in read_strecha_cameras(fountain / "gt_dense_cameras")}
     result = align_reconstruction_to_centers(rec, gt, threshold=0.1)
+    # measured: rms 6.2 mm, max 8.7 mm over the 14.7 m camera path (bench/bench_sfm_mappers.py)
     assert result.num_inliers == 11 and result.residuals.max() < 0.03
