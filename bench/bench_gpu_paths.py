@@ -178,7 +178,7 @@ def score(args: argparse.Namespace) -> None:
     points = fuse(ws, FusionOptions())
     print(f"fused {points} points from the GPU maps in {time.perf_counter() - t0:.1f} s (CPU fusion)")
     gsd, rows_gpu = evaluate(Path(args.scene), ws.fused_ply)
-    _, rows_cpu = evaluate(Path(args.scene), src / "fused.ply")
+    _, rows_cpu = evaluate(Path(args.scene), DenseWorkspace(src).fused_ply)
     head = f"{'acc GSD':>9}{'compl':>7}"
     print(f"{'material':<22}{'CPU MVS: pts':>14}{head}{'GPU PM: pts':>14}{head}")
     for a, b in zip(rows_cpu, rows_gpu, strict=True):
