@@ -7,6 +7,18 @@ Optionally (``--sfm``) full SfM without known poses, aligned to the true camera 
 
     python bench/bench_mvs.py [--quick] [--scene DIR] [--sizes 320,480,640] [--sfm]
 
+With ``--before REV`` each size runs twice in one process, with ``recon/mvs_cpu.py`` of git revision REV
+("before", e.g. the torch-only MVS of ``bench_mvs_profile.BEFORE_REV``) and with today's ("after"), and prints
+their seconds per view, the fused cloud's C2C mean (fused -> GT LiDAR, all points) and completeness at τ (GT LiDAR
+points with a fused point within ``--tau-gsd`` GSD), with the ratios after / before:
+
+    python bench/bench_mvs.py --scene /tmp/demo29/scene --sizes 320 --before 4a92792
+
+Real photos without ground truth: ``--workspace DIR`` reruns the depth maps and fusion of an existing dense
+workspace (a copy of it, in ``--work``) before and after and prints seconds per view and fused points:
+
+    python bench/bench_mvs.py --workspace /tmp/fountain/dense --held-out 0003.jpg,0007.jpg --before 4a92792
+
 The scene is generated with ``data_synth.generate_scene`` into ``--cache`` when ``--scene`` is not given.
 Timings on a shared machine are noisy; the MVS runs with ``--threads`` torch threads.
 """
@@ -15,10 +27,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -86,6 +102,98 @@ def evaluate(scene: Path, fused_ply: Path, tau_gsd: float = 3.0) -> tuple[float,
     return gsd, scores
 
 
+@dataclass
+class CloudScore:
+    """Whole-cloud figures of a fused cloud against the GT LiDAR cloud (metres)."""
+
+    points: int
+    c2c_mean_m: float  # fused -> GT LiDAR, mean over all fused points
+    completeness: float  # GT LiDAR points with a fused point within tau
+    tau_m: float
+
+
+def cloud_score(scene: Path, fused_ply: Path, tau_gsd: float = 3.0) -> CloudScore:
+    """C2C mean and completeness at ``tau_gsd`` GSD of a fused cloud (``eval.c2c.compare_clouds``)."""
+    from eval.c2c import compare_clouds
+
+    gsd = float(json.loads((scene / "scene.json").read_text())["gsd_m"])
+    fused = read_ply(fused_ply)
+    result = compare_clouds(fused, read_ply(scene / "gt" / "lidar.ply"), tau=tau_gsd * gsd)
+    return CloudScore(len(fused), result.stats.mean, result.scores.recall, tau_gsd * gsd)
+
+
+@contextmanager
+def mvs_module(module: ModuleType | None) -> Iterator[None]:
+    """``recon.mvs`` imports the CPU MVS as ``recon.mvs_cpu`` when it runs: this block gives it ``module``."""
+    if module is None:
+        yield
+        return
+    import recon.mvs_cpu
+
+    sys.modules["recon.mvs_cpu"] = module
+    try:
+        yield
+    finally:
+        sys.modules["recon.mvs_cpu"] = recon.mvs_cpu
+
+
+def compare_before_after(scene: Path, sparse: Path, work: Path, size: int, opts, before: ModuleType, tau_gsd: float):
+    """One size with the 'before' module and with today's, on the same model; prints both and their ratios."""
+    rows = {}
+    from bench_mvs_profile import BEFORE_EFFORT
+
+    before_opts = replace(opts, cpu=replace(opts.cpu, **BEFORE_EFFORT))
+    for name, module, run_opts in (("before", before, before_opts), ("after", None, opts)):
+        dense = DenseWorkspace(work / f"dense_{size}_{name}")
+        with mvs_module(module):
+            report = run_mvs(sparse, scene / "images", dense.root, run_opts)
+        rows[name] = (report, cloud_score(scene, dense.fused_ply, tau_gsd))
+    gsd = float(json.loads((scene / "scene.json").read_text())["gsd_m"])
+    print(f"\nmax_image_size {size}, before/after (load {os.getloadavg()[0]:.2f}):")
+    print(f"  {'':<8}{'s/view':>8}{'points':>9}{'C2C mean mm':>13}{'C2C GSD':>9}{'compl@tau':>11}")
+    for name, (rep, sc) in rows.items():
+        print(
+            f"  {name:<8}{rep.seconds_per_view:>8.3f}{sc.points:>9}{sc.c2c_mean_m * 1000:>13.3f}"
+            f"{sc.c2c_mean_m / gsd:>9.3f}{sc.completeness:>11.4f}"
+        )
+    (rb, sb), (ra, sa) = rows["before"], rows["after"]
+    print(
+        f"  after/before: time x{ra.seconds_per_view / rb.seconds_per_view:.3f} (speed-up "
+        f"{rb.seconds_per_view / ra.seconds_per_view:.2f}x), C2C mean x{sa.c2c_mean_m / sb.c2c_mean_m:.3f}, "
+        f"completeness {sa.completeness - sb.completeness:+.4f} (tau {sa.tau_m * 1000:.2f} mm)"
+    )
+
+
+def _maps_and_outputs(folder: str, names: list[str]) -> list[str]:
+    """What a copy of a dense workspace leaves out: depth and normal maps (under stereo/), fused cloud, logs."""
+    in_stereo = "stereo" in Path(folder).parts
+    return [n for n in names if (in_stereo and n.endswith(".bin")) or n.startswith("fused.ply") or n.endswith(".log")]
+
+
+def compare_on_workspace(workspace: Path, held_out: frozenset[str], work: Path, cpu, threads: int, before) -> None:
+    """Depth maps, filter and fusion of a copy of a dense workspace with the 'before' module and with today's."""
+    import shutil
+
+    from bench_mvs_profile import BEFORE_EFFORT
+
+    from recon.mvs import compute_depth_maps_cpu, fuse
+
+    print(f"{workspace}, held out {sorted(held_out)}:")
+    for name, module, opts in (("before", before, replace(cpu, **BEFORE_EFFORT)), ("after", None, cpu)):
+        copy = work / f"workspace_{name}"
+        shutil.rmtree(copy, ignore_errors=True)
+        shutil.copytree(workspace, copy, ignore=_maps_and_outputs)
+        options = MvsOptions(backend=MvsBackend.CPU, num_threads=threads, cpu=opts, held_out=held_out)
+        with mvs_module(module):
+            report = compute_depth_maps_cpu(DenseWorkspace(copy), options)
+        points = fuse(copy, options.fusion, log_path=copy / "fusion.log")
+        print(
+            f"  {name:<7}{report.seconds_per_view:>8.2f} s/view ({report.num_views} views, depth "
+            f"{report.seconds_depth:.1f} s + geometric {report.seconds_geometric:.1f} s), {points} fused points "
+            f"(load {os.getloadavg()[0]:.2f})"
+        )
+
+
 def _ensure_scene(args) -> Path:
     if args.scene:
         return Path(args.scene)
@@ -110,7 +218,24 @@ def _parse_args() -> argparse.Namespace:
     ap.add_argument("--work", default="/tmp/hybridsplat_bench/work")
     ap.add_argument("--reuse", action="store_true", help="reuse a known-pose model already in --work")
     ap.add_argument("--no-mvs", action="store_true", help="skip the MVS sizes (with --sfm: SfM only)")
+    ap.add_argument("--before", help="also run recon/mvs_cpu.py of this git revision and compare (see above)")
+    ap.add_argument("--tau-gsd", type=float, default=3.0, help="completeness threshold (whole cloud), in GSD")
+    ap.add_argument("--workspace", help="existing dense workspace of real photos: before/after (needs --before)")
+    ap.add_argument("--held-out", default="", help="with --workspace: photos kept out of depth, comma-separated")
+    ap.add_argument("--quality", help="CpuMvsOptions preset of the 'after' runs (fast|balanced|high)")
     return ap.parse_args()
+
+
+def _modules(args: argparse.Namespace) -> tuple[CpuMvsOptions, ModuleType | None]:
+    """Today's options (``--quality``) and the 'before' module (``--before``, else None); warms today's kernels up."""
+    from bench_mvs_profile import load_before, warm_up
+
+    import recon.mvs_cpu
+
+    print(f"first call of today's CPU MVS (numba compiles or loads its cache): {warm_up(recon.mvs_cpu):.1f} s")
+    before = load_before(args.before) if args.before else None
+    print(f"load {os.getloadavg()}")
+    return CpuMvsOptions(quality=args.quality or "balanced"), before
 
 
 def main() -> None:
@@ -118,6 +243,11 @@ def main() -> None:
     import pycolmap
 
     pycolmap.logging.minloglevel = 2
+    if args.workspace:
+        cpu, before = _modules(args)
+        held_out = frozenset(n for n in args.held_out.split(",") if n)
+        compare_on_workspace(Path(args.workspace), held_out, Path(args.work), cpu, args.threads, before)
+        return
     scene = _ensure_scene(args)
     work = Path(args.work)
     project = ProjectLayout(work / "known")  # only its sparse model: the known-pose triangulation
@@ -136,13 +266,21 @@ def main() -> None:
     sizes = [] if args.no_mvs else [320] if args.quick else [int(s) for s in args.sizes.split(",")]
     rows: list[tuple[int, MvsReport, list[MaterialScore]]] = []
     gsd = float(json.loads((scene / "scene.json").read_text())["gsd_m"])
+    cpu, before = _modules(args)
     for size in sizes:
-        opts = MvsOptions(backend=MvsBackend.CPU, max_image_size=size, num_threads=args.threads, cpu=CpuMvsOptions())
+        opts = MvsOptions(backend=MvsBackend.CPU, max_image_size=size, num_threads=args.threads, cpu=cpu)
+        if before is not None:
+            compare_before_after(scene, project.sparse, work, size, opts, before, args.tau_gsd)
+            continue
         dense = DenseWorkspace(work / f"dense_{size}")
         report = run_mvs(project.sparse, scene / "images", dense.root, opts)
         gsd, scores = evaluate(scene, dense.fused_ply)
         rows.append((size, report, scores))
         _print_size(size, report, scores, gsd)
+        sc = cloud_score(scene, dense.fused_ply, args.tau_gsd)
+        print(f"  whole cloud: C2C mean {sc.c2c_mean_m * 1000:.3f} mm, completeness {sc.completeness:.4f} at tau")
+    if before is not None:
+        print(f"load {os.getloadavg()}")
     if len(rows) > 1:
         _print_ratios(rows)
     if args.sfm:

@@ -1,29 +1,33 @@
-"""Our CPU multi-view stereo in PyTorch: coarse-to-fine plane sweep + PatchMatch-style refinement.
+"""Our CPU multi-view stereo: coarse-to-fine plane sweep + PatchMatch-style refinement (torch + numba).
 
 Per reference view (images gray float32 in [0, 1], pinhole cameras in COLMAP pixel units):
 
 1. Coarsest level (longer side ``coarse_size``): sweep ``num_planes`` fronto-parallel planes uniform in inverse
-   depth over the view's sparse depth range; winner-take-all, then a parabola through the three costs around
-   the winner gives a sub-plane inverse depth.
+   depth over the view's sparse depth range; winner-take-all, then a median and a box filter.
 2. Each finer level (factor 2): the inverse depth is upsampled; per pixel, hypotheses = the upsampled value
    and the values of the nearest coarse pixels (keeps discontinuities sharp).
-   At every level, ``refine_rounds`` PatchMatch-style rounds follow: Jacobi propagation (the hypotheses of the
-   neighbours at 1 and 4 px) plus perturbations ± step, the step halving each round; then a parabola refinement.
+   At every level, ``refine_rounds`` (``finest_rounds`` at the finest) PatchMatch-style rounds follow: Jacobi
+   propagation (the hypotheses of the neighbours at 1 px and, with ``far_propagation``, 4 px), local-plane
+   hypotheses (window means of the map) plus perturbations ± step, the step halving each round; then a parabola
+   refinement. The ``quality`` preset sets these efforts (:mod:`recon.mvs_cpu_options`).
 3. Photo-consistency: zero-mean NCC over a (2r+1)² window between the reference and each warped source; the
    window is warped per pixel with each pixel's own hypothesis, so slanted surfaces are followed implicitly.
    Cost = 1 − NCC; aggregation = mean of the ``best_k`` lowest costs over sources (robust to occlusion).
    Pixels without texture (window std below ``min_texture_std``) or with cost above ``max_cost`` are invalid.
+   The cost is one numba kernel (:func:`recon.mvs_cpu_kernels.ncc_costs`: warp, sliding window sums in float64,
+   NCC and best-k fused, rows streamed through the cache); :func:`cost_reference` is its torch version, kept as
+   the oracle of its tests.
 
 After all views: geometric consistency (forward-backward reprojection through each source's depth map:
 reprojection error ≤ ``geom_max_reproj_px`` and relative depth error ≤ ``geom_max_rel_depth`` in at least
 ``geom_min_consistent`` sources; the depth becomes the mean of the consistent estimates) and camera-facing
-normals from a windowed plane fit on the filtered depth map.
+normals from a windowed plane fit on the filtered depth map (numba, float64).
 
 Pixel convention: array element (row, col) is the ray ``K⁻¹·(col, row, 1)`` (COLMAP's dense convention, see
 ``recon.workspace``); images are sampled there bilinearly (COLMAP pixel centres are at +0.5).
 
 Written by hand because no maintained library offers a CPU MVS that writes COLMAP maps (COLMAP's PatchMatch
-needs CUDA).
+needs CUDA). Profile per part, before and after: ``bench/bench_mvs_profile.py``.
 """
 
 from __future__ import annotations
@@ -35,9 +39,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from recon.mvs_cpu_kernels import INVALID_COST as _INVALID_COST
+from recon.mvs_cpu_kernels import bordered, box_sums, ncc_costs, plane_normals
 from recon.mvs_cpu_options import CpuMvsOptions  # re-exported: the options live apart, without torch
 
-_INVALID_COST = 2.0
 # neighbour offsets (dy, dx) whose hypotheses each pixel tries in a propagation round (near and far)
 _PROPAGATION = ((0, 1), (0, -1), (1, 0), (-1, 0), (0, 4), (0, -4), (4, 0), (-4, 0))
 
@@ -101,6 +106,8 @@ class _Level:
     ref: torch.Tensor  # (1, 1, H, W) reference sampled on its COLMAP grid
     srcs: torch.Tensor  # (S, 1, Hp, Wp) padded sources
     sizes: torch.Tensor  # (S, 2) (W, H) of each source
+    src_hw: np.ndarray  # (S, 2) int64 (H, W) of each source
+    srcs_bordered: np.ndarray  # (S, Hp + 2, Wp + 2) the padded sources with a zero border (the numba kernel's input)
     P: torch.Tensor  # (S, 3, H, W) K_src · R · ray: homogeneous source pixel of each ray at unit inverse depth
     q: torch.Tensor  # (S, 3) K_src · t
     radius: int
@@ -134,6 +141,8 @@ def _make_level(ref_img, src_imgs, K_ref, K_srcs, src_from_ref, radius, best_k) 
         ref=ref,
         srcs=srcs,
         sizes=sizes,
+        src_hw=np.array([s.shape for s in src_imgs], np.int64),
+        srcs_bordered=bordered(srcs[:, 0].numpy()),
         P=torch.einsum("sij,hwj->sihw", KR, rays).contiguous(),
         q=torch.as_tensor(np.einsum("sij,sj->si", Ksrc, m[:, :3, 3]), dtype=torch.float32),
         radius=radius,
@@ -142,7 +151,28 @@ def _make_level(ref_img, src_imgs, K_ref, K_srcs, src_from_ref, radius, best_k) 
 
 
 def _cost(level: _Level, inv_depth: torch.Tensor) -> torch.Tensor:
-    """Aggregated matching cost (B, H, W) for per-pixel inverse-depth hypotheses (B, H, W)."""
+    """Aggregated matching cost (B, H, W) for per-pixel inverse-depth hypotheses (B, H, W), 1/metres.
+
+    The numba kernel :func:`recon.mvs_cpu_kernels.ncc_costs`; :func:`cost_reference` is its torch oracle.
+    """
+    costs = ncc_costs(
+        level.srcs_bordered,
+        level.src_hw,
+        level.P.numpy(),
+        level.q.numpy(),
+        level.ref[0, 0].numpy(),
+        level.ref_mu[0, 0].numpy(),
+        level.ref_std[0, 0].numpy(),
+        inv_depth.contiguous().numpy(),
+        level.radius,
+        level.best_k,
+        torch.get_num_threads(),
+    )
+    return torch.from_numpy(costs)
+
+
+def cost_reference(level: _Level, inv_depth: torch.Tensor) -> torch.Tensor:
+    """Torch reference of :func:`_cost` (tensors over sources × hypotheses × pixels): the oracle of its tests."""
     b, h, w = inv_depth.shape
     s = level.srcs.shape[0]
     inv = inv_depth.clamp_min(1e-8)[None]  # (1, B, H, W)
@@ -243,67 +273,106 @@ def estimate_depth(
     if not src_imgs:
         h, w = ref_img.shape
         return DepthEstimate(np.zeros((h, w), np.float32), np.full((h, w), _INVALID_COST, np.float32))
-    near, far = float(depth_range[0]), float(depth_range[1])
-    near = max(near, 1e-6)
-    far = max(far, near * 1.01)
+    near = max(float(depth_range[0]), 1e-6)
+    far = max(float(depth_range[1]), near * 1.01)
+    inv_lo, inv_hi = 1.0 / far, 1.0 / near
+    effort = options.effort()
     h, w = ref_img.shape
     levels = max(1, int(math.ceil(math.log2(max(h, w) / max(options.coarse_size, 8)))) + 1)
-    inv_hi, inv_lo = 1.0 / near, 1.0 / far
-    delta = (inv_hi - inv_lo) / max(options.num_planes - 1, 1)
-    best = best_cost = None
+    batch = options.batch_hypotheses
     with torch.no_grad():
         for lvl in range(levels):
-            f = 2.0 ** -(levels - 1 - lvl)
-            lw, lh = max(8, round(w * f)), max(8, round(h * f))
-            sx, sy = lw / w, lh / h
-            ref_l = _resize(ref_img, lw, lh)
-            srcs_l, Ks_l = [], []
-            for img, K in zip(src_imgs, K_srcs, strict=True):
-                sw, sh = max(8, round(img.shape[1] * f)), max(8, round(img.shape[0] * f))
-                srcs_l.append(_resize(img, sw, sh))
-                Ks_l.append(_scale_K(K, sw / img.shape[1], sh / img.shape[0]))
-            # window: finest radius at every level (a coarse pixel covers more surface, so the window grows in metres)
-            level = _make_level(
-                ref_l, srcs_l, _scale_K(K_ref, sx, sy), Ks_l, src_from_ref, options.window_radius, options.best_k
-            )
-            batch = options.batch_hypotheses
-            if best is None:
-                planes = torch.linspace(inv_lo, inv_hi, options.num_planes)
-                hyps = planes[:, None, None].expand(-1, lh, lw)
-                costs = _evaluate(level, hyps.contiguous(), batch)
-                best_cost, idx = costs.min(dim=0)
-                best = planes[idx]
-                step = delta
-                # fronto-parallel sweeps are noisy on slanted surfaces; a median keeps edges and lets the
-                # per-pixel (implicitly slanted) windows of the refinement rounds start from a coherent surface
-                best = _box(_median(best, options.median_radius)[None, None], options.median_radius)[0, 0]
-                best_cost = _cost(level, best[None])[0]
+            level = _pyramid_level(ref_img, src_imgs, K_ref, K_srcs, src_from_ref, 2.0 ** (lvl + 1 - levels), options)
+            if lvl == 0:
+                best, best_cost = _sweep(level, inv_lo, inv_hi, effort.num_planes, options)
+                step = (inv_hi - inv_lo) / max(effort.num_planes - 1, 1)
             else:
-                step = step * 4.0  # upsampling error exceeds the last step of the coarser level
-                prev = best
-                up = F.interpolate(prev[None, None], size=(lh, lw), mode="bilinear", align_corners=False)[0, 0]
-                near_n = [
-                    F.interpolate(_shift(prev, dy, dx)[None, None], size=(lh, lw), mode="nearest")[0, 0]
-                    for dy, dx in ((0, 0), (0, 1), (1, 0), (0, -1), (-1, 0))
-                ]
-                hyps = torch.stack([up] + near_n)
-                best = up
-                best_cost = torch.full((lh, lw), float("inf"))
-                best, best_cost = _take_best(level, hyps.clamp(inv_lo * 0.5, inv_hi * 2), best, best_cost, batch)
-            # PatchMatch-style rounds: neighbours' hypotheses (Jacobi propagation) + local perturbation, step halving
-            for _ in range(options.refine_rounds):
-                cand = [_shift(best, dy, dx) for dy, dx in _PROPAGATION]
-                # local-plane hypotheses: inverse depth is affine in pixel coordinates on a plane, so window means
-                # of it are exact on planes and turn sweep staircases into slopes
-                cand += [_box(best[None, None], r)[0, 0] for r in (1, 3)]
-                cand += [best + k * step for k in range(-options.refine_steps, options.refine_steps + 1) if k]
-                best, best_cost = _take_best(level, torch.stack(cand), best, best_cost, batch)
-                step *= 0.5
+                best, best_cost = _upsample(level, best, inv_lo, inv_hi, batch)
+                step *= 4.0  # upsampling error exceeds the last step of the coarser level
+            rounds = effort.finest_rounds if lvl == levels - 1 else effort.refine_rounds
+            best, best_cost = _refine(level, best, best_cost, step, rounds, effort.far_propagation, options)
+            step *= 0.5**rounds
             best, best_cost = _parabola(level, best, best_cost, step, batch)
         tex_ok = level.ref_std[0, 0] >= options.min_texture_std
         ok = tex_ok & (best_cost <= options.max_cost) & (best > 0)
         depth = torch.where(ok, 1.0 / best.clamp_min(1e-8), torch.zeros_like(best))
     return DepthEstimate(depth.numpy().astype(np.float32), best_cost.numpy().astype(np.float32))
+
+
+def _pyramid_level(
+    ref_img: np.ndarray,
+    src_imgs: list[np.ndarray],
+    K_ref: np.ndarray,
+    K_srcs: list[np.ndarray],
+    src_from_ref: list[np.ndarray],
+    f: float,
+    options: CpuMvsOptions,
+) -> _Level:
+    """The images and cameras of :func:`estimate_depth` scaled by ``f`` (≤ 1), as a :class:`_Level`."""
+    h, w = ref_img.shape
+    lw, lh = max(8, round(w * f)), max(8, round(h * f))
+    srcs_l, Ks_l = [], []
+    for img, K in zip(src_imgs, K_srcs, strict=True):
+        sw, sh = max(8, round(img.shape[1] * f)), max(8, round(img.shape[0] * f))
+        srcs_l.append(_resize(img, sw, sh))
+        Ks_l.append(_scale_K(K, sw / img.shape[1], sh / img.shape[0]))
+    # window: finest radius at every level (a coarse pixel covers more surface, so the window grows in metres)
+    K_l = _scale_K(K_ref, lw / w, lh / h)
+    return _make_level(_resize(ref_img, lw, lh), srcs_l, K_l, Ks_l, src_from_ref, options.window_radius, options.best_k)
+
+
+def _sweep(
+    level: _Level, inv_lo: float, inv_hi: float, num_planes: int, options: CpuMvsOptions
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Winner-take-all over fronto-parallel planes uniform in inverse depth [inv_lo, inv_hi] (1/metres), then a
+    median and a box filter; returns (inverse depth, its cost), each (H, W)."""
+    h, w = level.ref.shape[-2:]
+    planes = torch.linspace(inv_lo, inv_hi, num_planes)
+    costs = _evaluate(level, planes[:, None, None].expand(-1, h, w).contiguous(), options.batch_hypotheses)
+    idx = costs.min(dim=0).indices
+    # fronto-parallel sweeps are noisy on slanted surfaces; a median keeps edges and lets the
+    # per-pixel (implicitly slanted) windows of the refinement rounds start from a coherent surface
+    r = options.median_radius
+    best = _box(_median(planes[idx], r)[None, None], r)[0, 0]
+    return best, _cost(level, best[None])[0]
+
+
+def _upsample(
+    level: _Level, prev: torch.Tensor, inv_lo: float, inv_hi: float, batch: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The coarser level's inverse depth (h, w) brought to this level: per pixel the best of the bilinear upsampling
+    and the nearest coarse pixel's and its 4 neighbours' values (keeps discontinuities sharp)."""
+    size = tuple(level.ref.shape[-2:])
+    up = F.interpolate(prev[None, None], size=size, mode="bilinear", align_corners=False)[0, 0]
+    near_n = [
+        F.interpolate(_shift(prev, dy, dx)[None, None], size=size, mode="nearest")[0, 0]
+        for dy, dx in ((0, 0), (0, 1), (1, 0), (0, -1), (-1, 0))
+    ]
+    hyps = torch.stack([up] + near_n).clamp(inv_lo * 0.5, inv_hi * 2)
+    return _take_best(level, hyps, up, torch.full(size, float("inf")), batch)
+
+
+def _refine(
+    level: _Level,
+    best: torch.Tensor,
+    best_cost: torch.Tensor,
+    step: float,
+    rounds: int,
+    far: bool,
+    options: CpuMvsOptions,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """PatchMatch-style rounds: the neighbours' hypotheses (Jacobi propagation; ``far``: those 4 px away too),
+    local-plane hypotheses and perturbations ± k·step (1/metres), the step halving each round."""
+    offsets = _PROPAGATION if far else _PROPAGATION[:4]
+    for _ in range(rounds):
+        cand = [_shift(best, dy, dx) for dy, dx in offsets]
+        # local-plane hypotheses: inverse depth is affine in pixel coordinates on a plane, so window means
+        # of it are exact on planes and turn sweep staircases into slopes
+        cand += [_box(best[None, None], r)[0, 0] for r in (1, 3)]
+        cand += [best + k * step for k in range(-options.refine_steps, options.refine_steps + 1) if k]
+        best, best_cost = _take_best(level, torch.stack(cand), best, best_cost, options.batch_hypotheses)
+        step *= 0.5
+    return best, best_cost
 
 
 # -- geometric consistency and normals ---------------------------------------------------------------
@@ -371,40 +440,12 @@ def normals_from_depth(depth: np.ndarray, K: np.ndarray, radius: int = 2, min_po
     depth, get (0, 0, 0). Neighbours deeper or nearer by more than 5 % are excluded (no fit across edges).
     """
     h, w = depth.shape
-    d = torch.from_numpy(np.asarray(depth, np.float32))
+    d = np.asarray(depth, np.float32)
     valid = d > 0
-    X = pixel_rays(K, h, w) * d[..., None]
-    # exclude neighbours across depth discontinuities: weight by similarity to the window's median proxy (box mean)
-    k = 2 * radius + 1
-    wgt = valid.float()[None, None]
-    sum_w = F.avg_pool2d(wgt, k, stride=1, padding=radius, count_include_pad=True) * k * k
-    mean_d = F.avg_pool2d((d * valid)[None, None], k, stride=1, padding=radius, count_include_pad=True) * k * k
-    mean_d = (mean_d / sum_w.clamp_min(1))[0, 0]
-    # points are centred on the window mean before forming moments (numerically stable in float32)
-    Xc = X - X.mean(dim=(0, 1), keepdim=True)
-
-    def box(t: torch.Tensor) -> torch.Tensor:
-        return (
-            F.avg_pool2d(t.permute(2, 0, 1)[None], k, stride=1, padding=radius, count_include_pad=True)[0].permute(
-                1, 2, 0
-            )
-            * k
-            * k
-        )
-
-    m = valid & ((d - mean_d).abs() <= 0.05 * mean_d.clamp_min(1e-6))
-    mw = m.float()[..., None]
-    n = box(mw)[..., 0]
-    s1 = box(Xc * mw)
-    outer = (Xc[..., :, None] * Xc[..., None, :]).reshape(h, w, 9)
-    s2 = box(outer * mw).reshape(h, w, 3, 3)
-    mu = s1 / n.clamp_min(1)[..., None]
-    cov = s2 / n.clamp_min(1)[..., None, None] - mu[..., :, None] * mu[..., None, :]
-    cov = cov.double() + torch.eye(3, dtype=torch.float64) * 1e-18
-    _, vecs = torch.linalg.eigh(cov)
-    normal = vecs[..., 0].float()
-    facing = (normal * X).sum(-1) > 0
-    normal = torch.where(facing[..., None], -normal, normal)
-    ok = valid & (n >= min_points)
-    normal = torch.where(ok[..., None], normal, torch.zeros_like(normal))
-    return normal.numpy().astype(np.float32)
+    X = pixel_rays(K, h, w).numpy() * d[..., None]
+    # neighbours across depth discontinuities are left out: a point fits when its depth is within 5 % of the
+    # mean valid depth of its own window
+    sums = box_sums(np.stack([valid, d * valid], axis=-1), radius, torch.get_num_threads())
+    mean_d = sums[..., 1] / np.maximum(sums[..., 0], 1)
+    fit = valid & (np.abs(d - mean_d) <= 0.05 * np.maximum(mean_d, 1e-6))
+    return plane_normals(X, valid, fit, radius, min_points, torch.get_num_threads())

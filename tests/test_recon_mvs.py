@@ -12,6 +12,7 @@ from test_recon_scene import TEXTURED, TEXTURELESS, Scene, make_scene, write_sce
 from core.errors import ConfigError, ReconstructionError
 from recon.mvs import MvsBackend, MvsOptions, fuse, resolve_backend, run_mvs
 from recon.mvs_cpu import CpuMvsOptions, estimate_depth, geometric_filter, normals_from_depth, pixel_rays
+from recon.mvs_cpu_options import MvsQuality
 from recon.workspace import DenseWorkspace, import_dense_workspace, read_array, read_fused
 
 
@@ -52,11 +53,13 @@ def _pair_inputs(scene: Scene, ref: int, srcs: list[int]):
     )
 
 
-def test_estimate_depth_matches_truth_on_textured_surfaces(scene: Scene):
+@pytest.mark.parametrize("quality", list(MvsQuality))
+def test_estimate_depth_matches_truth_on_textured_surfaces(scene: Scene, quality: MvsQuality):
     ref_img, src_imgs, K, Ks, rel, ref_v = _pair_inputs(scene, 0, [1, 9, 2, 8])
     gt = _gt_colmap_grid(scene.depths[ref_v.name])
     fin = np.isfinite(gt)
-    est = estimate_depth(ref_img, src_imgs, K, Ks, rel, (0.7 * gt[fin].min(), 1.3 * gt[fin].max()))
+    depth_range = (0.7 * gt[fin].min(), 1.3 * gt[fin].max())
+    est = estimate_depth(ref_img, src_imgs, K, Ks, rel, depth_range, CpuMvsOptions(quality=quality))
     mat = scene.materials[ref_v.name]
     tex = fin & (mat == TEXTURED)
     ok = tex & (est.depth > 0)

@@ -31,12 +31,14 @@ class MvsStage(Stage):
     command_options = (
         CliOption("backend", help="auto | cpu | colmap (PatchMatch, needs CUDA)."),
         CliOption("max_image_size", help="Longer side of the dense images, px (-1: full size)."),
+        CliOption("cpu.quality", "--mvs-quality", help="CPU MVS effort: fast | balanced | high (hypotheses a pixel)."),
         CliOption("num_threads", "--threads", help="CPU threads of the cpu backend (none: all)."),
         CliOption("fusion.min_num_pixels", help="Fusion: minimum number of agreeing views."),
     )
     run_options = (
         CliOption("backend", "--mvs-backend", help="auto | cpu | colmap (COLMAP PatchMatch needs CUDA)."),
         CliOption("max_image_size", help="Longer side of the dense images, px (-1: full size)."),
+        CliOption("cpu.quality", "--mvs-quality", help="CPU MVS effort: fast | balanced | high (hypotheses a pixel)."),
     )
 
     def inputs(self, ctx: StageContext) -> list[Path]:
