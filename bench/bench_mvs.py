@@ -167,7 +167,8 @@ def compare_before_after(scene: Path, sparse: Path, work: Path, size: int, opts,
 def _maps_and_outputs(folder: str, names: list[str]) -> list[str]:
     """What a copy of a dense workspace leaves out: depth and normal maps (under stereo/), fused cloud, logs."""
     in_stereo = "stereo" in Path(folder).parts
-    return [n for n in names if (in_stereo and n.endswith(".bin")) or n.startswith("fused.ply") or n.endswith(".log")]
+    fused = DenseWorkspace(Path(folder)).fused_ply.name
+    return [n for n in names if (in_stereo and n.endswith(".bin")) or n.startswith(fused) or n.endswith(".log")]
 
 
 def compare_on_workspace(workspace: Path, held_out: frozenset[str], work: Path, cpu, threads: int, before) -> None:
