@@ -196,3 +196,31 @@ class GaussianSet:
             origin,
             {k: np.concatenate([p.fields[k] for p in parts]) for k in sorted(names)},
         )
+
+
+class DecodedSplats:
+    """The methods shared by what the compressed formats' readers decode (SPZ, PlayCanvas compressed PLY, SOG).
+
+    A subclass (a dataclass) holds, float64 in the file's local frame: ``positions`` (N, 3) metres, ``log_scales``
+    (N, 3), ``quats`` (N, 4) (w, x, y, z), ``alphas`` (N,) in [0, 1], ``sh_dc`` (N, 3), ``sh_rest`` (N, K−1, 3)
+    and ``origin`` (3,) world coordinates of that frame.
+    """
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    @property
+    def sh_degree(self) -> int:
+        return int(round(math.sqrt(self.sh_rest.shape[1] + 1))) - 1
+
+    def to_gaussians(self) -> GaussianSet:
+        """A :class:`GaussianSet` (opacities 0 and 1 map to finite logits, ±16.1)."""
+        return GaussianSet(
+            means=self.positions,
+            log_scales=self.log_scales,
+            quats=self.quats,
+            logit_opacities=logit(self.alphas),
+            sh_dc=self.sh_dc,
+            sh_rest=self.sh_rest,
+            origin=self.origin,
+        )

@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import DataError, FormatError
-from core.gaussians import SH_C0, GaussianSet, logit, sigmoid
+from core.gaussians import SH_C0, DecodedSplats, GaussianSet, sigmoid
 from core.io.atomic import atomic_path
 from core.io.origin import read_origin
 from core.io.ply import load_ply_data
@@ -90,7 +90,7 @@ class CompressedPlyLayout:
 
 
 @dataclass
-class CompressedPlyData:
+class CompressedPlyData(DecodedSplats):
     """Decoded compressed-PLY content, float64, in file order and the file's (local) frame.
 
     positions (N, 3) metres; log_scales (N, 3); quats (N, 4) unit (w, x, y, z); alphas (N,) in [0, 1]; sh_dc (N, 3);
@@ -105,25 +105,6 @@ class CompressedPlyData:
     sh_rest: np.ndarray
     chunks: np.ndarray
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    @property
-    def sh_degree(self) -> int:
-        return int(round(math.sqrt(self.sh_rest.shape[1] + 1))) - 1
-
-    def to_gaussians(self) -> GaussianSet:
-        """A :class:`GaussianSet` (opacities 0 and 1 map to finite logits, ±16.1)."""
-        return GaussianSet(
-            means=self.positions,
-            log_scales=self.log_scales,
-            quats=self.quats,
-            logit_opacities=logit(self.alphas),
-            sh_dc=self.sh_dc,
-            sh_rest=self.sh_rest,
-            origin=self.origin,
-        )
 
 
 # -- ordering ------------------------------------------------------------------------------------------------------

@@ -86,7 +86,7 @@ from pathlib import Path
 import numpy as np
 
 from core.errors import DataError, FormatError, InputFileError
-from core.gaussians import GaussianSet, logit, sigmoid
+from core.gaussians import DecodedSplats, GaussianSet, sigmoid
 from core.io.atomic import atomic_path
 from core.io.origin import read_origin
 
@@ -136,7 +136,7 @@ class SpzHeader:
 
 
 @dataclass
-class SpzData:
+class SpzData(DecodedSplats):
     """Decoded SPZ content, float64, in the file's (local) frame.
 
     positions (N, 3) metres; log_scales (N, 3) log σ; quats (N, 4) (w, x, y, z), unit up to the quantisation (the
@@ -153,21 +153,6 @@ class SpzData:
     sh_dc: np.ndarray
     sh_rest: np.ndarray
     origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    def to_gaussians(self) -> GaussianSet:
-        """A :class:`GaussianSet` (opacities 0 and 1 map to finite logits, ±16.1)."""
-        return GaussianSet(
-            means=self.positions,
-            log_scales=self.log_scales,
-            quats=self.quats,
-            logit_opacities=logit(self.alphas),
-            sh_dc=self.sh_dc,
-            sh_rest=self.sh_rest,
-            origin=self.origin,
-        )
 
 
 def _round_half_away(x: np.ndarray) -> np.ndarray:
