@@ -579,6 +579,369 @@ def _sum_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op
             g_feat[g, j] = acc[6 + j]
 
 
+# ---- geometry variant: 8 features (RGB, z, normal xyz, plane distance) and the median Gaussian per pixel ----
+# A copy of the 4-feature kernels above with four more channels written out (a loop over channels inside the
+# 16-pixel loop blocked vectorisation in the 4-feature kernels, see the module docstring); the 4-feature kernels
+# stay as they are so that colour-only rendering costs what it did.
+
+_GF = 8  # features of the geometry kernels
+_T_MEDIAN = np.float32(0.5)
+
+
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
+def _forward_geometry_kernel(
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    j0,
+    j1,
+    live,
+    out,
+    n_used,
+    median,
+):  # pragma: no cover - numba
+    """:func:`_forward_kernel` for features (N, 8) into out (H, W, 9), plus median (H, W) int32: the list position
+    (1-based, within the tile) of the first composited entry after which the transmittance is below 0.5, 0 where
+    there is none."""
+    ts = _TS
+    dt = means2d.dtype
+    n_tiles = offsets.shape[0] - 1
+    T = np.empty((2, _PAIRS, 16), dt)
+    acc = np.empty((_GF, 2, _PAIRS, 16), dt)
+    used = np.empty((2, _PAIRS, 16), np.int32)
+    med = np.empty((2, _PAIRS, 16), np.int32)
+    alive = np.empty((2, _PAIRS), np.int32)
+    xu = np.empty((2, 16), dt)
+    yu = np.empty((_PAIRS, 16), dt)
+    for j in range(j0, min(j1, n_tiles)):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        n_done = 0
+        for h in range(2):
+            for p in range(_PAIRS):
+                alive[h, p] = 0
+                for i in range(16):
+                    px = x0 + h * _HALF + i % _HALF
+                    py = y0 + 2 * p + i // _HALF
+                    inside = (px < width) and (py < height)
+                    if inside:
+                        inside = live[py, px] != 0
+                    T[h, p, i] = 1.0 if inside else -1.0
+                    n_done += 0 if inside else 1
+                    alive[h, p] += 1 if inside else 0
+        acc[:] = 0.0
+        used[:] = 0
+        med[:] = 0
+        for i in range(16):
+            for h in range(2):
+                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+            for p in range(_PAIRS):
+                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        zero = xu[0, 0] - xu[0, 0]
+        one = xu[0, 1] - xu[0, 0]
+        start = offsets[t]
+        stop_k = offsets[t + 1] if n_done < ts * ts else start
+        for k in range(start, stop_k):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            f4 = features[g, 4]
+            f5 = features[g, 5]
+            f6 = features[g, 6]
+            f7 = features[g, 7]
+            kk = np.int32(k - start + 1)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            for p in range(r0 // 2, (r1 + 1) // 2):
+                for h in range(h0, h1):
+                    if alive[h, p] == 0:
+                        continue
+                    stops = zero
+                    for i in range(16):
+                        dx = xu[h, i] - mx
+                        dy = yu[p, i] - my
+                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                        alpha = min(_ALPHA_MAX, op * _exp_neg(power))
+                        tp = T[h, p, i]
+                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
+                        test_t = tp * (np.float32(1.0) - alpha)
+                        stop = ok & (test_t < _T_MIN)
+                        draw = ok & (test_t >= _T_MIN)
+                        w = alpha * tp if draw else zero
+                        acc[0, h, p, i] += w * f0
+                        acc[1, h, p, i] += w * f1
+                        acc[2, h, p, i] += w * f2
+                        acc[3, h, p, i] += w * f3
+                        acc[4, h, p, i] += w * f4
+                        acc[5, h, p, i] += w * f5
+                        acc[6, h, p, i] += w * f6
+                        acc[7, h, p, i] += w * f7
+                        T[h, p, i] = -tp if stop else (test_t if draw else tp)
+                        u = used[h, p, i]
+                        used[h, p, i] = kk if draw else u
+                        md = med[h, p, i]
+                        med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
+                        stops += one if stop else zero
+                    n_stops = np.int32(stops)
+                    n_done += n_stops
+                    alive[h, p] -= n_stops
+            if n_done == ts * ts:
+                break
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
+                for f in range(_GF):
+                    out[y0 + r, x0 + c, f] = acc[f, h, p, i]
+                out[y0 + r, x0 + c, _GF] = 1.0 - abs(T[h, p, i])
+                n_used[y0 + r, x0 + c] = used[h, p, i]
+                median[y0 + r, x0 + c] = med[h, p, i]
+
+
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
+def _backward_geometry_kernel(
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    j0,
+    j1,
+    out,
+    n_used,
+    grad_out,
+    slot_of,
+    frozen,
+    g_isect,
+):  # pragma: no cover - numba
+    """:func:`_backward_kernel` for features (N, 8): g_isect (n_isect, 14) rows d/d(mx, my), d/d(a, b, c),
+    d/d(opacity), d/d(features 0..7)."""
+    ts = _TS
+    dt = means2d.dtype
+    n_tiles = offsets.shape[0] - 1
+    nc = _GF + 1
+    ng = _GF + 6
+    T = np.empty((2, _PAIRS, 16), dt)
+    rest = np.empty((nc, 2, _PAIRS, 16), dt)
+    go = np.empty((nc, 2, _PAIRS, 16), dt)
+    used = np.empty((2, _PAIRS, 16), np.int32)
+    unit_used = np.empty((2, _PAIRS), np.int32)
+    xu = np.empty((2, 16), dt)
+    yu = np.empty((_PAIRS, 16), dt)
+    lanes = np.empty((ng, 16), dt)
+    sums = np.empty(ng, dt)
+    for j in range(j0, min(j1, n_tiles)):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        for i in range(16):
+            for h in range(2):
+                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+            for p in range(_PAIRS):
+                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        zero = xu[0, 0] - xu[0, 0]
+        T[:] = 1.0
+        rest[:] = 0.0
+        go[:] = 0.0
+        used[:] = 0
+        unit_used[:] = 0
+        max_used = 0
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
+                u = n_used[y0 + r, x0 + c]
+                used[h, p, i] = u
+                unit_used[h, p] = max(unit_used[h, p], u)
+                max_used = max(max_used, u)
+                for f in range(nc):
+                    rest[f, h, p, i] = out[y0 + r, x0 + c, f]
+                    go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
+        start = offsets[t]
+        for k in range(start, start + max_used):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            f0 = features[g, 0]
+            f1 = features[g, 1]
+            f2 = features[g, 2]
+            f3 = features[g, 3]
+            f4 = features[g, 4]
+            f5 = features[g, 5]
+            f6 = features[g, 6]
+            f7 = features[g, 7]
+            kk = np.int32(k - start)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            if frozen[g] != 0:
+                for p in range(r0 // 2, (r1 + 1) // 2):
+                    for h in range(h0, h1):
+                        if kk >= unit_used[h, p]:
+                            continue
+                        for i in range(16):
+                            dx = xu[h, i] - mx
+                            dy = yu[p, i] - my
+                            power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                            alpha = min(_ALPHA_MAX, op * _exp_neg(power))
+                            ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
+                            tp = T[h, p, i]
+                            w = alpha * tp if ok else zero
+                            rest[0, h, p, i] -= w * f0
+                            rest[1, h, p, i] -= w * f1
+                            rest[2, h, p, i] -= w * f2
+                            rest[3, h, p, i] -= w * f3
+                            rest[4, h, p, i] -= w * f4
+                            rest[5, h, p, i] -= w * f5
+                            rest[6, h, p, i] -= w * f6
+                            rest[7, h, p, i] -= w * f7
+                            rest[_GF, h, p, i] -= w
+                            T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
+                m = slot_of[k]
+                for f in range(ng):
+                    g_isect[m, f] = zero
+                continue
+            lanes[:] = 0.0
+            for p in range(r0 // 2, (r1 + 1) // 2):
+                for h in range(h0, h1):
+                    if kk >= unit_used[h, p]:
+                        continue
+                    for i in range(16):
+                        dx = xu[h, i] - mx
+                        dy = yu[p, i] - my
+                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                        gauss = _exp_neg(power)
+                        raw = op * gauss
+                        alpha = min(_ALPHA_MAX, raw)
+                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
+                        tp = T[h, p, i]
+                        w = alpha * tp if ok else zero
+                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
+                        r_0 = rest[0, h, p, i] - w * f0
+                        r_1 = rest[1, h, p, i] - w * f1
+                        r_2 = rest[2, h, p, i] - w * f2
+                        r_3 = rest[3, h, p, i] - w * f3
+                        r_4 = rest[4, h, p, i] - w * f4
+                        r_5 = rest[5, h, p, i] - w * f5
+                        r_6 = rest[6, h, p, i] - w * f6
+                        r_7 = rest[7, h, p, i] - w * f7
+                        r_a = rest[_GF, h, p, i] - w
+                        rest[0, h, p, i] = r_0
+                        rest[1, h, p, i] = r_1
+                        rest[2, h, p, i] = r_2
+                        rest[3, h, p, i] = r_3
+                        rest[4, h, p, i] = r_4
+                        rest[5, h, p, i] = r_5
+                        rest[6, h, p, i] = r_6
+                        rest[7, h, p, i] = r_7
+                        rest[_GF, h, p, i] = r_a
+                        go0 = go[0, h, p, i]
+                        go1 = go[1, h, p, i]
+                        go2 = go[2, h, p, i]
+                        go3 = go[3, h, p, i]
+                        go4 = go[4, h, p, i]
+                        go5 = go[5, h, p, i]
+                        go6 = go[6, h, p, i]
+                        go7 = go[7, h, p, i]
+                        go_a = go[_GF, h, p, i]
+                        lanes[6, i] += w * go0
+                        lanes[7, i] += w * go1
+                        lanes[8, i] += w * go2
+                        lanes[9, i] += w * go3
+                        lanes[10, i] += w * go4
+                        lanes[11, i] += w * go5
+                        lanes[12, i] += w * go6
+                        lanes[13, i] += w * go7
+                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
+                        g_alpha = (
+                            go0 * (f0 * tp - r_0 * inv)
+                            + go1 * (f1 * tp - r_1 * inv)
+                            + go2 * (f2 * tp - r_2 * inv)
+                            + go3 * (f3 * tp - r_3 * inv)
+                            + go4 * (f4 * tp - r_4 * inv)
+                            + go5 * (f5 * tp - r_5 * inv)
+                            + go6 * (f6 * tp - r_6 * inv)
+                            + go7 * (f7 * tp - r_7 * inv)
+                            + go_a * (tp - r_a * inv)
+                        )
+                        T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
+                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
+                        lanes[5, i] += g_alpha * gauss
+                        g_pow = g_alpha * alpha
+                        gx = g_pow * dx
+                        gy = g_pow * dy
+                        lanes[0, i] += gx
+                        lanes[1, i] += gy
+                        lanes[2, i] += gx * dx
+                        lanes[3, i] += gx * dy
+                        lanes[4, i] += gy * dy
+            sums[:] = 0.0
+            for f in range(ng):
+                for i in range(16):
+                    sums[f] += lanes[f, i]
+            m = slot_of[k]
+            g_isect[m, 0] = a * sums[0] + b * sums[1]
+            g_isect[m, 1] = cc * sums[1] + b * sums[0]
+            g_isect[m, 2] = np.float32(-0.5) * sums[2]
+            g_isect[m, 3] = -sums[3]
+            g_isect[m, 4] = np.float32(-0.5) * sums[4]
+            for f in range(5, ng):
+                g_isect[m, f] = sums[f]
+        for k in range(start + max_used, offsets[t + 1]):
+            for f in range(ng):
+                g_isect[slot_of[k], f] = zero
+
+
+@njit(nogil=True, cache=True)
+def _sum_geometry_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
+    """:func:`_sum_kernel` for rows of 6 + F columns (F = g_feat.shape[1] features)."""
+    n = sorted_ids.shape[0]
+    nf = g_feat.shape[1]
+    acc = np.empty(6 + nf, np.float64)
+    for p in range(n * th // n_threads, n * (th + 1) // n_threads):
+        acc[:] = 0.0
+        for m in range(g_offsets[p], g_offsets[p + 1]):
+            for j in range(6 + nf):
+                acc[j] += g_isect[m, j]
+        g = sorted_ids[p]
+        g_m2[g, 0] = acc[0]
+        g_m2[g, 1] = acc[1]
+        g_con[g, 0] = acc[2]
+        g_con[g, 1] = acc[3]
+        g_con[g, 2] = acc[4]
+        g_op[g] = acc[5]
+        for j in range(nf):
+            g_feat[g, j] = acc[6 + j]
+
+
 def _np(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().cpu().numpy())
 
@@ -640,18 +1003,99 @@ def rasterize_cpu(
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
     if features.shape[1] != 4:
         raise ValueError(f"the cpu rasteriser composites exactly 4 features per Gaussian, got {features.shape[1]}")
+    live, frozen_u8 = _live_and_frozen(pixels, frozen, int(means2d.shape[0]), width, height)
+    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
+    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8)
+
+
+def _live_and_frozen(
+    pixels: np.ndarray | None, frozen: np.ndarray | None, n: int, width: int, height: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The kernels' (H, W) uint8 live-pixel mask and (N,) uint8 frozen flags from the optional arguments."""
     if pixels is None:
         live = np.ones((height, width), np.uint8)
     else:
         if tuple(pixels.shape) != (height, width):
             raise ValueError(f"pixels must be ({height}, {width}), got {tuple(pixels.shape)}")
         live = np.ascontiguousarray(pixels, dtype=np.uint8)
-    n = int(means2d.shape[0])
     if frozen is None:
         frozen_u8 = np.zeros(n, np.uint8)
     else:
         if tuple(frozen.shape) != (n,):
             raise ValueError(f"frozen must be ({n},), got {tuple(frozen.shape)}")
         frozen_u8 = np.ascontiguousarray(frozen, dtype=np.uint8)
+    return live, frozen_u8
+
+
+class _RasterizeGeometryCPU(torch.autograd.Function):
+    """Composite 8 features front to back and find each pixel's median entry; differentiable w.r.t. means2d,
+    conics, opacities and features (the median index is not)."""
+
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen):  # type: ignore[override]
+        m2 = _np(means2d)
+        args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
+        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
+        out = np.zeros((height, width, _GF + 1), m2.dtype)
+        n_used = np.zeros((height, width), np.int32)
+        median = np.zeros((height, width), np.int32)
+        run_chunks(_forward_geometry_kernel, args, (live, out, n_used, median), len(bins.order), "raster geo fwd")
+        ctx.args, ctx.out, ctx.n_used, ctx.bins, ctx.frozen = args, out, n_used, bins, frozen
+        median_id = _median_ids(median, bins, width, height)
+        ctx.mark_non_differentiable(median_id)
+        return torch.from_numpy(out), median_id
+
+    @staticmethod
+    def backward(ctx, grad_out, _grad_median):  # type: ignore[override]
+        args = ctx.args
+        go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
+        g_isect = np.empty((len(args[6]), _GF + 6), args[0].dtype)
+        tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
+        run_chunks(_backward_geometry_kernel, args, tail, len(ctx.bins.order), "raster geo bwd")
+        n, dt = args[0].shape[0], args[0].dtype
+        outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, _GF), dt))
+        bins = ctx.bins
+        run_threads(_sum_geometry_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
+        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None)
+
+
+def _median_ids(median: np.ndarray, bins: TileBins, width: int, height: int) -> torch.Tensor:
+    """(H, W) int64 Gaussian ids from the kernel's 1-based per-tile list positions (0 = none -> -1)."""
+    rows, cols = np.divmod(np.arange(height * width), width)
+    tile = (rows // bins.tile_size) * bins.tiles_x + cols // bins.tile_size
+    pos = median.reshape(-1).astype(np.int64)
+    found = pos > 0
+    ids = np.full(height * width, -1, np.int64)
+    ids[found] = bins.ids[bins.offsets[tile[found]] + pos[found] - 1]
+    return torch.from_numpy(ids.reshape(height, width))
+
+
+def rasterize_geometry_cpu(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    extents: torch.Tensor,
+    depths: torch.Tensor,
+    visible: torch.Tensor,
+    width: int,
+    height: int,
+    tile_size: int = TILE_SIZE,
+    pixels: np.ndarray | None = None,
+    frozen: np.ndarray | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`rasterize_cpu` for 8 features per Gaussian (RGB, z, normal, plane distance in the renderer) into an
+    (H, W, 9) image, plus each pixel's median Gaussian: (H, W) int64 index of the first composited Gaussian after
+    which the transmittance is below 0.5 (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)), -1 where there is none (not
+    differentiable). Same arguments and gradients as :func:`rasterize_cpu`; twin of
+    :func:`fusion.render.reference.rasterize_reference_geometry`.
+    """
+    if tile_size != TILE_SIZE:
+        raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
+    if features.shape[1] != _GF:
+        raise ValueError(f"the cpu geometry rasteriser composites exactly {_GF} features, got {features.shape[1]}")
+    live, frozen_u8 = _live_and_frozen(pixels, frozen, int(means2d.shape[0]), width, height)
     bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
-    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8)
+    return _RasterizeGeometryCPU.apply(
+        means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8
+    )
