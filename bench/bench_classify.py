@@ -44,40 +44,56 @@ from classify.masks import MaskOptions, SeenInView, region_masks
 from classify.model import ForestOptions, predict, scores, train
 from classify.scoring import distance_to_cloud, pixel_truth
 from classify.synthetic import SceneData, load_scene_data
-from classify.training import DEFAULT_TRAINING_SCENES, train_on_scenes
+from classify.training import DEFAULT_TRAINING_SCENES, SCENE_FOLDS, train_on_scenes
 from hybridsplat.layout import ProjectLayout
 from recon.workspace import DenseWorkspace
 
 GEO = (FeatureGroup.GEOMETRIC,)
 GEO_RAD = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC)
 ALL = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
+SCORING_SCENES = (
+    "demo_s0",
+    "tabletop_s1",
+    "aerial_s1",
+    *(f"random-object_s{s}" for s in range(100, 106)),
+    *(f"random-aerial_s{s}" for s in range(100, 106)),
+)
+"""The scenes scored (folder names under --data): the demo, the two hand-built layouts at seed 1 and procedural
+layouts of seeds 100-105, which no training scene or default shares (the training scenes: procedural seeds 0-99)."""
 
 
-def load(root: Path, name: str, classes) -> SceneData:
-    """The scene ``root/name/scene``, its reconstruction ``root/name/proj`` and cached features."""
+def load(root: Path, name: str, classes, options: FeatureOptions = FeatureOptions()) -> SceneData:
+    """The scene ``root/name/scene``, its reconstruction ``root/name/proj`` and cached features (``options``: the
+    features computed and cached; a model selects its own among them)."""
     d = root / name
     dense = ProjectLayout(d / "proj").dense
-    return load_scene_data(d / "scene", dense, classes, FeatureOptions(), cache=d / "features.npz")
+    return load_scene_data(d / "scene", dense, classes, options, cache=d / "features.npz")
 
 
 def point_scores(model, data: SceneData, classes) -> dict:
+    """Needs-splats F1 with the truth's ignore band left out (``f1``, the issue's figure) and counted
+    (``f1_counting_band``), the band's size, and recall (or kept share) per material kind (band left out)."""
     table = data.table.select(model.feature_names)
     pred = predict(model, table, threshold=float(model.info.get("threshold", 0.5)))
     truth = data.truth
-    b = scores(truth.needs_splats, pred.needs_splats, "needs_splats")
+    scored = truth.scored
+    b = scores(truth.needs_splats[scored], pred.needs_splats[scored], "needs_splats")
+    every = scores(truth.needs_splats, pred.needs_splats, "needs_splats")
     kinds = {m.id: m.kind for m in data.scene.materials}
     per_kind = {}
     kind_of_point = np.array([kinds.get(int(m), "?") for m in truth.material], dtype=object)
     kind_of_point[truth.far] = "far (virtual/refracted/noise)"
     for k in sorted(set(kind_of_point)):
-        sel = kind_of_point == k
+        sel = (kind_of_point == k) & scored
         need = truth.needs_splats[sel]
         # Recall of needs-splats for non-collaborative kinds; for textured, the share correctly kept.
         if need.any():
             per_kind[k] = {"points": int(sel.sum()), "recall": float(pred.needs_splats[sel][need].mean())}
-        else:
+        elif sel.any():
             per_kind[k] = {"points": int(sel.sum()), "kept_collaborative": float((~pred.needs_splats[sel]).mean())}
     return {"f1": b.f1, "precision": b.precision, "recall": b.recall, "positives": b.support,
+            "f1_counting_band": every.f1, "precision_counting_band": every.precision,
+            "recall_counting_band": every.recall, "ignored_band_points": int((~scored).sum()),
             "points": len(truth.codes), "per_kind": per_kind, "pred": pred}  # fmt: skip
 
 
@@ -126,79 +142,112 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
     }
 
 
+def ablation_groups() -> dict[str, tuple[FeatureGroup, ...]]:
+    """The issue's ablation, cumulative: today's features; + fusion evidence; + view-dependent; + image boundaries."""
+    today = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
+    extra = [g for g in FeatureGroup if g not in today]
+    out = {"today's features (geometric + radiometric + multi-view)": today}
+    for i in range(len(extra)):
+        out["+ " + " + ".join(x.value for x in extra[: i + 1])] = today + tuple(extra[: i + 1])
+    return out
+
+
+def experiments(args, train_sets: dict[str, SceneData]) -> dict[str, tuple]:
+    """label → (training scenes, feature groups, forest options, band ignored in training): the main model, the
+    cumulative ablation, the band counted in training, geometric only, and each scale trained alone."""
+    every = list(train_sets.values())
+    main_groups = tuple(FeatureGroup(g) for g in args.main_groups.split(","))
+    main = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
+    out: dict[str, tuple] = {"main": (every, main_groups, main, args.ignore_band)}
+    for label, groups in ablation_groups().items():
+        out[label] = (every, groups, main, args.ignore_band)
+    out["main, band counted in training"] = (every, main_groups, main, not args.ignore_band)
+    out["geometric only"] = (every, GEO, main, args.ignore_band)
+    obj = [k for k in train_sets if "object" in k or k.startswith("tabletop")]
+    aer = [k for k in train_sets if "aerial" in k]
+    if obj and aer:
+        out["trained on object scale only"] = ([train_sets[k] for k in obj], main_groups, main, args.ignore_band)
+        out["trained on aerial scale only"] = ([train_sets[k] for k in aer], main_groups, main, args.ignore_band)
+    return out
+
+
+def score_scene(label: str, model, n: str, d: SceneData, classes, args) -> dict:
+    """Point scores of one scene (and, for the main model, its masks and the no-model fallback), printed."""
+    sc = point_scores(model, d, classes)
+    pred = sc.pop("pred")
+    if label == "main" and not args.no_masks:
+        mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
+        sc["masks"] = m = mask_scores(d, pred.needs_splats, classes, mask_options)
+        print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
+              f"{m['coverage_of_rest_incl_background']:.3f} of the rest "
+              f"({m['coverage_of_rest_scene']:.3f} of the rest without background)")  # fmt: skip
+        fb = fallback_predict(d.table, classes)
+        ok = d.truth.scored
+        sc["fallback_f1"] = scores(d.truth.needs_splats[ok], fb.needs_splats[ok], "fb").f1
+    kinds = ", ".join(f"{k} {v.get('recall', v.get('kept_collaborative')):.2f}"
+                      for k, v in sc["per_kind"].items())  # fmt: skip
+    print(f"[{label}] {n}: F1 {sc['f1']:.3f} (P {sc['precision']:.3f} R {sc['recall']:.3f}; counting the "
+          f"band {sc['f1_counting_band']:.3f}, {sc['ignored_band_points']} ignored); {kinds}")  # fmt: skip
+    return sc
+
+
+def masks_only(model, args, root: Path, classes, options: FeatureOptions) -> dict:
+    """Scenes scored for their masks only (e.g. the textured preset: no non-collaborative material)."""
+    out = {}
+    mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
+    for n in args.mask_scenes:
+        d = load(root, n, classes, options)
+        pred = predict(model, d.table.select(model.feature_names), threshold=float(model.info["threshold"]))
+        m = mask_scores(d, pred.needs_splats, classes, mask_options)
+        m["points_flagged"] = int(pred.needs_splats.sum())
+        m["points"] = len(pred.needs_splats)
+        out[n] = m
+        print(f"  masks {n}: {m['points_flagged']} of {m['points']} points flagged; truly-needs share "
+              f"{m['truly_needs_share']:.3f}; masks cover {m['coverage_of_needs']:.3f} of it and "
+              f"{m['coverage_of_rest_incl_background']:.3f} of the rest; mean mask coverage "
+              f"{m['mean_mask_coverage']:.3f}; {m['empty_masks']} empty of {m['views']}; training needed: "
+              f"{m['training_needed']}")  # fmt: skip
+    return out
+
+
 def part_score(args) -> dict:
     classes = load_classes()
     root = Path(args.data)
+    every_group = FeatureOptions(groups=tuple(FeatureGroup))
     t0 = time.perf_counter()
-    train_sets = {n: load(root, n, classes) for n in args.train}
-    test_sets = {n: load(root, n, classes) for n in args.score}
+    train_sets = {n: load(root, n, classes, every_group) for n in args.train}
+    test_sets = {n: load(root, n, classes, every_group) for n in args.score}
     out: dict = {"train": args.train, "score": args.score, "load_s": time.perf_counter() - t0, "results": {}}
     for n, d in {**train_sets, **test_sets}.items():
         t = d.truth
         counts = np.bincount(t.codes[t.codes != UNLABELLED], minlength=5)
         print(f"{n}: {len(t.codes)} points, needs splats {t.needs_splats.mean():.3f}, far {t.far.mean():.3f}, "
-              f"tau {t.tau:.4f} m, class counts {counts}")  # fmt: skip
-    every = list(train_sets.values())
-    plain = ForestOptions(smooth_passes=0)
-    main = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
-    experiments = {
-        "all features (both scenes)": (every, ALL, main),
-        "all features, no smoothing": (every, ALL, plain),
-        "geometric only": (every, GEO, ForestOptions()),
-        "geometric + radiometric": (every, GEO_RAD, ForestOptions()),
-        "geometric only, no smoothing": (every, GEO, plain),
-        "geometric + radiometric, no smoothing": (every, GEO_RAD, plain),
-    }
-    tab = [k for k in train_sets if k.startswith("tabletop")]
-    aer = [k for k in train_sets if k.startswith("aerial")]
-    if tab and aer:
-        experiments["trained on tabletop only"] = ([train_sets[k] for k in tab], ALL, ForestOptions())
-        experiments["trained on aerial only"] = ([train_sets[k] for k in aer], ALL, ForestOptions())
-    mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
+              f"ambiguous {t.ambiguous.mean():.3f}, tau {t.tau:.4f} m, class counts {counts}")  # fmt: skip
     main_model = None
-    for label, (datas, groups, forest) in experiments.items():
+    for label, (datas, groups, forest, ignore_band) in experiments(args, train_sets).items():
         if args.only and not any(o in label for o in args.only):
             continue
-        opts = FeatureOptions(groups=groups)
-        model, report = train_on_scenes(datas, classes, opts, forest, by_scene=not args.block_folds)
-        if label.startswith("all features ("):
+        t1 = time.perf_counter()
+        model, report = train_on_scenes(
+            datas, classes, FeatureOptions(groups=groups), forest, by_scene=not args.block_folds,
+            ignore_ambiguous=ignore_band, scene_folds=args.scene_folds,
+        )  # fmt: skip
+        res = {"groups": [g.value for g in groups], "band_ignored_in_training": ignore_band,
+               "held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"],
+               "smooth_passes": model.info["smooth_passes"], "train_s": time.perf_counter() - t1}  # fmt: skip
+        if label == "main":
             main_model = model
-        res = {"held_out_in_training_f1": report.binary.f1, "threshold": model.info["threshold"]}
-        res["smooth_passes"] = model.info["smooth_passes"]
+            res["importances_top15"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:15])
         for n, d in test_sets.items():
-            s = point_scores(model, d, classes)
-            pred = s.pop("pred")
-            if label.startswith("all features (") and not args.no_masks:
-                s["masks"] = mask_scores(d, pred.needs_splats, classes, mask_options)
-                s["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes, mask_options)
-                m = s["masks"]
-                print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
-                      f"{m['coverage_of_rest_incl_background']:.3f} of the rest "
-                      f"({m['coverage_of_rest_scene']:.3f} of the rest without background)")  # fmt: skip
-                fb = fallback_predict(d.table, classes)
-                s["fallback_f1"] = scores(d.truth.needs_splats, fb.needs_splats, "fb").f1
-                s["importances_top10"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:10])
-            res[n] = s
-            per_kind = s["per_kind"].items()
-            kinds = ", ".join(f"{k} {v.get('recall', v.get('kept_collaborative')):.2f}" for k, v in per_kind)
-            print(f"[{label}] {n}: F1 {s['f1']:.3f} (P {s['precision']:.3f} R {s['recall']:.3f}); {kinds}")
+            res[n] = score_scene(label, model, n, d, classes, args)
+        with_positives = [res[n]["f1"] for n, d in test_sets.items() if d.truth.needs_splats[d.truth.scored].any()]
+        if with_positives:
+            res["min_f1"], res["mean_f1"] = float(min(with_positives)), float(np.mean(with_positives))
+            print(f"[{label}] band-ignored F1 over the {len(with_positives)} scenes with needs-splats points: "
+                  f"min {res['min_f1']:.3f}, mean {res['mean_f1']:.3f}")  # fmt: skip
         out["results"][label] = res
     if main_model is not None and not args.no_masks:
-        # Scenes scored for their masks only (e.g. the textured preset: no non-collaborative material).
-        for n in args.mask_scenes:
-            d = load(root, n, classes)
-            pred = predict(
-                main_model, d.table.select(main_model.feature_names), threshold=float(main_model.info["threshold"])
-            )
-            m = mask_scores(d, pred.needs_splats, classes, mask_options)
-            m["points_flagged"] = int(pred.needs_splats.sum())
-            m["points"] = len(pred.needs_splats)
-            out["results"].setdefault("masks only", {})[n] = m
-            print(f"  masks {n}: {m['points_flagged']} of {m['points']} points flagged; truly-needs share "
-                  f"{m['truly_needs_share']:.3f}; masks cover {m['coverage_of_needs']:.3f} of it and "
-                  f"{m['coverage_of_rest_incl_background']:.3f} of the rest; mean mask coverage "
-                  f"{m['mean_mask_coverage']:.3f}; {m['empty_masks']} empty of {m['views']}; training needed: "
-                  f"{m['training_needed']}")  # fmt: skip
+        out["results"]["masks only"] = masks_only(main_model, args, root, classes, every_group)
     return out
 
 
@@ -329,7 +378,18 @@ def main() -> None:
     ap.add_argument("--part", choices=("score", "speed", "all"), default="all")
     ap.add_argument("--data", default="/work/data_classify")
     ap.add_argument("--train", nargs="+", default=[s.name for s in DEFAULT_TRAINING_SCENES])
-    ap.add_argument("--score", nargs="+", default=["tabletop_s1", "aerial_s1"])
+    ap.add_argument("--score", nargs="+", default=list(SCORING_SCENES))
+    ap.add_argument(
+        "--main-groups",
+        default="geometric,radiometric,multiview",
+        help="feature groups of the main model (comma-separated FeatureGroup values)",
+    )
+    ap.add_argument(
+        "--ignore-band",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="leave the truth's ignore band out of training (the main model)",
+    )
     ap.add_argument("--mask-scenes", nargs="*", default=[], help="scenes scored for their masks only (textured_s1)")
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
     ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
@@ -338,6 +398,7 @@ def main() -> None:
     ap.add_argument("--trees", type=int, default=ForestOptions().n_estimators, help="trees of the main model")
     ap.add_argument("--depth", type=int, default=ForestOptions().max_depth, help="depth of the main model")
     ap.add_argument("--smooth", type=int, default=ForestOptions().smooth_passes, help="smoothing of the main model")
+    ap.add_argument("--scene-folds", type=int, default=SCENE_FOLDS, help="folds the training scenes are dealt to")
     ap.add_argument("--block-folds", action="store_true", help="threshold from spatial-block folds, not per scene")
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--threads", type=int, default=2)

@@ -24,7 +24,9 @@ class PointTruth:
 
     codes: (N,) uint8 class codes. needs_splats: (N,) bool, the binary truth. material: (N,) int32 material id of
     the nearest GT surface (−1 if none). distance: (N,) float64 metres to the nearest GT surface. far: (N,) bool,
-    farther than τ from every surface. tau: the threshold (metres).
+    farther than τ from every surface. tau: the threshold (metres). ambiguous: (N,) bool, within τ of both a
+    collaborative and a non-collaborative GT surface: at the cloud's resolution such a point belongs to either, so
+    scores leave it out (the ignore band, as boundary-tolerant segmentation benchmarks do; issue 30).
     """
 
     codes: np.ndarray
@@ -33,6 +35,12 @@ class PointTruth:
     distance: np.ndarray
     far: np.ndarray
     tau: float
+    ambiguous: np.ndarray
+
+    @property
+    def scored(self) -> np.ndarray:
+        """(N,) bool: the points a band-ignored score counts (not :attr:`ambiguous`)."""
+        return ~self.ambiguous
 
 
 def _closest(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -78,15 +86,29 @@ def point_truth(
         lut[m] = code
     codes = lut[material]
     far = dist > tau
+    face_codes = lut[np.asarray(face_material)]
+    labelled = face_codes != UNLABELLED
+    bad_faces = np.flatnonzero(labelled & classes.needs_splats_of(face_codes))
+    good_faces = np.flatnonzero(labelled & ~classes.needs_splats_of(face_codes))
     if far.any():
-        bad_faces = np.flatnonzero(classes.needs_splats_of(lut[np.asarray(face_material)]))
         if len(bad_faces):
             _, f2 = _closest(mesh_vertices - centre, mesh_faces[bad_faces], pts[far] - centre)
             codes[far] = lut[np.asarray(face_material)[bad_faces[f2]]]
         else:
             codes[far] = next(c.code for c in classes.classes if c.needs_splats)
     needs = classes.needs_splats_of(codes) | far
-    return PointTruth(codes, needs, material, dist, far, float(tau))
+    ambiguous = np.zeros(len(pts), dtype=bool)
+    near = ~far
+    if len(bad_faces) and len(good_faces) and near.any():
+        # The nearest surface is of one kind; the point is ambiguous when a surface of the other kind is within τ too.
+        other = np.where(needs[near], 1, 0)
+        idx = np.flatnonzero(near)
+        for kind_faces, of_other in ((good_faces, other == 1), (bad_faces, other == 0)):
+            sel = idx[of_other]
+            if len(sel):
+                d_other, _ = _closest(mesh_vertices - centre, mesh_faces[kind_faces], pts[sel] - centre)
+                ambiguous[sel] = d_other <= tau
+    return PointTruth(codes, needs, material, dist, far, float(tau), ambiguous)
 
 
 def scene_point_truth(cloud: PointCloud, scene: object, classes: ClassSet, tau_gsd: float = 3.0) -> PointTruth:

@@ -206,6 +206,7 @@ def train(
     test_fraction: float = 0.25,
     info: dict[str, object] | None = None,
     groups: np.ndarray | None = None,
+    groups_are_projects: bool | None = None,
 ) -> tuple[ClassifierModel, TrainingReport]:
     """Train a forest on the labelled rows of ``table`` (labels (N,) uint8 codes, UNLABELLED ignored), seeded.
 
@@ -216,7 +217,9 @@ def train(
     project will be). ``min(options.folds, groups)`` grouped folds give every row an out-of-fold prediction
     (whole blocks held out, so neighbouring points, which share their
     neighbourhoods, are never on both sides); with ``table.neighbours`` the out-of-fold probabilities are smoothed
-    as :func:`predict` will smooth them (``smooth_passes``). Without groups: one held-out split by point
+    as :func:`predict` will smooth them (``smooth_passes``). groups_are_projects: the threshold maximises the mean
+    of the groups' F1 (each project counts once) — by default when there is a fold per group. Without groups: one
+    held-out split by point
     (``test_fraction``, stratified, optimistic) and no smoothing. Score across scenes
     (``bench/bench_classify.py``) for the honest figure.
     """
@@ -237,7 +240,9 @@ def train(
     else:
         test, p_test, n_train = _held_out_split(x, y, rows, classes, options, test_fraction)
     # Leave-one-group-out (a fold per group: the groups are projects): each project counts once in the threshold.
-    per_project = np.asarray(groups)[test] if grouped and folds == n_groups else None
+    if groups_are_projects is None:
+        groups_are_projects = folds == n_groups
+    per_project = np.asarray(groups)[test] if grouped and groups_are_projects else None
     threshold, per_class, binary, conf = _held_out_scores(y[test], p_test, classes, per_project)
     every = rows[_balanced_sample(y[rows], options.max_samples_per_class, options.seed)]
     final = _forest(options)
@@ -417,6 +422,22 @@ def _options_from_dict(d: dict[str, object]) -> FeatureOptions:
         geometric=GeometricOptions(**g),
         multiview=MultiViewOptions(**d["multiview"]),  # type: ignore[arg-type]
     )
+
+
+def same_forest(a: ClassifierModel, b: ClassifierModel) -> bool:
+    """True when the two models' forests have the same trees node for node (structure, split features, thresholds,
+    leaf values), the same features and classes. Two skops files of one forest differ in bytes (member names are
+    object ids, entries carry timestamps), so reproducibility is checked on the trees."""
+    fa, fb = a.forest, b.forest
+    if a.feature_names != b.feature_names or len(fa.estimators_) != len(fb.estimators_):  # type: ignore[attr-defined]
+        return False
+    if not np.array_equal(fa.classes_, fb.classes_):  # type: ignore[attr-defined]
+        return False
+    fields = ("children_left", "children_right", "feature", "threshold", "value")
+    for ta, tb in zip(fa.estimators_, fb.estimators_, strict=True):  # type: ignore[attr-defined]
+        if not all(np.array_equal(getattr(ta.tree_, f), getattr(tb.tree_, f)) for f in fields):
+            return False
+    return True
 
 
 def save_model(model: ClassifierModel, path: str | PathLike[str]) -> Path:

@@ -16,7 +16,7 @@ import numpy as np
 
 from classify.classes import ClassSet, load_classes
 from classify.fallback import FALLBACK_FEATURES, fallback_predict
-from classify.features import FeatureGroup, FeatureOptions, FeatureTable, compute_features, views_from_workspace
+from classify.features import VIEW_GROUPS, FeatureOptions, FeatureTable, compute_features, views_from_workspace
 from classify.masks import MaskOptions, PhotoMask, SeenInView, region_masks
 from classify.model import ClassifierModel, Prediction, load_model, predict
 from core.errors import DataError, InputFileError
@@ -79,7 +79,7 @@ def classify_cloud(
     else:
         opts = replace(model.feature_options, names=tuple(model.feature_names))
     selected = set(opts.selected())
-    needs_views = any(n in selected for n in FeatureOptions(groups=(FeatureGroup.MULTIVIEW,)).selected())
+    needs_views = any(n in selected for n in FeatureOptions(groups=VIEW_GROUPS).selected())
     views = views_from_workspace(dense_dir) if needs_views and dense_dir is not None else None
     table = compute_features(cloud, opts, views)
     if model is None:

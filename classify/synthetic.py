@@ -37,8 +37,8 @@ def load_scene_data(
 ) -> SceneData:
     """Features and truth of ``dense_dir/fused.ply`` for the scene in ``scene_dir`` (τ = ``tau_gsd`` × GSD).
 
-    cache: an ``.npz`` file to reuse the feature table from (written when absent; it stores the names, so a
-    cache computed with other options is recomputed).
+    cache: an ``.npz`` file to reuse the feature table from (written when absent; it stores the names: a cache that
+    holds every selected name is read and narrowed to them, one that lacks some is recomputed and rewritten).
     """
     from data_synth import load_scene
     from recon.workspace import read_fused
@@ -50,8 +50,9 @@ def load_scene_data(
     table = None
     if cache is not None and Path(cache).is_file():
         data = np.load(cache)
-        if tuple(str(n) for n in data["names"]) == names and len(data["values"]) == len(cloud):
-            table = FeatureTable(names, data["values"], float(data["spacing"]))
+        cached = tuple(str(n) for n in data["names"])
+        if set(names) <= set(cached) and len(data["values"]) == len(cloud):
+            table = FeatureTable(cached, data["values"], float(data["spacing"])).select(names)
     if table is None:
         table = compute_features(cloud, options, views_from_workspace(dense))
         if cache is not None:
@@ -74,18 +75,24 @@ BLOCK_SPACINGS = 16.0
 
 
 def stack_scenes(
-    datas: list[SceneData], names: tuple[str, ...], by_scene: bool = False
+    datas: list[SceneData], names: tuple[str, ...], by_scene: bool = False, ignore_ambiguous: bool = False
 ) -> tuple[FeatureTable, np.ndarray, np.ndarray]:
     """The features ``names`` of several scenes as one table (with their neighbours, re-indexed), the truth codes
     (N,) uint8 and the groups (N,) int64 for training: the index of each row's scene (``by_scene``) or its
-    spatial block (:func:`classify.model.spatial_groups`, a range per scene)."""
+    spatial block (:func:`classify.model.spatial_groups`, a range per scene). ignore_ambiguous: the points of the
+    truth's ignore band (:attr:`classify.labels.PointTruth.ambiguous`) get UNLABELLED, so that neither the forest
+    nor the threshold choice sees them."""
+    from classify.classes import UNLABELLED
     from classify.model import spatial_groups
 
     values, codes, blocks, neighbours = [], [], [], []
     offset = 0
     for i, d in enumerate(datas):
         values.append(d.table.select(names).values)
-        codes.append(d.truth.codes)
+        scene_codes = d.truth.codes
+        if ignore_ambiguous:
+            scene_codes = np.where(d.truth.ambiguous, np.uint8(UNLABELLED), scene_codes)
+        codes.append(scene_codes)
         if by_scene:
             blocks.append(np.full(len(d.table.values), i, dtype=np.int64))
         else:

@@ -11,7 +11,7 @@ from classify.classes import UNLABELLED, ClassSet, load_classes
 from classify.fallback import FALLBACK_FEATURES, fallback_predict
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable
 from classify.labels import labels_from_field, labels_from_masks, point_truth, transfer_labels
-from classify.model import ForestOptions, load_model, predict, save_model, train
+from classify.model import ForestOptions, load_model, predict, same_forest, save_model, train
 from core.cameras import Camera, Cameras, View
 from core.errors import ConfigError, DataError, FormatError, InputFileError
 
@@ -48,6 +48,32 @@ def test_point_truth_on_two_triangles():
     assert t.distance[2] == pytest.approx(0.3, abs=1e-6)
     # Far points take the class of the nearest non-collaborative surface (the mirror).
     assert list(t.codes[2:]) == [1, 1]
+
+
+def test_point_truth_ambiguous_band_is_within_tau_of_both_kinds():
+    """A textured floor (z = 0, x in [0, 1]) meets a mirror wall (x = 1, standing on the floor); τ = 0.05 m.
+    Points within τ of both surfaces are ambiguous, whichever is nearest; the others are not."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1], [1, 0, 1]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    mat = np.array([3, 3, 7, 7])
+    kinds = {3: "textured", 7: "mirror"}
+    pts = np.array(
+        [
+            [0.97, 0.5, 0.01],  # nearest the floor (0.01), wall 0.03: ambiguous
+            [0.99, 0.5, 0.04],  # nearest the wall (0.01), floor 0.04: ambiguous
+            [0.90, 0.5, 0.01],  # floor 0.01, wall 0.10: not
+            [0.99, 0.5, 0.50],  # wall 0.01, floor 0.50: not
+            [0.94, 0.5, 0.04],  # floor 0.04, wall 0.06: not (the band is τ from each, not 2τ)
+            [0.50, 0.5, 0.30],  # far from both: needs splats, not ambiguous
+        ]
+    )
+    t = point_truth(pts, v, f, mat, kinds, load_classes(), tau=0.05)
+    assert list(t.ambiguous) == [True, True, False, False, False, False]
+    assert list(t.scored) == [False, False, True, True, True, True]
+    assert list(t.needs_splats) == [False, True, False, True, False, True]
+    # A scene with one kind of surface has no band.
+    one = point_truth(pts, v, f, np.array([3, 3, 3, 3]), {3: "textured"}, load_classes(), tau=0.05)
+    assert not one.ambiguous.any()
 
 
 def test_labels_from_field_transfer_and_masks():
@@ -97,8 +123,11 @@ def test_train_report_predict_and_roundtrip(tmp_path):
     assert (p1.classification == y).mean() > 0.97
     assert np.array_equal(p1.needs_splats, p1.classification != 0)
     # Same seed, same forest.
-    model2, _ = train(table, y_lab, load_classes(), opts, ForestOptions(n_estimators=8, seed=1, n_jobs=1))
+    model2, _ = train(table, y_lab, load_classes(), opts, ForestOptions(n_estimators=8, seed=1, n_jobs=2))
     assert np.array_equal(predict(model2, table).probability, p1.probability)
+    assert same_forest(model, model2) and same_forest(model, loaded)
+    other, _ = train(table, y_lab, load_classes(), opts, ForestOptions(n_estimators=8, seed=2, n_jobs=1))
+    assert not same_forest(model, other)
 
 
 def test_model_refuses_mismatched_features_and_bad_files(tmp_path):

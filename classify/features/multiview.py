@@ -170,11 +170,11 @@ def _fused_by_view(
     ids, owners = flat_ids[sel], flat_pts[sel] - start
     order = np.argsort(ids, kind="stable")
     ids, owners = ids[order], owners[order]
-    bounds = np.searchsorted(ids, [v.image_id for v in view_list] + [np.iinfo(np.int64).max])
-    fused_of = {}
-    for j, v in enumerate(view_list):
-        fused_of[v.image_id] = owners[bounds[j] : bounds[j + 1]] if j + 1 < len(bounds) else owners[:0]
-    return fused_of
+    # Each view's own run of ids (left to right bound): ids of no listed view (a photo not in the dense
+    # reconstruction) belong to none, rather than to the listed view before them.
+    wanted = np.array([v.image_id for v in view_list], dtype=np.int64)
+    lo, hi = np.searchsorted(ids, wanted, "left"), np.searchsorted(ids, wanted, "right")
+    return {v.image_id: owners[lo[j] : hi[j]] for j, v in enumerate(view_list)}
 
 
 @dataclass

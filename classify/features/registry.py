@@ -4,6 +4,24 @@ Features are selected by name (``FeatureOptions.names``, the configuration's ``c
 stores the names it was trained on and refuses data whose names differ. Geometric features exist once per
 scale; their names carry the scale index (``linearity_s0``, ``linearity_s1``...). The table below is the
 documentation users see (``hybridsplat classify features`` prints it).
+
+Groups, in registry order (``FeatureOptions()`` selects the first three; ``ALL_GROUPS_EXTENDED`` all six):
+
+================ ===================== ===================================================================
+group            module                what it measures
+================ ===================== ===================================================================
+geometric        geometric.py          shape of the k-NN neighbourhood at three scales (eigenvalues, height)
+radiometric      radiometric.py        the point's colour and its spread over the finest neighbourhood
+multiview        multiview.py          photos and depth maps of the frustum / fusing views at the point
+fusion           fusion_evidence.py    disagreement of the fusing depth maps; offset from the neighbours' plane
+view_dependent   view_dependent.py     luminance against viewing direction across the fusing views
+image_boundaries image_boundaries.py   photo edges (Sobel, Canny distance) at the point's projections
+================ ===================== ===================================================================
+
+Units: ``1`` dimensionless (lengths divided by the cloud's median point spacing among them, as the meaning says),
+``px`` photo pixels.
+The new groups (fusion, view_dependent, image_boundaries) need the views, like multiview; each has a documented
+neutral value for a point without the evidence (no fusing view, fewer than 2 or 3 views, no normal).
 """
 
 from __future__ import annotations
@@ -20,6 +38,9 @@ class FeatureGroup(str, Enum):
     GEOMETRIC = "geometric"
     RADIOMETRIC = "radiometric"
     MULTIVIEW = "multiview"
+    FUSION = "fusion"
+    VIEW_DEPENDENT = "view_dependent"
+    IMAGE_BOUNDARIES = "image_boundaries"
 
 
 @dataclass(frozen=True)
@@ -33,6 +54,7 @@ class FeatureSpec:
 
 
 _G, _R, _M = FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW
+_F, _V, _B = FeatureGroup.FUSION, FeatureGroup.VIEW_DEPENDENT, FeatureGroup.IMAGE_BOUNDARIES
 
 # Geometric features per scale; e1 >= e2 >= e3 are the covariance eigenvalues divided by their sum.
 GEOMETRIC_BASE: tuple[FeatureSpec, ...] = (
@@ -82,6 +104,70 @@ MULTIVIEW: tuple[FeatureSpec, ...] = (
     FeatureSpec("depth_residual", "1", _M, "mean |d_map - z| / z over the fusing views, clipped at 1 (1: none)"),
 )
 
+FUSION: tuple[FeatureSpec, ...] = (
+    FeatureSpec(
+        "fusion_backproj_dist",
+        "1",
+        _F,
+        "mean distance in spacings from the point to each fusing view's depth-map point on its ray, capped at 50 "
+        "(50: no valid depth)",
+    ),
+    FeatureSpec(
+        "fusion_reproj_px",
+        "px",
+        _F,
+        "RMS pixel offset in each other fusing view of those depth-map points (linearised), capped at 50 (50: no "
+        "pair of views)",
+    ),
+    FeatureSpec(
+        "fusion_plane_offset",
+        "1",
+        _F,
+        "signed distance in spacings along the mean viewing ray to the PCA plane of the k - 1 nearest other points, "
+        "+ when the point is in front of it, clipped to +-50 (0: no fusing view)",
+    ),
+)
+
+VIEW_DEPENDENT: tuple[FeatureSpec, ...] = (
+    FeatureSpec("lum_cv_views", "1", _V, "std / mean (mean >= 0.02) of the luminance over the fusing views (0: < 2)"),
+    FeatureSpec("lum_peak_views", "1", _V, "max - median luminance over the fusing views: a highlight (0: < 2 views)"),
+    FeatureSpec(
+        "lum_lobe_corr",
+        "1",
+        _V,
+        "correlation of the other views' luminance with the cosine of their ray to the brightest view's ray "
+        "(0: < 3 others)",
+    ),
+    FeatureSpec(
+        "specular_up_corr",
+        "1",
+        _V,
+        "correlation of the luminance with the up (+z) part of the view ray mirrored about the MVS normal "
+        "(0: no normal or < 3 views)",
+    ),
+)
+
+IMAGE_BOUNDARIES: tuple[FeatureSpec, ...] = (
+    FeatureSpec(
+        "edge_strength_views",
+        "1/px",
+        _B,
+        "mean Sobel gradient magnitude (grey / 255 per px) at the point's projections in the fusing views (0: none)",
+    ),
+    FeatureSpec(
+        "edge_distance_px",
+        "px",
+        _B,
+        "mean distance from the projections to the nearest Canny edge pixel, capped at 32 (32: no fusing view)",
+    ),
+    FeatureSpec(
+        "edge_distance_spacing",
+        "1",
+        _B,
+        "that distance per view in metres at the point's depth (px z / f) / spacing, averaged, capped at 32 (32: none)",
+    ),
+)
+
 
 def geometric_name(base: str, scale: int) -> str:
     """Name of a geometric feature at scale index ``scale`` (``linearity_s0``)."""
@@ -95,7 +181,7 @@ def feature_specs(n_scales: int) -> dict[str, FeatureSpec]:
         for spec in GEOMETRIC_BASE + (COARSE_BASE if s >= 1 else ()):
             name = geometric_name(spec.name, s)
             out[name] = FeatureSpec(name, spec.unit, spec.group, f"{spec.meaning} (scale {s})")
-    for spec in RADIOMETRIC + MULTIVIEW:
+    for spec in RADIOMETRIC + MULTIVIEW + FUSION + VIEW_DEPENDENT + IMAGE_BOUNDARIES:
         out[spec.name] = spec
     return out
 
