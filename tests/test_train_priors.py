@@ -10,7 +10,6 @@ import torch
 
 from core.cameras import Camera, Cameras, View
 from core.errors import ConfigError
-from fusion.train.params import make_parameters
 from fusion.train.priors import PriorOptions, depth_normals, prior_loss, view_priors, zbuffer
 from fusion.train.views import prepare_views
 
@@ -98,63 +97,46 @@ def test_edge_aware_weight_falls_on_image_edges() -> None:
     assert aware[40, 40] == pytest.approx(flat[40, 40])  # away from it
 
 
-def splat_params(means: np.ndarray, quats: np.ndarray | None = None) -> dict[str, torch.nn.Parameter]:
-    n = len(means)
-    q = np.tile([1.0, 0, 0, 0], (n, 1)) if quats is None else quats
-    scales = np.tile(np.log([0.01, 0.01, 0.001]), (n, 1))  # smallest axis = z
-    return make_parameters(
-        {
-            "means": torch.tensor(means, dtype=torch.float32),
-            "quats": torch.tensor(q, dtype=torch.float32),
-            "log_scales": torch.tensor(scales, dtype=torch.float32),
-            "logit_opacities": torch.zeros(n),
-            "sh_dc": torch.zeros((n, 1, 3)),
-            "sh_rest": torch.zeros((n, 0, 3)),
-        }
-    )
-
-
-def test_prior_loss_pulls_border_splats_onto_the_surface_and_ignores_the_rest() -> None:
+def test_prior_loss_pulls_the_rendered_depth_onto_the_surface_where_it_has_weight() -> None:
+    """The per-pixel prior on a rendered depth map (here a free parameter): log-L1 to the interpolated plane over the
+    prior's border strip only, with no gradient where the weight is 0 or the rendered depth is invalid."""
     opts = PriorOptions(border_px=4.0, edge_scale=None, normal_weight=0.0)
     view, prior, _, _ = plane_view(opts)
-    # pixel (40.5, 40.5) is in the mask's border strip (5 px in); (50.5, 40.5) is 15 px > 3 · 4 px in (weight 0)
-    z_ray = 2.0 / (1 - 0.5 * (40.5 - 50) / F)  # the plane's depth on the ray of pixel (40.5, 40.5)
-    border = np.array([-0.095, 0.005, 1.0]) * (z_ray * 1.1)  # 10 % behind the surface on that ray
-    centre = np.array([0.005, 0.005, 1.0]) * 2.5
-    params = splat_params(np.stack([border, centre]))
-    opt = torch.optim.Adam([params["means"]], lr=0.005)
-    first = prior_loss(params, view, prior, opts)
-    assert first.splats == 1 and float(first.depth) == pytest.approx(math.log(1.1), abs=3e-3)
-    for _ in range(200):
-        terms = prior_loss(params, view, prior, opts)
-        assert terms.splats == 1
+    has = prior.weight > 0
+    assert has[40, 40] and not has[40, 50]  # 5 px inside the mask's edge / 15 px > 3 · 4 px in (weight 0)
+    depth = torch.nn.Parameter(torch.where(has, prior.depth, torch.full_like(prior.depth, 2.0)) * 1.1)
+    valid = torch.ones(H, W, dtype=torch.bool)
+    valid[40, 41] = False
+    normal = torch.zeros(H, W, 3)
+    first = prior_loss(normal, depth, valid, view, prior, opts)
+    assert first.pixels == int(has.sum()) - 1 and float(first.depth) == pytest.approx(math.log(1.1), rel=1e-4)
+    opt = torch.optim.Adam([depth], lr=0.01)
+    for _ in range(100):
+        terms = prior_loss(normal, depth, valid, view, prior, opts)
         opt.zero_grad()
         terms.loss.backward()
-        assert params["means"].grad[1].abs().max() == 0  # no prior where the weight is 0
-        assert params["means"].grad[0, :2].abs().max() == 0  # the camera is at the origin: only z moves
+        assert depth.grad[~has].abs().max() == 0 and depth.grad[40, 41] == 0
         opt.step()
-    # x is fixed, so the splat ends where the vertical line x = const meets the plane z = 2 + 0.5 x
-    x, z = params["means"].detach().numpy()[0, [0, 2]]
-    assert abs(z - (2.0 + 0.5 * x)) < 5e-3  # the prior's quantisation (see above), from 0.19 m off
-    assert float(terms.depth) < 3e-3
+    assert float(terms.depth) < 2e-3
+    assert float(prior_loss(normal, depth, torch.zeros_like(valid), view, prior, opts).loss) == 0.0
 
 
-def test_normal_term_aligns_the_flat_axis_with_the_surface_normal() -> None:
+def test_normal_term_turns_the_rendered_normal_to_the_surface_normal() -> None:
     opts = PriorOptions(border_px=6.0, edge_scale=None, depth_weight=0.0, normal_weight=1.0)
     view, prior, normal, _ = plane_view(opts)
-    z_true = 2.0 / (1 - 0.5 * (36.5 - 50) / F)
-    params = splat_params(np.array([[-0.135, 0.005, 1.0]]) * z_true)
-    opt = torch.optim.Adam([params["quats"]], lr=0.02)
-    for _ in range(200):
-        terms = prior_loss(params, view, prior, opts)
+    # the rendered normal (camera frame = training frame here: identity pose, centre 0), premultiplied by alpha 0.8
+    rendered = torch.nn.Parameter(torch.tensor([0.0, 0.0, -0.8]).expand(H, W, 3).clone())
+    depth = torch.full((H, W), 2.0)
+    opt = torch.optim.Adam([rendered], lr=0.02)
+    start = prior_loss(rendered, depth, torch.ones(H, W, dtype=torch.bool), view, prior, opts)
+    assert float(start.normal) == pytest.approx(1 - abs(normal[2]), abs=1e-3)  # cos 0.894: prior normal to ~1e-3
+    for _ in range(150):
+        terms = prior_loss(rendered, depth, torch.ones(H, W, dtype=torch.bool), view, prior, opts)
         opt.zero_grad()
         terms.loss.backward()
         opt.step()
-    from fusion.train.priors import splat_axes
-
-    axis = splat_axes(params["quats"].detach(), params["log_scales"].detach())[0].numpy()
-    # started at the z axis (cos 0.894 with the plane normal), ends aligned with it
-    assert abs(axis @ normal) > 0.999 and float(terms.normal) < 1e-3
+    n = rendered.detach()[40, 40].numpy()
+    assert n @ normal / np.linalg.norm(n) > 0.999 and float(terms.normal) < 1e-3
 
 
 def test_bad_prior_options_are_config_errors() -> None:

@@ -31,7 +31,8 @@ class Checkpoint:
     gaussians: int
     seconds: float
     prior_depth: float = float("nan")  # window mean of the weighted |log z − log z_prior| (NaN: no prior)
-    prior_normal: float = float("nan")  # window mean of the weighted 1 − |n · n_prior|
+    prior_normal: float = float("nan")  # window mean of the weighted 1 − cos(n, n_prior)
+    normal_consistency: float = float("nan")  # window mean of the depth–normal 1 − cos (NaN: term off)
 
 
 @dataclass
@@ -40,7 +41,8 @@ class EvalWindow:
 
     sq_err / n_err: summed squared error (colour units², [0, 1] images) over the hold-out pixel channels rendered
     and their count; loss_sum / n_loss: summed photometric loss and step count; prior_depth / prior_normal /
-    prior_steps: summed prior terms over the steps that had one, and their count.
+    prior_steps: summed prior terms over the steps that had one, and their count; consistency /
+    consistency_steps: summed depth–normal inconsistency over the steps that had the term, and their count.
     """
 
     sq_err: float = 0.0
@@ -50,6 +52,8 @@ class EvalWindow:
     prior_depth: float = 0.0
     prior_normal: float = 0.0
     prior_steps: int = 0
+    consistency: float = 0.0
+    consistency_steps: int = 0
 
     def add_holdout(self, colour: torch.Tensor, view: TrainView) -> None:
         """Add the error of a render (H, W, 3) on ``view``'s hold-out pixels (clamped to [0, 1] first)."""
@@ -71,6 +75,11 @@ class EvalWindow:
         self.prior_normal += float(terms.normal)
         self.prior_steps += 1
 
+    def add_consistency(self, value: float) -> None:
+        """Add one geometric step's depth–normal inconsistency (mean 1 − cos)."""
+        self.consistency += value
+        self.consistency_steps += 1
+
     def holdout_psnr(self) -> float:
         """PSNR (dB) of the window's hold-out pixels (MSE floored at 1e-10); NaN when none was rendered."""
         if not self.n_err:
@@ -84,7 +93,8 @@ class EvalWindow:
             pd, pn = self.prior_depth / self.prior_steps, self.prior_normal / self.prior_steps
         else:
             pd, pn = math.nan, math.nan
-        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), psnr, gaussians, seconds, pd, pn)
+        nc = self.consistency / self.consistency_steps if self.consistency_steps else math.nan
+        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), psnr, gaussians, seconds, pd, pn, nc)
 
 
 @dataclass

@@ -1,5 +1,6 @@
 """The trainer's configuration: :class:`TrainOptions`, with the depth / normal prior options :class:`PriorOptions`
-(used by :mod:`fusion.train.priors`), the hard-view mining options :class:`HardViewOptions` and the seeding options
+(used by :mod:`fusion.train.priors`), the geometric-loss options :class:`GeometryOptions`
+(:mod:`fusion.train.geometry_loss`), the hard-view mining options :class:`HardViewOptions` and the seeding options
 :class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
 
 Frozen dataclasses of hyper-parameters only (learning rates per step as in 3DGS / gsplat, lengths in metres,
@@ -25,8 +26,11 @@ from fusion.train.strategy import DefaultStrategy, MCMCStrategy
 class PriorOptions:
     """Options of the depth / normal priors (weights relative to the photometric loss, which is ~0.05–0.3).
 
+    The terms act per pixel on the rendered depth and normal of the geometric steps (:class:`GeometryOptions`;
+    until issue 31 they acted on the splat centres, with the same names and weights).
     depth_weight: weight of the edge-aware log-L1 depth term (DN-Splatter: 0.2; 0 disables it).
-    normal_weight: weight of the normal-consistency term (DN-Splatter: 0.1 on normals; 0 disables it).
+    normal_weight: weight of the normal term, 1 − cos between the rendered and the prior normal (DN-Splatter: 0.1
+    on normals; 0 disables it).
     border_px: decay length (px at the training resolution) of the prior's weight from the mask's edge inwards;
         None applies it with weight 1 over the whole mask.
     band_px: width (px) of the band around the mask whose trusted MVS depths are interpolated.
@@ -58,6 +62,51 @@ class PriorOptions:
     @property
     def active(self) -> bool:
         return self.depth_weight > 0 or self.normal_weight > 0
+
+
+class GeometryDepth(str, Enum):
+    """The rendered depth the geometric losses read (:class:`fusion.render.types.RenderGeometry`): ``plane`` = where
+    the pixel's ray meets the blended plane (PGSR; exact for a layer of flat splats), ``median`` = the z of the
+    pixel's median Gaussian (2DGS)."""
+
+    PLANE = "plane"
+    MEDIAN = "median"
+
+
+@dataclass(frozen=True)
+class GeometryOptions:
+    """Geometric losses on the rendered depth and normals of the trainable + frozen render (issue 31; PGSR / 2DGS).
+
+    On the steps that have them (every ``every``-th step from ``ceil(start × iterations)`` on), the training render
+    also composites the normals and plane distances (``render(..., render_geometry=True)``) and the loss adds
+    ``normal_consistency_weight × (1 − cos(rendered normal, normal of the rendered depth))`` averaged over the
+    view's loss pixels where both are defined (:func:`fusion.train.geometry_loss.depth_normal_consistency`; 2DGS:
+    0.05; 0 = off). The depth priors of :class:`PriorOptions` (``TrainOptions.priors``) are taken on the same steps
+    and the same rendered depth. Use with ``TrainOptions.flat`` (the flatness term): the normal of a splat is the
+    axis of its smallest scale, meaningful only when the splat is flat.
+
+    depth: which rendered depth feeds the terms (:class:`GeometryDepth`; ``plane`` by default). start: share of the
+    run before the first geometric step (2DGS and PGSR start at ~0.23 of theirs; 0 = from the first step). every:
+    cadence in steps (1 = every step). A geometric step costs ~1.4× a colour-only one on the CPU (8-feature
+    rasterisation forward and backward; the per-pixel terms are computed on the region's bounding box only), so
+    the default 2 keeps a run at ~1.2× its time without geometry at equal steps, within issue 31's 1.3×
+    (``bench/bench_train_geometry.py``, 2% and 9% of the image masked, load 2–5 on 2 cores: every step 1.33–1.50×,
+    every 2nd 1.14–1.30×, every 4th 1.05–1.17×; 4 is the choice when time matters more than the term's strength).
+    """
+
+    normal_consistency_weight: float = 0.05
+    depth: GeometryDepth = GeometryDepth.PLANE
+    start: float = 0.0
+    every: int = 2
+
+    def __post_init__(self) -> None:
+        if not self.normal_consistency_weight >= 0:
+            raise ConfigError(f"normal_consistency_weight must be >= 0, got {self.normal_consistency_weight}")
+        object.__setattr__(self, "depth", enum_choice(GeometryDepth, self.depth, "depth"))
+        if not 0.0 <= self.start <= 1.0:
+            raise ConfigError(f"geometry start must lie in [0, 1], got {self.start}")
+        if self.every < 1:
+            raise ConfigError(f"geometry every must be >= 1 (steps), got {self.every}")
 
 
 class Photometric(str, Enum):
@@ -103,7 +152,8 @@ class TrainOptions:
     factor for photos, masks and intrinsics (2 on a CPU: a quarter of the pixels). sh_degree: highest SH degree,
     reached one degree per ``sh_degree_interval`` steps.
     scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
-    of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale); normals = that axis.
+    of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale; PGSR's flatness term, the
+    companion of ``geometry``'s depth–normal consistency); normals = that axis.
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping
     (:mod:`fusion.train.early_stop`).
     refine_until: share of ``iterations`` after which the strategy no longer densifies (its ``refine_stop`` is
@@ -117,7 +167,10 @@ class TrainOptions:
     ``lpips`` network argument of :func:`fusion.train.train_splats`) from step ``ceil(lpips_start × iterations)`` on;
     0 = off. lpips_margin: context pixels around the loss pixels' bounding box.
     priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
-    (:mod:`fusion.train.priors`); None = off (the whole-scene baseline has no context and never uses them).
+    (:mod:`fusion.train.priors`): per pixel on the rendered depth and normal of the geometric steps (cadence and
+    depth from ``geometry``, or :class:`GeometryOptions` with its consistency weight 0 when that is None); None =
+    off (the whole-scene baseline has no context and never uses them).
+    geometry: the geometric losses (:class:`GeometryOptions`); None = off (the default: no geometry is rendered).
     """
 
     iterations: int = 1000
@@ -146,6 +199,7 @@ class TrainOptions:
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
     priors: PriorOptions | None = None
+    geometry: GeometryOptions | None = None
     hard_views: HardViewOptions | None = None
     photometric: Photometric = Photometric.L1_SSIM
     smoothl1_beta: float = 0.05
@@ -175,6 +229,17 @@ class TrainOptions:
                 f"need lpips_weight >= 0, lpips_start in [0, 1] and lpips_margin >= 0, got {self.lpips_weight}, "
                 f"{self.lpips_start}, {self.lpips_margin}"
             )
+
+    @property
+    def geometric(self) -> GeometryOptions | None:
+        """The geometric steps' options when any geometric term is on (consistency or depth / normal prior),
+        else None: ``geometry``, or its defaults with the consistency weight 0 when only the priors are on."""
+        prior_on = self.priors is not None and self.priors.active
+        if self.geometry is not None and (self.geometry.normal_consistency_weight > 0 or prior_on):
+            return self.geometry
+        if self.geometry is None and prior_on:
+            return GeometryOptions(normal_consistency_weight=0.0)
+        return None
 
 
 @dataclass(frozen=True)

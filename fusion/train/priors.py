@@ -22,13 +22,14 @@ Per training view (:func:`view_priors`, computed once, at the training resolutio
   so the prior is trusted less there); zero outside the mask, where no depth could be interpolated, and beyond
   ``3 · border_px``.
 
-Per step (:func:`prior_loss`): each trainable splat's *centre* is projected into the step's view; where the pixel it
-lands on has a prior weight w, ``depth_weight · Σ w |log z − log z_prior| / Σ w`` (edge-aware log-L1) plus
-``normal_weight · Σ w (1 − |n · n_prior|) / Σ w`` with n the splat's smallest-scale axis (normal consistency).
-The prior acts on centres rather than on the rendered depth: the survey product is made of splat centres, and the
-training renderer (``fusion.train.render``) does not return its composited depth channel today. The projection is
-done here from ``params["means"]``, not from the renderer's ``means2d``, so that the densification statistics
-(the screen-space gradients of ``means2d``) only see the photometric loss.
+Per geometric step (:func:`prior_loss`, on the steps :class:`fusion.train.options.GeometryOptions` schedules):
+the *rendered* depth of the trainable + frozen render (plane or median depth, :mod:`fusion.train.render`) against
+the prior depth, ``depth_weight · Σ w |log z − log z_prior| / Σ w`` (edge-aware log-L1,
+:func:`fusion.train.geometry_loss.mvs_depth_loss`), plus ``normal_weight · Σ w (1 − cos(n, n_prior)) / Σ w`` with n
+the rendered (alpha-blended) normal, over the pixels with a prior weight w where the rendered depth is valid
+(DN-Splatter's per-pixel priors). This replaced (issue 31) a prior on the splat *centres* projected into the view
+(the centre's depth and its smallest axis against the prior), which moved centres rather than the surface the
+splats render; the options and their weights kept their names and scale (log-L1 and 1 − cos).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import cv2
 import numpy as np
 import torch
 
-from fusion.render.projection import quat_to_rotmat
+from fusion.train.geometry_loss import mvs_depth_loss
 from fusion.train.options import PriorOptions
 from fusion.train.views import TrainView
 
@@ -264,54 +265,44 @@ def hull_consistent(view: TrainView, views: Sequence[TrainView], depth: np.ndarr
 @dataclass(frozen=True)
 class PriorTerms:
     """The weighted prior loss (0-d tensor with its graph) and its parts (detached): the weighted mean of
-    |log z − log z_prior| and of 1 − |n · n_prior| over the splats that landed on prior pixels, and their count."""
+    |log z − log z_prior| and of 1 − cos(n, n_prior) over the prior pixels where the rendered depth is valid, and
+    their count."""
 
     loss: torch.Tensor
     depth: torch.Tensor
     normal: torch.Tensor
-    splats: int
+    pixels: int
 
 
-def splat_axes(quats: torch.Tensor, log_scales: torch.Tensor) -> torch.Tensor:
-    """(N, 3) unit axis of each Gaussian's smallest scale (its normal when flat), differentiable in ``quats``."""
-    R = quat_to_rotmat(quats / quats.norm(dim=1, keepdim=True).clamp_min(1e-12))
-    axis = torch.argmin(log_scales.detach(), dim=1)
-    return R[torch.arange(R.shape[0]), :, axis]
+def prior_loss(
+    normal: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, view: TrainView, prior: ViewPrior | None,
+    options: PriorOptions, window: tuple[int, int, int, int] | None = None,
+) -> PriorTerms:  # fmt: skip
+    """The depth + normal prior of one geometric render of ``view`` (see the module).
 
-
-def prior_loss(params: dict[str, torch.Tensor], view: TrainView, prior: ViewPrior | None,
-               options: PriorOptions) -> PriorTerms:  # fmt: skip
-    """The depth + normal prior of ``params`` (trainable tensors, training frame) in ``view`` (see the module)."""
-    zero = torch.zeros((), dtype=torch.float32)
-    if prior is None or prior.pixels == 0 or not options.active or params["means"].shape[0] == 0:
+    normal: (h, w, 3) the rendered camera-frame normal (``RenderGeometry.normal``, premultiplied by alpha).
+    depth: (h, w) the rendered z-depth (metres; plane or median depth), valid: (h, w) bool its validity.
+    window: (row0, row1, col0, col1) of the view the maps cover (None: the whole view, h, w = H, W).
+    """
+    zero = torch.zeros((), dtype=depth.dtype)
+    if prior is None or prior.pixels == 0 or not options.active:
         return PriorTerms(zero, zero, zero, 0)
-    means = params["means"]
-    R, t = view.viewmat[:3, :3], view.viewmat[:3, 3]
-    cam = means @ R.T + t
-    z = cam[:, 2]
-    front = z > 1e-4
-    zs = z.detach().clamp_min(1e-4)
-    u = view.K[0, 0] * cam[:, 0].detach() / zs + view.K[0, 2]
-    v = view.K[1, 1] * cam[:, 1].detach() / zs + view.K[1, 2]
-    col, row = torch.floor(u).long(), torch.floor(v).long()
-    inside = front & (col >= 0) & (col < view.width) & (row >= 0) & (row < view.height)
-    idx = torch.nonzero(inside).squeeze(1)
-    if len(idx) == 0:
+    r0, r1, c0, c1 = window if window is not None else (0, view.height, 0, view.width)
+    weight, prior_depth = prior.weight[r0:r1, c0:c1], prior.depth[r0:r1, c0:c1]
+    used = valid & (weight > 0) & (depth.detach() > 1e-6)
+    if view.loss_mask is not None:
+        used = used & view.loss_mask[r0:r1, c0:c1]  # never the hold-out pixels
+    count = int(used.sum())
+    if count == 0:
         return PriorTerms(zero, zero, zero, 0)
-    r, c = row[idx], col[idx]
-    w = prior.weight[r, c]
-    hit = w > 0
-    idx, r, c, w = idx[hit], r[hit], c[hit], w[hit]
-    if len(idx) == 0:
-        return PriorTerms(zero, zero, zero, 0)
-    wsum = w.sum()
-    depth_err = (torch.log(z[idx].clamp_min(1e-4)) - torch.log(prior.depth[r, c])).abs()
-    depth = (w * depth_err).sum() / wsum
-    loss = options.depth_weight * depth
-    normal = zero
+    d_term = mvs_depth_loss(depth, prior_depth, weight, used, kind="log")
+    loss = options.depth_weight * d_term
+    n_term = zero
     if options.normal_weight > 0:
-        axes = splat_axes(params["quats"][idx], params["log_scales"][idx])
-        cos = (axes * prior.normal[r, c]).sum(dim=1).abs()
-        normal = (w * (1.0 - cos)).sum() / wsum
-        loss = loss + options.normal_weight * normal
-    return PriorTerms(loss, depth.detach(), normal.detach(), int(len(idx)))
+        rot = view.viewmat[:3, :3].to(normal.dtype)
+        prior_cam = prior.normal[r0:r1, c0:c1].to(normal.dtype) @ rot.T  # training → camera
+        unit = normal / (normal * normal).sum(-1).clamp_min(1e-12).sqrt()[..., None]
+        w = weight.to(normal.dtype) * used
+        n_term = (w * (1.0 - (unit * prior_cam).sum(-1))).sum() / w.sum().clamp_min(1e-12)
+        loss = loss + options.normal_weight * n_term
+    return PriorTerms(loss, d_term.detach(), n_term.detach(), count)

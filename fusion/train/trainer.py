@@ -124,6 +124,8 @@ def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: S
     """Fold a finished step into the evaluation window and the sampler's running losses."""
     if outcome.prior is not None:
         window.add_prior(outcome.prior)
+    if outcome.consistency is not None:
+        window.add_consistency(outcome.consistency)
     window.add_holdout(outcome.render.colour, scene.views[outcome.view])
     window.add_loss(outcome.loss)
     state.sampler.record_loss(outcome.view, outcome.loss)
