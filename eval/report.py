@@ -385,23 +385,35 @@ Table = tuple[str, list[str], list[list[str]]]
 
 
 def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> list[Table]:
-    """Table 5: per ground-truth material, each product's accuracy, completeness at τ and held-out PSNR."""
+    """Table 5: per ground-truth material, each product's accuracy, completeness at τ and held-out PSNR; for a survey
+    product with splat-surface points (the merge's ``splat_surface``; the first such product), also those points
+    alone: how many lie on the material, their accuracy and completeness."""
     if not per_material:
         return []
     products: Mapping[str, Any] = per_material["products"]
     kinds: Mapping[str, Any] = per_material.get("materials") or {}
     names = list(dict.fromkeys(m for table in products.values() for m in table))
     header = ["material", "kind"]
+    # the splat-surface points (source 4) of the survey product, scored alone: columns after the first product that
+    # has them (its controls share its points: merged_no_background, merged_unrefined), none when none has them
+    grouped = {p for p, table in products.items() if any("splat_surface_points" in r for r in table.values())}
+    grouped = set(list(dict.fromkeys(p for p in products if p in grouped))[:1])
     for p in products:
         header += [f"{p} accuracy ({u.value})", f"{p} completeness", f"{p} PSNR"]
+        if p in grouped:
+            header += [f"{p} splat-surface points", f"{p} splat-surface accuracy ({u.value})",
+                       f"{p} splat-surface completeness"]  # fmt: skip
     rows = []
     for m in names:
         info = kinds.get(m) or {}
         kind = str(info.get("kind", "")) + ("" if info.get("collaborative", True) else " (non-collab.)")
         row = [m, kind]
-        for table in products.values():
+        for p, table in products.items():
             r = table.get(m) or {}
             row += [_len(r.get("accuracy_mean_m"), u), _num(r.get("completeness"), 3), _num(r.get("psnr"), 2)]
+            if p in grouped:
+                row += [str(r.get("splat_surface_points", 0)), _len(r.get("splat_surface_accuracy_mean_m"), u),
+                        _num(r.get("splat_surface_completeness"), 3)]  # fmt: skip
         rows.append(row)
     tau = _len(per_material.get("tau_m"), u)
     return [(f"Table 5 — per ground-truth material (completeness at τ = {tau} {u.value}; PSNR on held-out pixels)",

@@ -29,7 +29,9 @@ lands on a valid rendered depth inside the mask (∈ (0, 1]).
 
 Frames: positions in the cameras' local frame (``cameras.origin``), float64; splats of any origin; renders in a
 frame centred on each camera (the float64 shift of :func:`fusion.render.render_gaussian_set`). Not yet used by
-the pipeline stages (the merge stage's survey product will take them with ``source = 4``).
+the pipeline by default: the merge stage's ``splat_surface`` option puts them into the survey point product
+(:func:`fusion.survey.with_splat_surface`) as :func:`as_point_set` makes them, ``source`` = 4
+(``Source.SPLAT_SURFACE``), ``classification`` = :data:`fusion.convert_options.SPLAT_SURFACE_CLASS`, ``sigma``.
 """
 
 from __future__ import annotations
@@ -319,3 +321,31 @@ def front_depths_from_points(
         cam = cameras.camera_of(v)
         out[v.name] = zbuffer(np.asarray(points, np.float64), v.viewmat, cam.K(), cam.width, cam.height)
     return out
+
+
+def as_point_set(points: SplatSurfacePoints, origin: np.ndarray) -> GaussianSet:
+    """Splat-surface points as the survey point product holds points (a Gaussian set whose centres are the points).
+
+    points: from :func:`splat_surface_points`, positions relative to ``origin`` (3,) float64 world coordinates (the
+    cameras' origin). Each point: an isotropic Gaussian of σ = its ``sigma`` (metres), opacity = its confidence
+    (clipped to [0.01, 0.99]: a logit stays finite), DC colour = its rendered colour, SH degree 0; fields ``source``
+    (uint8, ``Source.SPLAT_SURFACE``), ``classification`` (uint8, ``SPLAT_SURFACE_CLASS``) and ``sigma`` (float32,
+    metres: the per-point uncertainty the exports carry).
+    """
+    from core.gaussians import SH_C0, logit
+    from fusion.convert_options import SPLAT_SURFACE_CLASS, Source
+
+    n = len(points)
+    sigma = np.asarray(points.sigma, np.float64)
+    colour = np.clip(np.asarray(points.colours, np.float64), 0.0, 1.0)
+    return GaussianSet(
+        np.asarray(points.positions, np.float64).reshape(n, 3),
+        np.repeat(np.log(np.maximum(sigma, 1e-9))[:, None], 3, axis=1),
+        np.tile(np.array([1.0, 0.0, 0.0, 0.0]), (n, 1)),
+        logit(np.clip(np.asarray(points.confidence, np.float64), 0.01, 0.99)),
+        ((colour - 0.5) / SH_C0).reshape(n, 3),
+        np.zeros((n, 0, 3)),
+        np.asarray(origin, np.float64).copy(),
+        {"source": np.full(n, Source.SPLAT_SURFACE, np.uint8),
+         "classification": np.full(n, SPLAT_SURFACE_CLASS, np.uint8), "sigma": sigma.astype(np.float32)},
+    )  # fmt: skip

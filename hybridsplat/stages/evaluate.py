@@ -358,6 +358,7 @@ class EvalStage(Stage):
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
+            _splat_surface_group(result["products"][name], cloud, ref, tau, names)
         for name, table in stored.items():
             if table is not None:
                 result["products"][name] = table
@@ -389,6 +390,23 @@ class EvalStage(Stage):
             if counts.get(f"{name}_psnr") is not None:
                 parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
         return ", ".join(parts)
+
+
+def _splat_surface_group(rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]) -> None:
+    """The product's splat-surface points (``source`` = 4; the merge's ``splat_surface`` option) scored alone per
+    material into its rows (:func:`eval.per_material.add_point_group`, group ``splat_surface``); nothing when it
+    has none, so the tables of a product without them are as before."""
+    from eval.per_material import add_point_group, geometry_per_material
+    from fusion.convert_options import Source
+
+    source = cloud.fields.get("source")
+    if source is None:
+        return
+    mine = np.asarray(source) == Source.SPLAT_SURFACE
+    if not mine.any():
+        return
+    geometry = geometry_per_material(cloud.world_positions[mine], ref.world_positions, ref.fields["material"], tau)
+    add_point_group(rows, "splat_surface", geometry, names)
 
 
 def _clouds(ctx: StageContext) -> list[tuple[sizes.PlyVertices, bool]]:

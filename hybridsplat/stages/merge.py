@@ -4,7 +4,9 @@ With cleaned splats (splats/cleaned.ply) and a classified cloud, the hybrid (:fu
 trusted MVS Gaussians + splats, a ``source`` and a ``surface`` field per Gaussian, and the point product of the
 Gaussians whose geometry is trustworthy); the splats alone also go to export/splats.ply. Without them, the
 converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
-3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable).
+3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable). ``splat_surface`` (``run --splat-surface``, off
+by default) adds the splat-surface points of the fill layer to the survey points (:mod:`fusion.splat_surface`,
+``source`` = 4), counted per predicted class in the record.
 """
 
 from __future__ import annotations
@@ -27,6 +29,11 @@ class MergeStage(Stage):
             "viewer_formats",
             "--viewer-format",
             help="Also write the viewer product as spz | sog | compressed-ply | splat | 3dtiles (repeatable).",
+        ),
+        CliOption(
+            "splat_surface",
+            "--splat-surface/--no-splat-surface",
+            help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points.",
         ),
     )
     run_options = command_options
@@ -68,7 +75,8 @@ class MergeStage(Stage):
         layer: merged.ply with n Gaussians at the highest SH degree (the refined survey layer's included) and the
         sets' extra fields + ``classification``, ``source``, ``surface``; merged_points.ply and .las with n points
         and those fields + ``opacity``, ``scale`` and the normals (3DGS properties at 4 bytes, point fields at 8 at
-        most); export/splats.ply at most splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
+        most), with ``splat_surface`` up to :meth:`_surface_bound` more points and a ``sigma`` field; export/splats.ply
+        at most splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
         layout = ctx.layout
         sets = [sizes.ply_vertices(layout.mvs_gaussians)]
         if self._hybrid(ctx):
@@ -80,11 +88,27 @@ class MergeStage(Stage):
         extras = sum(len(s.extras) for s in sets) + 3
         refined = sizes.ply_vertices(survey) if survey is not None else sizes.PlyVertices()  # replaces the MVS set
         merged = sizes.gaussian_ply_bytes(n, max(refined.sh_degree, *(s.sh_degree for s in sets)), extras)
-        points = sizes.point_ply_bytes(n, extras + 5) + sizes.las_bytes(n, extras + 5)
+        surface = self._surface_bound(ctx)
+        fields = extras + 5 + (1 if surface else 0)  # + sigma with splat-surface points
+        points = sizes.point_ply_bytes(n + surface, fields) + sizes.las_bytes(n + surface, fields)
         splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
         formats = ctx.options(self).viewer_formats  # each at most the PLY's size; a tileset adds its JSON (12 %)
         viewer = sum(int(merged * (1.12 if f == "3dtiles" else 1.0)) + sizes.SIDECAR_BYTES for f in formats)
         return merged + points + splats + viewer + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
+
+    def _surface_bound(self, ctx: StageContext) -> int:
+        """The most splat-surface points (0 when ``splat_surface`` is off): every pixel of the dense model's photos
+        (the largest camera's each) over 1 + ``min_agreeing`` (a kept point uses its pixel and one in each agreeing
+        view)."""
+        opts: MergeOptions = ctx.options(self)
+        if not (opts.splat_surface and self._hybrid(ctx)):
+            return 0
+        model = ctx.layout.dense_workspace.sparse
+        cameras = sizes.camera_sizes(model)
+        if not cameras:
+            return 0
+        width, height = sizes.largest(cameras)
+        return sizes.model_count(model, "images") * width * height // (1 + opts.splat_surface_points.min_agreeing)
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.gaussians import GaussianSet
@@ -154,6 +178,8 @@ class MergeStage(Stage):
             if any(n in codes for n in opts.needs_mvs_classes):
                 predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype("int64")
         products = hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
+        if opts.splat_surface:
+            _add_splat_surface(ctx, products, splats, views, (mvs, needs))
         if refined is not None:
             viewer = merge_hybrid(refined, splats, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
             products.gaussians = _same_rows(viewer, products.gaussians)
@@ -170,7 +196,22 @@ class MergeStage(Stage):
             f"{counts.get('background', 0):,} (what the photos see beyond the survey region; viewer product only). "
             f"The survey points (merged_points.ply/.las) hold {counts.get('points', 0):,} points, no background."
         )
-        return ReportSection("The merged product's layers", (line,))
+        lines = (line,)
+        surface = counts.get("splat_surface")
+        if isinstance(surface, dict):
+            per_class = ", ".join(f"{k} {v:,}" for k, v in surface.get("per_class", {}).items()) or "none"
+            dropped = surface.get("splat_centres_dropped", 0)
+            from fusion.convert_options import SPLAT_SURFACE_CLASS
+
+            lines += (
+                f"Of those, {surface.get('kept', 0):,} are splat-surface points (`source` 4, LAS classification "
+                f"{SPLAT_SURFACE_CLASS}, a `sigma` each, median {_mm(surface.get('sigma_median_m'))}): the fill "
+                f"layer's rendered surface inside the training masks of {surface.get('views', 0)} views, kept where "
+                f"at least {surface.get('min_agreeing', '')} other views agree, not behind a trusted surface and near "
+                f"a fused MVS point; by the class the classifier predicted there: {per_class}. "
+                + (f"They replace the {dropped:,} splat centres of the survey-point rule." if dropped else ""),
+            )
+        return ReportSection("The merged product's layers", lines)
 
     def summary(self, counts: dict[str, Any]) -> str:
         layers = f"survey {counts['mvs']}, fill {counts['splats']}, background {counts.get('background', 0)}"
@@ -178,7 +219,56 @@ class MergeStage(Stage):
         if "point_splats" in counts:
             c = counts["point_splats"]
             text += f", {counts['points']} survey points ({c['kept']} of {c['input']} splats trustworthy)"
+        if "splat_surface" in counts:
+            c = counts["splat_surface"]
+            per_class = ", ".join(f"{k} {v}" for k, v in c["per_class"].items()) or "none"
+            text += f", {c['kept']} splat-surface points ({per_class})"
         return text
+
+
+def _mm(metres: Any) -> str:
+    return f"{1000 * metres:.2f} mm" if isinstance(metres, (int, float)) else "n/a"
+
+
+def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any, mvs_needs: tuple[Any, Any]) -> None:
+    """Adds the splat-surface points of the cleaned fill layer (``splats``) to ``products.points`` and their counts
+    to ``products.counts["splat_surface"]``: rendered in the training views (held-out photos left out) inside their
+    training masks, the trusted MVS points (``views.trusted``) as the front surface, supported by the MVS Gaussians
+    (``splat_surface_support``), counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
+    the MVS Gaussians and their ``needs`` flags)."""
+    import numpy as np
+
+    from fusion.convert_options import Source
+    from fusion.splat_surface import as_point_set, front_depths_from_points, splat_surface_points
+    from fusion.survey import classes_of_points, with_splat_surface
+    from hybridsplat import project_io
+
+    layout, opts = ctx.layout, ctx.options(MergeStage)
+    held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
+    masks = project_io.read_region_masks(layout, views.cameras, training=True)
+    masks = {k: m for k, m in masks.items() if k not in held_out and m.any() and len(splats)}  # none: nothing to render
+    front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
+    found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points)
+    surface = as_point_set(found, views.cameras.origin)
+    mvs, needs = mvs_needs
+    support = None
+    if opts.splat_surface_support is not None:
+        support = (mvs.with_origin(products.points.origin).means, opts.splat_surface_support * views.spacing)
+    points, counts = with_splat_surface(products.points, surface, opts.splat_surface_keep_centres,
+                                        0.5 * views.spacing, support)  # fmt: skip
+    codes = project_io.read_needs_splats_class_codes(layout) if needs.any() else {}
+    predicted = None
+    if codes:
+        predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
+    added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
+    per_class = classes_of_points(points.with_origin(mvs.origin).means[added], mvs, needs, predicted, codes)
+    sigma = np.asarray(points.fields["sigma"], np.float64)[added]
+    products.points = points
+    products.counts["splat_surface"] = {
+        "views": len(masks), "min_agreeing": opts.splat_surface_points.min_agreeing, "pixels": dict(found.counts),
+        "found": len(found), **counts, "per_class": per_class,
+        "sigma_median_m": float(np.median(sigma)) if len(sigma) else None,
+    }  # fmt: skip
 
 
 def _refined_survey(path: Path | None, mvs: Any) -> Any:
