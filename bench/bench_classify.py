@@ -161,7 +161,8 @@ def experiments(args, train_sets: dict[str, SceneData]) -> dict[str, tuple]:
     out: dict[str, tuple] = {"main": (every, main_groups, main, args.ignore_band)}
     for label, groups in ablation_groups().items():
         out[label] = (every, groups, main, args.ignore_band)
-    out["main, band counted in training"] = (every, main_groups, main, not args.ignore_band)
+    other = "counted" if args.ignore_band else "ignored"
+    out[f"main, but the band {other} in training"] = (every, main_groups, main, not args.ignore_band)
     out["geometric only"] = (every, GEO, main, args.ignore_band)
     obj = [k for k in train_sets if "object" in k or k.startswith("tabletop")]
     aer = [k for k in train_sets if "aerial" in k]
@@ -246,9 +247,26 @@ def part_score(args) -> dict:
             print(f"[{label}] band-ignored F1 over the {len(with_positives)} scenes with needs-splats points: "
                   f"min {res['min_f1']:.3f}, mean {res['mean_f1']:.3f}")  # fmt: skip
         out["results"][label] = res
+    for path in args.compare_model:
+        out["results"][f"model {path}"] = score_model_file(Path(path), test_sets, classes, args)
     if main_model is not None and not args.no_masks:
         out["results"]["masks only"] = masks_only(main_model, args, root, classes, every_group)
     return out
+
+
+def score_model_file(path: Path, test_sets: dict[str, SceneData], classes, args) -> dict:
+    """A saved model (e.g. the shipped default before a retraining) scored on the same scenes, as a control."""
+    from classify.model import load_model
+
+    model = load_model(path)
+    res: dict = {"threshold": model.info.get("threshold"), "scenes": model.info.get("scenes")}
+    for n, d in test_sets.items():
+        res[n] = score_scene(f"model {path.name}", model, n, d, classes, args)
+    f1s = [res[n]["f1"] for n, d in test_sets.items() if d.truth.needs_splats[d.truth.scored].any()]
+    if f1s:
+        res["min_f1"], res["mean_f1"] = float(min(f1s)), float(np.mean(f1s))
+        print(f"[model {path.name}] band-ignored F1: min {res['min_f1']:.3f}, mean {res['mean_f1']:.3f}")
+    return res
 
 
 # -- throughput -----------------------------------------------------------------------------------------------
@@ -387,9 +405,10 @@ def main() -> None:
     ap.add_argument(
         "--ignore-band",
         action=argparse.BooleanOptionalAction,
-        default=True,
-        help="leave the truth's ignore band out of training (the main model)",
+        default=False,
+        help="leave the truth's ignore band out of training (the main model; the shipped recipe keeps it)",
     )
+    ap.add_argument("--compare-model", nargs="*", default=[], help="saved models scored beside (controls)")
     ap.add_argument("--mask-scenes", nargs="*", default=[], help="scenes scored for their masks only (textured_s1)")
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")
     ap.add_argument("--dilate-px", type=int, default=MaskOptions().dilate_px, help="mask dilation (px)")
