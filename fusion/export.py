@@ -34,6 +34,9 @@ from fusion.sog_format import is_sog_path, write_sog
 from fusion.splat_format import write_splat
 from fusion.spz_format import SPZ_VERSION, SPZ_WRITABLE_VERSIONS, finest_fractional_bits, write_spz
 
+GLTF_COMPRESSIONS = ("spz", "none")
+"""Values of :attr:`ExportOptions.gltf_compression` (those of :class:`fusion.gltf_splats.GltfCompression`)."""
+
 
 @dataclass(frozen=True)
 class ExportOptions:
@@ -46,7 +49,10 @@ class ExportOptions:
     after ``rot_3``. ``crs``: the coordinate reference system of the world coordinates (e.g. ``"EPSG:32633"``),
     kept through the export: written to every output's ``.origin.json`` sidecar (written then even at a zero
     origin) and as the WKT of a LAS/LAZ output; None writes none. ``spz_version``: 2 (default: every SPZ reader) or
-    3 (smallest-three rotations, exact near 180°; see :mod:`fusion.spz_format`).
+    3 (smallest-three rotations, exact near 180°; see :mod:`fusion.spz_format`). ``gltf_compression``: how a
+    tileset's glTF tiles store the splats: ``spz`` (default: ``KHR_gaussian_splatting_compression_spz_2``, SPZ v2,
+    what CesiumJS draws as splats) or ``none`` (float32 ``KHR_gaussian_splatting`` attributes; see
+    :mod:`fusion.gltf_splats`).
     """
 
     crop_min: tuple[float, float, float] | None = None
@@ -56,6 +62,7 @@ class ExportOptions:
     extra_fields: bool = False
     crs: str | None = None
     spz_version: int = SPZ_VERSION
+    gltf_compression: str = "spz"
 
     def __post_init__(self) -> None:
         if (self.crop_min is None) != (self.crop_max is None):
@@ -74,6 +81,8 @@ class ExportOptions:
             raise ConfigError(f"sh_degree must be 0, 1, 2 or 3, got {self.sh_degree}")
         if self.spz_version not in SPZ_WRITABLE_VERSIONS:
             raise ConfigError(f"spz_version must be one of {SPZ_WRITABLE_VERSIONS}, got {self.spz_version}")
+        if self.gltf_compression not in GLTF_COMPRESSIONS:
+            raise ConfigError(f"gltf_compression must be one of {GLTF_COMPRESSIONS}, got {self.gltf_compression!r}")
 
 
 @dataclass
@@ -195,11 +204,14 @@ def export_tileset(
 ) -> ExportReport:
     """Write a 3D Tiles 1.1 tileset of glTF ``KHR_gaussian_splatting`` tiles at ``path`` (a ``tileset.json``; the
     GLBs go into one folder per layer beside it), placed on the earth through ``options.crs`` (its root transform;
-    no CRS: the origin as translation). See :mod:`fusion.tiles3d`."""
-    from fusion.tiles3d import write_splat_tileset
+    no CRS: the origin as translation), SPZ-compressed unless ``options.gltf_compression`` is ``none``. See
+    :mod:`fusion.tiles3d`."""
+    from fusion.tiles3d import TilesetOptions, write_splat_tileset
 
+    options = options or ExportOptions()
     prep = prepare(gaussians, options)
-    summary = write_splat_tileset(prep.gaussians, path, options.crs if options is not None else None)
+    tiles = TilesetOptions(compression=options.gltf_compression)  # type: ignore[arg-type]
+    summary = write_splat_tileset(prep.gaussians, path, options.crs, tiles)
     report = _report(Path(path), "3d-tiles", prep)
     report.notes = summary.lines()
     return report

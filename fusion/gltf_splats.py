@@ -1,4 +1,5 @@
-"""Gaussian splats as glTF 2.0 binary (``.glb``) with the ``KHR_gaussian_splatting`` extension, uncompressed.
+"""Gaussian splats as glTF 2.0 binary (``.glb``) with the ``KHR_gaussian_splatting`` extension: float32 attributes,
+or one SPZ v2 stream through ``KHR_gaussian_splatting_compression_spz_2`` (``compression="spz"``, what CesiumJS draws).
 
 Spec followed, and where it was learnt
 --------------------------------------
@@ -7,18 +8,23 @@ Spec followed, and where it was learnt
   63770cc ("Editorial review (#2567)", 2026-04-15; repository head 77b44be, 2026-07-17). Earlier drafts named the
   attributes ``_ROTATION`` / ``_SCALE`` and packed colour and opacity into ``COLOR_0``; the ratified names below
   replace them (CesiumJS still reads both prefixes for SH attributes).
-- CesiumJS's reader, CesiumGS/cesium ``packages/engine/Source/Scene/GaussianSplat3DTileContent.js`` and
-  ``GaussianSplatPrimitive.js`` (read through the code index, 2026): it renders splats only when a tileset lists
-  ``KHR_gaussian_splatting`` *and* ``KHR_gaussian_splatting_compression_spz_2`` in ``3DTILES_content_gltf``'s
-  ``extensionsRequired``; an uncompressed primitive like ours is drawn there as the spec's fallback point cloud
-  (``COLOR_0``). Its transform chain (tile transform · y-up→z-up · glTF node matrix) is the 3D Tiles one.
+- ``KHR_gaussian_splatting_compression_spz_2``, status "Draft": CesiumGS/glTF ``extensions/2.0/Khronos/
+  KHR_gaussian_splatting_compression_spz_2/README.md`` and its ``schema/mesh.primitive.…schema.json`` at commit
+  e0ec12a (branch ``cesium-native``, 2026-06-30; the README last changed in 7cff052, 2025-10-28; KhronosGroup/glTF
+  holds the same text at e5f8ce1 / 3b2a287).
+- CesiumJS's reader, CesiumGS/cesium ``packages/engine/Source/Scene/GaussianSplat3DTileContent.js``,
+  ``GaussianSplatPrimitive.js``, ``GltfSpzLoader.js`` and ``GltfVertexBufferLoader.js`` (read through the code index,
+  2026): it renders splats only when a tileset lists ``KHR_gaussian_splatting`` *and*
+  ``KHR_gaussian_splatting_compression_spz_2`` in ``3DTILES_content_gltf``'s ``extensionsRequired``; an uncompressed
+  primitive is drawn there as the spec's fallback point cloud (``COLOR_0``). Its transform chain (tile transform ·
+  y-up→z-up · glTF node matrix) is the 3D Tiles one.
 - The SH basis and signs are the spec's Appendix A (real SH with the Condon–Shortley phase); they equal the ones
   our renderer uses (:mod:`fusion.render.sh`, graphdeco's), so coefficients are copied, not converted.
 - Cross-checked (``scripts/check_gltf_tiles.sh``) against a second writer, PlayCanvas splat-transform 3.7.0's
   ``.glb`` output for the same splats: identical attributes once its 180° turn about z (it reads a 3DGS PLY as
   y-down) is applied; its ``COLOR_0`` keeps sRGB values where the spec asks for linear ones (ours are decoded).
 
-No code was copied from either source.
+No code was copied from any source.
 
 Primitive layout we write (one mesh, one ``POINTS`` primitive, one node)
 ------------------------------------------------------------------------
@@ -49,15 +55,57 @@ turns z-up into y-up, (x, y, z) → (x, z, −y) (a proper rotation: determinant
 asks of node transforms). A 3D Tiles client applies its fixed y-up → z-up rotation after the node matrix, so the
 two cancel and the tile frame is our z-up frame. Stand-alone glTF viewers show the splats upright.
 
-Precision: positions are float32 copies of the float64 input (< 0.5 ulp: 3e-5 m at 500 m); σ, α, quaternions and
-SH are float32. Reading back (:meth:`SplatPrimitive.to_gaussians`) gives log σ and logit α again; logit α loses
-precision where α rounds near 1 in float32 (|logit| ≳ 10), so compare opacities as α.
+SPZ-compressed primitive (``compression="spz"``)
+-----------------------------------------------
+The binary chunk holds one SPZ **version 2** file (gzip; the bytes :func:`fusion.spz_format.write_spz` writes at the
+same fractional bits, whose encoding is Niantic's reference's) in buffer view **0** — CesiumJS's ``GltfSpzLoader`` reads
+buffer view 0 whatever the extension says. The ``KHR_gaussian_splatting`` object gains ``"extensions":
+{"KHR_gaussian_splatting_compression_spz_2": {"bufferView": 0}}`` (the schema's only, required, property; the README's
+example lists the name without ``_2`` in ``extensionsUsed``, a slip: the schema, CesiumJS and we use the full name).
+Both extensions are in ``extensionsUsed`` *and* ``extensionsRequired`` (no float data is left to fall back on).
+Attributes are the ones the extension's mapping table lists, with accessors that have ``count`` = the stream's splat
+count, the post-decompression ``type`` and ``componentType``, and no ``bufferView`` (the data comes from the stream):
+
+======================================================  ======  ========================  =============================
+attribute                                               type    component                 from the SPZ stream
+======================================================  ======  ========================  =============================
+``POSITION`` (``min``/``max``: the decoded bounds)      VEC3    float                     positions (fixed point)
+``COLOR_0``                                             VEC4    unsigned byte normalized  0.5 + C0 · colour, alpha (α)
+``KHR_gaussian_splatting:SCALE``                        VEC3    float                     exp(scales)
+``KHR_gaussian_splatting:ROTATION``                     VEC4    float                     rotations (x, y, z, w)
+``KHR_gaussian_splatting:SH_DEGREE_l_COEF_n``, l ≥ 1    VEC3    float                     sh[(l² − 1 + n) · 3 …]
+======================================================  ======  ========================  =============================
+
+No ``OPACITY`` and no ``SH_DEGREE_0_COEF_0``: the mapping puts α and the DC term in ``COLOR_0``, and CesiumJS's
+``GltfVertexBufferLoader`` fills only the semantics above from the stream. (The README's table lists degree 1 as
+COEF_0, COEF_2, COEF_3, a typo; CesiumJS indexes coefficient n at 3n within its degree, as we write.)
+
+Axes: the README asks SPZ's ``PackOptions``/``UnpackOptions`` to name ``LUF`` (which makes Niantic's library store
+x and z negated, its "RUB" frame, and negate them back on reading); CesiumJS decodes with ``coordinateSystem:
+"UNSPECIFIED"`` (no conversion), so the stored values *are* its glTF-primitive coordinates. We write what CesiumJS
+reads: the primitive's (z-up) coordinates unchanged, the same node matrix as the float form, SH unchanged. A reader
+that applies the README's LUF conversion would show the splats turned 180° about the glTF y (up) axis, i.e. about the
+tile frame's vertical; ``asset.extras.spz.axes`` says ``"as stored"``.
+
+Precision (SPZ): positions are fixed point about the *primitive's* origin (for a tile: the tile frame's origin, i.e.
+the set's origin, not the tile's centre) with the most fractional bits the primitive's coordinates allow
+(:func:`fusion.spz_format.finest_fractional_bits`): ±2^−(b+1) m per axis, i.e. ±3.8 µm within ±64 m, ±30 µm within
+±512 m, ±0.12 mm within ±2 048 m, ±0.49 mm within ±8 192 m (fewer than 12 bits with a warning); α ±1/510, colour
+±0.0131 (|f_dc| ≤ 3.33), σ ±3.2 %, rotation x, y, z ±1/255, SH rest ±0.035 / ±0.066 (see :mod:`fusion.spz_format`;
+values outside SPZ's ranges are clipped with a warning). On the demo's merged product (48 971 splats, SH degree 3)
+the tiles are 12× smaller: 0.95 MB against 11.8 MB.
+
+Precision (float32): positions are float32 copies of the float64 input (< 0.5 ulp: 3e-5 m at 500 m); σ, α,
+quaternions and SH are float32. Reading back (:meth:`SplatPrimitive.to_gaussians`) gives log σ and logit α again;
+logit α loses precision where α rounds near 1 in float32 (|logit| ≳ 10), so compare opacities as α.
 """
 
 from __future__ import annotations
 
 import math
 import struct
+import tempfile
+import zlib
 from dataclasses import dataclass, field
 from enum import Enum
 from os import PathLike
@@ -74,6 +122,15 @@ EXTENSION = "KHR_gaussian_splatting"
 
 SPEC_REVISION = "KHR_gaussian_splatting Release Candidate, KhronosGroup/glTF@63770cc (2026-04-15)"
 """The revision of the extension text this module follows (recorded in each file's ``asset.extras``)."""
+
+SPZ_EXTENSION = "KHR_gaussian_splatting_compression_spz_2"
+"""The glTF extension carrying an SPZ v2 stream inside a ``KHR_gaussian_splatting`` primitive."""
+
+SPZ_SPEC_REVISION = (
+    "KHR_gaussian_splatting_compression_spz_2 Draft, CesiumGS/glTF@e0ec12a (cesium-native, 2026-06-30; README "
+    "as of 7cff052, 2025-10-28); axes as CesiumJS decodes them (no LUF flip)"
+)
+"""The revision of the SPZ extension text this module follows (recorded in ``asset.extras.spz``)."""
 
 PREFIX = EXTENSION + ":"
 ATTR_ROTATION = PREFIX + "ROTATION"
@@ -92,6 +149,13 @@ _ARRAY_BUFFER = 34962
 _POINTS = 0
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 _DTYPES = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+
+
+class GltfCompression(str, Enum):
+    """How splat attributes are stored: float32 accessors, or one SPZ v2 stream (CesiumJS draws only this)."""
+
+    NONE = "none"
+    SPZ = "spz"
 
 
 class ColorSpace(str, Enum):
@@ -190,12 +254,16 @@ def encode_splat_glb(
     color_space: ColorSpace = ColorSpace.SRGB,
     name: str = "splats",
     extras: dict[str, Any] | None = None,
+    compression: GltfCompression = GltfCompression.NONE,
 ) -> bytes:
     """The GLB bytes of one splat primitive holding every Gaussian of ``gaussians`` (layout: module docstring).
 
-    Positions are ``gaussians.means`` as float32 in their own (z-up) frame; ``gaussians.origin`` is *not* written
-    (the caller places the frame, e.g. a 3D Tiles ``transform``). ``extras``: JSON-able values for
-    ``asset.extras``. Raises :class:`DataError` for an empty set, NaN/inf values or a zero quaternion.
+    Positions are ``gaussians.means`` in their own (z-up) frame; ``gaussians.origin`` is *not* written (the caller
+    places the frame, e.g. a 3D Tiles ``transform``). ``extras``: JSON-able values for ``asset.extras``.
+    ``compression``: ``none`` (float32 attributes) or ``spz`` (one SPZ v2 stream through
+    ``KHR_gaussian_splatting_compression_spz_2``, what CesiumJS draws; precision: :mod:`fusion.spz_format`, with
+    the most fractional bits the positions allow). Raises :class:`DataError` for an empty set, NaN/inf values or a
+    zero quaternion; :class:`FormatError` (SPZ) for positions beyond ±8 388 607 m.
     """
     import pygltflib as gl  # lazy: only exports need it
 
@@ -203,31 +271,26 @@ def encode_splat_glb(
         raise DataError("a glTF splat primitive needs at least one Gaussian, got an empty set")
     gaussians.validate("glTF export")
     color_space = ColorSpace(color_space)
-    blob = bytearray()
-    accessors, views, attributes = [], [], {}
-    for semantic, values, kind, component, normalized in _columns(gaussians, color_space):
-        data = np.ascontiguousarray(values, dtype="<f4" if component == _FLOAT else "<u1").tobytes()
-        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(data), target=_ARRAY_BUFFER))
-        acc = gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(gaussians), type=kind)
-        if normalized:
-            acc.normalized = True
-        if semantic == "POSITION":  # required by glTF for POSITION: the exact float32 bounds
-            acc.min = [float(v) for v in values.min(axis=0)]
-            acc.max = [float(v) for v in values.max(axis=0)]
-        accessors.append(acc)
-        attributes[semantic] = len(accessors) - 1
-        blob += data
-        blob += b"\0" * (-len(blob) % 4)  # every view starts 4-byte aligned (all components are ≤ 4 bytes)
-
-    extension = {
+    compression = GltfCompression(compression)
+    extension: dict[str, Any] = {
         "kernel": "ellipse",
         "colorSpace": color_space.value,
         "projection": "perspective",
         "sortingMethod": "cameraDistance",
     }
+    asset_extras: dict[str, Any] = {"spec": SPEC_REVISION}
+    if compression is GltfCompression.SPZ:
+        accessors, views, attributes, blob, bits = _spz_parts(gaussians, name)
+        extension["extensions"] = {SPZ_EXTENSION: {"bufferView": 0}}
+        asset_extras["spz"] = {"spec": SPZ_SPEC_REVISION, "version": 2, "fractionalBits": bits, "axes": "as stored"}
+        used, required = [EXTENSION, SPZ_EXTENSION, "KHR_materials_unlit"], [EXTENSION, SPZ_EXTENSION]
+    else:
+        accessors, views, attributes, blob = _float_parts(gaussians, color_space)
+        used, required = [EXTENSION, "KHR_materials_unlit"], []
     doc = gl.GLTF2(
-        asset=gl.Asset(version="2.0", generator=generator(), extras={"spec": SPEC_REVISION, **(extras or {})}),
-        extensionsUsed=[EXTENSION, "KHR_materials_unlit"],
+        asset=gl.Asset(version="2.0", generator=generator(), extras={**asset_extras, **(extras or {})}),
+        extensionsUsed=used,
+        extensionsRequired=required,
         scene=0,
         scenes=[gl.Scene(nodes=[0])],
         nodes=[gl.Node(name=name, mesh=0, matrix=list(Z_UP_TO_Y_UP))],
@@ -251,6 +314,62 @@ def encode_splat_glb(
     )
     doc.set_binary_blob(bytes(blob))
     return b"".join(doc.save_to_bytes())
+
+
+def _float_parts(gaussians: GaussianSet, color_space: ColorSpace) -> tuple[list, list, dict[str, int], bytearray]:
+    """Accessors, buffer views, attribute map and binary chunk of the uncompressed layout."""
+    import pygltflib as gl
+
+    blob = bytearray()
+    accessors, views, attributes = [], [], {}
+    for semantic, values, kind, component, normalized in _columns(gaussians, color_space):
+        data = np.ascontiguousarray(values, dtype="<f4" if component == _FLOAT else "<u1").tobytes()
+        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(data), target=_ARRAY_BUFFER))
+        acc = gl.Accessor(bufferView=len(views) - 1, componentType=component, count=len(gaussians), type=kind)
+        if normalized:
+            acc.normalized = True
+        if semantic == "POSITION":  # required by glTF for POSITION: the exact float32 bounds
+            acc.min = [float(v) for v in values.min(axis=0)]
+            acc.max = [float(v) for v in values.max(axis=0)]
+        accessors.append(acc)
+        attributes[semantic] = len(accessors) - 1
+        blob += data
+        blob += b"\0" * (-len(blob) % 4)  # every view starts 4-byte aligned (all components are ≤ 4 bytes)
+    return accessors, views, attributes, blob
+
+
+def _spz_parts(gaussians: GaussianSet, name: str) -> tuple[list, list, dict[str, int], bytearray, int]:
+    """Accessors (no buffer views: the data is in the SPZ stream), the one buffer view (index 0, where CesiumJS
+    looks), attribute map, binary chunk (the gzipped SPZ v2 file, padded to 4 bytes) and the fractional bits."""
+    import pygltflib as gl
+
+    from fusion.spz_format import encode_spz, finest_fractional_bits
+
+    header, payload = encode_spz(
+        gaussians, version=2, fractional_bits=finest_fractional_bits(gaussians.means), name=f"glTF SPZ {name}"
+    )
+    compressor = zlib.compressobj(6, zlib.DEFLATED, 16 + zlib.MAX_WBITS, 9)  # gzip, as fusion.spz_format writes
+    stream = compressor.compress(payload) + compressor.flush()
+    blob = bytearray(stream) + b"\0" * (-len(stream) % 4)
+    views = [gl.BufferView(buffer=0, byteOffset=0, byteLength=len(stream))]
+    n, step = len(gaussians), 2.0**-header.fractional_bits
+    stored = np.copysign(np.floor(np.abs(gaussians.means / step) + 0.5), gaussians.means) * step  # what SPZ decodes
+    position = gl.Accessor(componentType=_FLOAT, count=n, type="VEC3")
+    position.min = [float(v) for v in stored.min(axis=0).astype(np.float32)]
+    position.max = [float(v) for v in stored.max(axis=0).astype(np.float32)]
+    color = gl.Accessor(componentType=_UBYTE, count=n, type="VEC4", normalized=True)
+    accessors = [position, color]
+    semantics = ["POSITION", "COLOR_0"]
+    for semantic, kind in ((ATTR_SCALE, "VEC3"), (ATTR_ROTATION, "VEC4")):
+        accessors.append(gl.Accessor(componentType=_FLOAT, count=n, type=kind))
+        semantics.append(semantic)
+    for degree in range(1, gaussians.sh_degree + 1):
+        for coef in range(2 * degree + 1):
+            accessors.append(gl.Accessor(componentType=_FLOAT, count=n, type="VEC3"))
+            semantics.append(sh_attribute(degree, coef))
+    for acc in accessors:
+        acc.byteOffset = None  # glTF: byteOffset depends on bufferView, which these accessors have not
+    return accessors, views, {s: i for i, s in enumerate(semantics)}, blob, header.fractional_bits
 
 
 def _columns(gaussians: GaussianSet, color_space: ColorSpace) -> list[tuple[str, np.ndarray, str, int, bool]]:
@@ -295,7 +414,10 @@ class SplatPrimitive:
     float32 σ (linear); opacities (N,) float32 α; sh (N, K, 3) float32, DC first, our coefficient order;
     colors (N, 4) float32 in [0, 1] (``COLOR_0``) or None; node_matrix (4, 4) float64, the node's global transform
     (row-major numpy, i.e. glTF's column-major list transposed); extension: the extension object;
-    extensions_used: the file's ``extensionsUsed``; asset_extras: ``asset.extras``.
+    extensions_used: the file's ``extensionsUsed``; asset_extras: ``asset.extras``; compression: ``none`` or
+    ``spz`` (then every value is the SPZ stream's, decoded by :func:`fusion.spz_format.read_spz`: SH DC and α as
+    SPZ quantises them, ``colors`` = clamp(0.5 + C0 · DC) with α, as the extension's attribute mapping says);
+    spz_fractional_bits: the stream's fixed-point precision (None when uncompressed).
     """
 
     positions: np.ndarray
@@ -308,6 +430,8 @@ class SplatPrimitive:
     extension: dict[str, Any]
     extensions_used: list[str] = field(default_factory=list)
     asset_extras: dict[str, Any] = field(default_factory=dict)
+    compression: str = GltfCompression.NONE.value
+    spz_fractional_bits: int | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -397,6 +521,9 @@ def _decode_primitive(doc: Any, prim: Any, blob: bytes, node_matrix: np.ndarray,
     attrs = {k: v for k, v in vars(prim.attributes).items() if v is not None}
     if prim.mode != _POINTS:  # glTF's default mode (absent) is TRIANGLES
         raise FormatError(f"splat primitive mode must be POINTS (0), got {prim.mode}", path)
+    spz = ((prim.extensions[EXTENSION] or {}).get("extensions") or {}).get(SPZ_EXTENSION)
+    if spz is not None:
+        return _decode_spz_primitive(doc, prim, attrs, spz, blob, node_matrix, path)
     required = ["POSITION", ATTR_ROTATION, ATTR_SCALE, ATTR_OPACITY, sh_attribute(0, 0)]
     missing = [a for a in required if a not in attrs]
     if missing:
@@ -434,6 +561,67 @@ def _decode_primitive(doc: Any, prim: Any, blob: bytes, node_matrix: np.ndarray,
         if len(getattr(out, name)) != n:
             raise FormatError(f"attribute {name} has {len(getattr(out, name))} values for {n} positions", path)
     return out
+
+
+def _decode_spz_primitive(
+    doc: Any, prim: Any, attrs: dict[str, int], spz: dict[str, Any], blob: bytes, node_matrix: np.ndarray, path: Any
+) -> SplatPrimitive:
+    """A primitive whose values come from its ``KHR_gaussian_splatting_compression_spz_2`` stream."""
+    stream = spz_stream(doc, spz, blob, path)
+    data = _decode_spz_bytes(stream, path)
+    n, degree = data.header.num_points, data.header.sh_degree
+    required = ["POSITION", "COLOR_0", ATTR_SCALE, ATTR_ROTATION]
+    required += [sh_attribute(d, c) for d in range(1, degree + 1) for c in range(2 * d + 1)]
+    missing = [a for a in required if a not in attrs]
+    if missing:
+        raise FormatError(f"SPZ splat primitive lacks attribute(s) {', '.join(missing)}", path)
+    for semantic in required:
+        count = doc.accessors[attrs[semantic]].count
+        if count != n:
+            raise FormatError(f"{semantic}: accessor count {count}, the SPZ stream holds {n} splats", path)
+    alphas = data.alphas.astype(np.float32)
+    colors = np.c_[np.clip(0.5 + SH_C0 * data.sh_dc, 0.0, 1.0), alphas].astype(np.float32)
+    return SplatPrimitive(
+        positions=data.positions.astype(np.float32),
+        rotations=data.quats[:, [1, 2, 3, 0]].astype(np.float32),
+        scales=np.exp(data.log_scales).astype(np.float32),
+        opacities=alphas,
+        sh=np.concatenate([data.sh_dc[:, None, :], data.sh_rest], axis=1).astype(np.float32),
+        colors=colors,
+        node_matrix=node_matrix,
+        extension=dict(prim.extensions[EXTENSION] or {}),
+        extensions_used=list(doc.extensionsUsed or []),
+        asset_extras=dict(doc.asset.extras or {}) if doc.asset is not None else {},
+        compression=GltfCompression.SPZ.value,
+        spz_fractional_bits=data.header.fractional_bits,
+    )
+
+
+def spz_stream(doc: Any, spz: dict[str, Any], blob: bytes, path: Any = None) -> bytes:
+    """The SPZ file bytes (gzip) that the extension object ``spz`` points at, from the GLB's binary chunk."""
+    index = spz.get("bufferView") if isinstance(spz, dict) else None
+    if not isinstance(index, int) or not 0 <= index < len(doc.bufferViews or []):
+        raise FormatError(f"{SPZ_EXTENSION}.bufferView {index!r} is not a buffer view of the file", path)
+    view = doc.bufferViews[index]
+    if view.buffer != 0 or (doc.buffers[view.buffer].uri not in (None, "")):
+        raise FormatError(f"{SPZ_EXTENSION}: data outside the GLB binary chunk is not supported", path)
+    start = view.byteOffset or 0
+    if start + view.byteLength > len(blob):
+        raise FormatError(f"{SPZ_EXTENSION}: buffer view {index} runs past the binary chunk", path)
+    return bytes(blob[start : start + view.byteLength])
+
+
+def _decode_spz_bytes(stream: bytes, path: Any) -> Any:
+    """:func:`fusion.spz_format.read_spz` of in-memory SPZ bytes (it reads files: a private temporary one)."""
+    from fusion.spz_format import read_spz
+
+    with tempfile.TemporaryDirectory(prefix="hybridsplat-spz-") as tmp:
+        spz_path = Path(tmp) / "stream.spz"
+        spz_path.write_bytes(stream)
+        try:
+            return read_spz(spz_path)
+        except (FormatError, InputFileError) as err:
+            raise FormatError(f"{SPZ_EXTENSION} stream: {err.problem}", path) from None
 
 
 def _read_accessor(doc: Any, index: int, blob: bytes, kind: str, semantic: str, path: Path | None) -> np.ndarray:

@@ -26,9 +26,14 @@
   ``layer`` with ``name`` and ``source``; one ``groups`` entry per layer; each content's ``group`` points at it) and
   by the folder. CesiumJS merges all splats of one tileset into one sorted primitive, so there a layer is toggled
   by loading ``<layer>/tileset.json`` files as separate tilesets and switching their ``show``.
-- The glTF extensions used are declared in ``3DTILES_content_gltf`` (``extensionsUsed``, not required), where
-  CesiumJS looks for them. Note: CesiumJS (GaussianSplat3DTileContent.js, read 2026) renders splats only when
-  ``KHR_gaussian_splatting_compression_spz_2`` is required too; it shows these uncompressed tiles as points.
+- Tile content compression (``TilesetOptions.compression``): ``spz`` (default) writes every GLB with
+  ``KHR_gaussian_splatting_compression_spz_2`` (SPZ v2, :mod:`fusion.gltf_splats`) and lists both splat extensions
+  in ``3DTILES_content_gltf``'s ``extensionsUsed`` *and* ``extensionsRequired`` — CesiumJS
+  (GaussianSplat3DTileContent.js, read 2026) draws splats only then; ``none`` writes float32 attributes, declared
+  in ``extensionsUsed`` only, which CesiumJS shows as points. SPZ positions are fixed point about the tile frame's
+  origin with the most fractional bits each leaf allows; boxes are padded by half the coarsest step, so they enclose
+  the decoded positions, and the summary reports that bound (``position_quantisation_m``; ±30 µm for a set within
+  ±512 m of its origin, ±0.12 mm within ±2 048 m), on top of ``placement_error_m``.
 
 Georeferencing (``crs``)
 ------------------------
@@ -81,7 +86,15 @@ from core.gaussians import GaussianSet
 from core.io.atomic import check_output_file, output_transaction, remove_output, write_bytes_atomic
 from core.io.json_io import write_json_atomic
 from fusion.convert_options import LAYERS, Source
-from fusion.gltf_splats import EXTENSION, ColorSpace, encode_splat_glb, generator, rotate_sh_rest
+from fusion.gltf_splats import (
+    EXTENSION,
+    SPZ_EXTENSION,
+    ColorSpace,
+    GltfCompression,
+    encode_splat_glb,
+    generator,
+    rotate_sh_rest,
+)
 
 MIN_HALF_SIZE = 1e-3
 """Smallest half-size (metres) of a tile box on any axis: no degenerate box for a flat or single-splat tile."""
@@ -90,7 +103,6 @@ EXTENT_SIGMAS = 3.0
 """Splat extent in σ used for the boxes: the ``KHR_gaussian_splatting`` ellipse kernel's cut-off."""
 
 _TILE_FILE = re.compile(r"^r[01]*\.glb$")
-_GLTF_EXTENSIONS = [EXTENSION, "KHR_materials_unlit"]
 
 
 class Placement(str, Enum):
@@ -111,12 +123,15 @@ class TilesetOptions:
     ``max_splats_per_tile``: most splats in one leaf GLB (≥ 1; 100 000 ≈ 6 MB at SH degree 0, 24 MB at degree 3).
     ``placement``: ``exact`` or ``grid`` (ignored without a CRS). ``color_space``: the extension's ``colorSpace``.
     ``layer_tilesets``: also write ``<layer>/tileset.json`` per layer (same tiles, same transform).
+    ``compression``: ``spz`` (default; ``KHR_gaussian_splatting_compression_spz_2``, the form CesiumJS draws as
+    splats, 12× smaller on the demo) or ``none`` (float32 attributes: exact to float32, drawn by CesiumJS as points).
     """
 
     max_splats_per_tile: int = 100_000
     placement: Placement = Placement.EXACT
     color_space: ColorSpace = ColorSpace.SRGB
     layer_tilesets: bool = True
+    compression: GltfCompression = GltfCompression.SPZ
 
     def __post_init__(self) -> None:
         if isinstance(self.max_splats_per_tile, bool) or not isinstance(self.max_splats_per_tile, (int, np.integer)):
@@ -126,10 +141,12 @@ class TilesetOptions:
         try:
             object.__setattr__(self, "placement", Placement(self.placement))
             object.__setattr__(self, "color_space", ColorSpace(self.color_space))
+            object.__setattr__(self, "compression", GltfCompression(self.compression))
         except ValueError as err:
             raise ConfigError(
                 f"{err}: placement is one of {[p.value for p in Placement]}, "
-                f"color_space one of {[c.value for c in ColorSpace]}"
+                f"color_space one of {[c.value for c in ColorSpace]}, "
+                f"compression one of {[c.value for c in GltfCompression]}"
             ) from None
 
 
@@ -170,6 +187,9 @@ class TilesetSummary:
     ``placement_error_m`` (largest distance between our ECEF of a splat — float32 position through the written
     transforms — and pyproj's ECEF of origin + local, over ≤ 256 splats and the 8 corners of the set's bounds),
     ``datum_transformation`` and ``datum_accuracy_m`` (pyproj's operation; accuracy −1 when unknown).
+    ``compression``: the tiles' ``none`` or ``spz``; ``position_quantisation_m``: SPZ only, the largest distance per
+    axis between a stored (fixed-point) position and the float64 tile-frame one, half the step at the fewest
+    fractional bits any tile uses (each tile takes the most its own positions allow); not in ``placement_error_m``.
     """
 
     path: Path
@@ -191,6 +211,8 @@ class TilesetSummary:
     placement_error_m: float | None = None
     datum_transformation: str | None = None
     datum_accuracy_m: float | None = None
+    compression: str = GltfCompression.NONE.value
+    position_quantisation_m: float | None = None
 
     @property
     def georeferenced(self) -> bool:
@@ -211,6 +233,12 @@ class TilesetSummary:
                     f"scale factor {self.scale_factor:.8f}"
                 )
             out.append(f"  placement error (sampled, vs pyproj): {self.placement_error_m * 1000:.3f} mm")
+        if self.position_quantisation_m is not None:
+            bits = -round(math.log2(self.position_quantisation_m)) - 1
+            out.append(
+                f"  glTF tiles: SPZ v2 ({bits} fractional bits or more): positions within "
+                f"{self.position_quantisation_m * 1e6:.3g} µm per axis of the float64 tile frame"
+            )
         out += [f"  note: {n}" for n in self.notes]
         return out
 
@@ -441,6 +469,18 @@ def _to_frame(gaussians: GaussianSet, frame: _Frame) -> GaussianSet:
     )
 
 
+def _position_tolerance(means: np.ndarray, compression: GltfCompression) -> float:
+    """How far a stored position may lie from ``means`` beyond float32 rounding (metres): half the SPZ fixed-point
+    step at the finest fractional bits the whole set fits (each leaf fits at least as many), so boxes padded by it
+    enclose the positions a reader decodes; 0 without compression."""
+    if GltfCompression(compression) is not GltfCompression.SPZ:
+        return 0.0
+    from fusion.spz_format import MAX_FRACTIONAL_BITS, choose_fractional_bits
+
+    bits = choose_fractional_bits(means, MAX_FRACTIONAL_BITS)
+    return 0.0 if bits is None else 2.0 ** -(bits + 1)  # None: the encoder refuses the set
+
+
 def _chunks(n: int, size: int) -> Iterator[slice]:
     for start in range(0, n, size):
         yield slice(start, min(n, start + size))
@@ -566,8 +606,19 @@ def _schema() -> dict[str, Any]:
     }
 
 
+def gltf_extensions(compression: GltfCompression) -> dict[str, list[str]]:
+    """``3DTILES_content_gltf`` of a tileset whose GLBs are written with ``compression``: CesiumJS draws splats
+    only when both splat extensions are listed as required (``none``: used only, the content's own choice)."""
+    if GltfCompression(compression) is GltfCompression.SPZ:
+        return {
+            "extensionsUsed": [EXTENSION, SPZ_EXTENSION, "KHR_materials_unlit"],
+            "extensionsRequired": [EXTENSION, SPZ_EXTENSION],
+        }
+    return {"extensionsUsed": [EXTENSION, "KHR_materials_unlit"]}
+
+
 def _tileset_json(
-    layers: list[tuple[str, int, dict[str, Any]]], frame: _Frame, extras: dict[str, Any]
+    layers: list[tuple[str, int, dict[str, Any]]], frame: _Frame, extras: dict[str, Any], gltf: dict[str, list[str]]
 ) -> dict[str, Any]:
     """A tileset whose root (with the transform) holds one subtree per layer (name, code, tile)."""
     boxes = np.array([t["boundingVolume"]["box"] for _, _, t in layers])
@@ -578,7 +629,7 @@ def _tileset_json(
     return {
         "asset": {"version": "1.1", "extras": extras},
         "extensionsUsed": ["3DTILES_content_gltf"],
-        "extensions": {"3DTILES_content_gltf": {"extensionsUsed": list(_GLTF_EXTENSIONS)}},
+        "extensions": {"3DTILES_content_gltf": {k: list(v) for k, v in gltf.items()}},
         "schema": _schema(),
         "groups": [{"class": "layer", "properties": {"name": name, "source": code}} for name, code, _ in layers],
         "geometricError": error,
@@ -637,9 +688,10 @@ def write_splat_tileset(
     frame = _resolve_frame(gaussians.origin, crs, options.placement, out)
     in_frame = _to_frame(gaussians, frame)
     pos = in_frame.means.astype(np.float32).astype(np.float64)  # what the GLBs hold: boxes enclose those exactly
-    ext = _extents(in_frame)
+    quantisation = _position_tolerance(in_frame.means, options.compression)
+    ext = _extents(in_frame) + quantisation
 
-    extras = _asset_extras(gaussians, crs, frame)
+    extras = _asset_extras(gaussians, crs, frame, options.compression)
     with output_transaction():
         tiles, records = _write_files(in_frame, _layers(gaussians), pos, ext, frame, out, options, extras)
     return TilesetSummary(
@@ -654,6 +706,8 @@ def write_splat_tileset(
         tiles=tuple(tiles),
         notes=tuple(frame.notes),
         placement_error_m=_placement_error(gaussians, frame),
+        compression=options.compression.value,
+        position_quantisation_m=quantisation if options.compression is GltfCompression.SPZ else None,
         **{k: v for k, v in frame.info.items()},
     )
 
@@ -682,6 +736,7 @@ def _write_files(
                 options.color_space,
                 name=f"{name}/{leaf.path}",
                 extras={"layer": name, "source": code, "tile": leaf.path},
+                compression=options.compression,
             )
             write_bytes_atomic(folder / name / f"{leaf.path}.glb", data)
             written[f"{leaf.path}.glb"] = len(data)
@@ -693,17 +748,22 @@ def _write_files(
         if options.layer_tilesets:
             layer_tileset = f"{name}/tileset.json"
             write_json_atomic(
-                folder / layer_tileset, _tileset_json([(name, code, _tile_json(tree, "", 0))], frame, extras)
+                folder / layer_tileset,
+                _tileset_json(
+                    [(name, code, _tile_json(tree, "", 0))], frame, extras, gltf_extensions(options.compression)
+                ),
             )
         _remove_stale(folder / name, set(written), keep_tileset=options.layer_tilesets)
         records.append(LayerRecord(name, code, len(index), len(written), sum(written.values()), layer_tileset))
     for stale in {layer_name(int(c)) for c in Source} - {r.name for r in records}:
         _remove_stale(folder / stale, set(), keep_tileset=False)
-    write_json_atomic(out, _tileset_json(subtrees, frame, extras))
+    write_json_atomic(out, _tileset_json(subtrees, frame, extras, gltf_extensions(options.compression)))
     return tiles, records
 
 
-def _asset_extras(gaussians: GaussianSet, crs: str | None, frame: _Frame) -> dict[str, Any]:
+def _asset_extras(
+    gaussians: GaussianSet, crs: str | None, frame: _Frame, compression: GltfCompression
+) -> dict[str, Any]:
     extras: dict[str, Any] = {
         "generator": generator(),
         "crs": crs,
@@ -711,7 +771,12 @@ def _asset_extras(gaussians: GaussianSet, crs: str | None, frame: _Frame) -> dic
         "units": "m",
         "placement": frame.placement,
         "georeferenced": crs is not None,
-        "glTF": "KHR_gaussian_splatting (uncompressed), see fusion/gltf_splats.py",
+        "glTF": (
+            "KHR_gaussian_splatting with KHR_gaussian_splatting_compression_spz_2 (SPZ v2)"
+            if compression is GltfCompression.SPZ
+            else "KHR_gaussian_splatting (uncompressed)"
+        )
+        + ", see fusion/gltf_splats.py",
     }
     for key in ("convergence_deg", "scale_factor", "origin_lon_lat_h"):
         if key in frame.info:

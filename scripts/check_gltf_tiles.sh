@@ -3,7 +3,7 @@
 # loaders.gl (@loaders.gl/3d-tiles, an independent 3D Tiles reader), and our attribute layout equals the one PlayCanvas'
 # splat-transform writes for the same splats (a second, independent writer of the extension).
 #
-# Usage: scripts/check_gltf_tiles.sh [TILESET_JSON]
+# Usage: scripts/check_gltf_tiles.sh [TILESET_JSON ...]
 #   GT_PREFIX      where gltf-validator and @loaders.gl/{core,3d-tiles} are (or get) installed
 #                  (default /tmp/hybridsplat-gltf-tools)
 #   GT_NO_INSTALL  1: never install; exit 3 when the packages are missing (what the pytest wrapper uses)
@@ -11,18 +11,26 @@
 #                  installs); the comparison is skipped when it is absent
 #
 # Steps: (1) install the npm packages into GT_PREFIX if absent; (2) without TILESET_JSON, write a synthetic
-# georeferenced set (UTM 33N, three layers, SH degree 1) with fusion.tiles3d.write_splat_tileset; (3) node: serve the
-# tileset's folder on 127.0.0.1, load it with loaders.gl's Tiles3DLoader, load every tile content (glTF, y-up → z-up),
-# run glTF-Validator on every GLB, and print one line per content: 'TILE <uri> <id of its first splat> <ECEF x y z>'
-# (root transform · y-up→z-up · node matrix · POSITION, from loaders.gl's parsed values), then 'errors: N';
+# georeferenced set (UTM 33N, three layers, SH degree 1) with fusion.tiles3d.write_splat_tileset twice: SPZ-compressed
+# tiles (KHR_gaussian_splatting_compression_spz_2, the default) and float32 tiles; (3) node, per tileset: serve its
+# folder on 127.0.0.1, load it with loaders.gl's Tiles3DLoader, load every tile content (glTF, y-up → z-up), run
+# glTF-Validator on every GLB, and print one line per content: 'TILE <uri> <id of its first splat> <ECEF x y z> <spz|float>'
+# (root transform · y-up→z-up · node matrix · position), then 'errors: N'. Float32 tiles: the position and id (SH DC
+# red) are loaders.gl's parsed values. SPZ tiles (loaders.gl does not decode SPZ): the script decodes the first splat
+# from the GLB bytes itself (chunks, the extension's bufferView, gunzip, SPZ v2 header, 24-bit fixed point) and checks
+# that the stream is SPZ v2 in bufferView 0 (where CesiumJS reads it), that every accessor has the stream's count and no
+# bufferView, and that both extensions are required by the GLB and by the tileset's 3DTILES_content_gltf; the id is -1
+# (SPZ cannot carry it: the caller matches the position);
 # (4) with splat-transform, convert a 3DGS PLY of the same splats to .glb and compare every KHR_gaussian_splatting
 # attribute with ours (after the 180° turn about z that splat-transform applies to PLY input). Exits non-zero on any
 # failure.
 #
 # Known, ignored: glTF-Validator 2.0.0-dev.3.10 reports MESH_PRIMITIVE_INVALID_ATTRIBUTE for every extension-prefixed
 # semantic ('KHR_gaussian_splatting:SCALE', …): it predates them (KhronosGroup/glTF-Validator issue #252, open; the glTF
-# change allowing them is KhronosGroup/glTF#2514), and UNSUPPORTED_EXTENSION (an info) for KHR_gaussian_splatting.
-# Every other issue counts. Checked on 2026-07-20 with gltf-validator 2.0.0-dev.3.10, @loaders.gl/3d-tiles 4.5.4,
+# change allowing them is KhronosGroup/glTF#2514), UNSUPPORTED_EXTENSION (an info) for KHR_gaussian_splatting and
+# KHR_gaussian_splatting_compression_spz_2, and, in SPZ tiles, UNUSED_OBJECT (an info) for the bufferView holding the
+# SPZ stream (only the extension the validator does not know refers to it). Every other issue counts (SPZ tiles were
+# checked on 2026-11-27: no other issue). Checked on 2026-07-20 with gltf-validator 2.0.0-dev.3.10, @loaders.gl/3d-tiles 4.5.4,
 # splat-transform 3.7.0, node 20.
 set -euo pipefail
 
@@ -43,10 +51,10 @@ if [ ! -d "$GT_PREFIX/node_modules/gltf-validator" ] || [ ! -d "$GT_PREFIX/node_
 fi
 
 cd "$ROOT"
-TILESET="${1:-}"
-if [ -z "$TILESET" ]; then
-  TILESET="$WORK/tiles/tileset.json"
-  "$PY" - "$TILESET" <<'EOF'
+TILESETS=("$@")
+if [ ${#TILESETS[@]} -eq 0 ]; then
+  TILESETS=("$WORK/tiles/tileset.json" "$WORK/tiles_raw/tileset.json")
+  "$PY" - "${TILESETS[@]}" <<'EOF'
 import sys
 import numpy as np
 from core.gaussians import GaussianSet
@@ -61,8 +69,9 @@ gs = GaussianSet(
     rng.normal(0, 3, n), sh_dc, rng.normal(0, 0.2, (n, 3, 3)), origin=[512345.0, 4012345.0, 250.0],
     fields={"source": rng.integers(1, 4, n).astype(np.uint8)},
 )
-summary = write_splat_tileset(gs, sys.argv[1], "EPSG:32633", TilesetOptions(max_splats_per_tile=500))
-print("\n".join(summary.lines()))
+for out, compression in zip(sys.argv[1:], ["spz", "none"]):  # SPZ (CesiumJS's form, the default) and float32
+    summary = write_splat_tileset(gs, out, "EPSG:32633", TilesetOptions(max_splats_per_tile=500, compression=compression))
+    print("\n".join(summary.lines()))
 EOF
 fi
 
@@ -74,11 +83,38 @@ const path = require('node:path');
 const {load} = require('@loaders.gl/core');
 const {Tiles3DLoader} = require('@loaders.gl/3d-tiles');
 const validator = require('gltf-validator');
+const zlib = require('node:zlib');
+const SPZ = 'KHR_gaussian_splatting_compression_spz_2';
 
 const file = path.resolve(process.argv[2]);
 const root = path.dirname(file);
-const KNOWN = (m) => (m.code === 'MESH_PRIMITIVE_INVALID_ATTRIBUTE' && m.pointer.includes('/attributes/KHR_gaussian_splatting:'))
-  || (m.code === 'UNSUPPORTED_EXTENSION' && m.message.includes('KHR_gaussian_splatting'));
+const KNOWN = (m, spz) => (m.code === 'MESH_PRIMITIVE_INVALID_ATTRIBUTE' && m.pointer.includes('/attributes/KHR_gaussian_splatting:'))
+  || (m.code === 'UNSUPPORTED_EXTENSION' && m.message.includes('KHR_gaussian_splatting'))
+  || (spz && m.code === 'UNUSED_OBJECT' && m.pointer === `/bufferViews/${spz.bufferView}`); // used by the SPZ extension
+
+// The first splat of a KHR_gaussian_splatting_compression_spz_2 primitive, decoded here from the GLB bytes alone (GLB
+// chunks, the extension's bufferView, gunzip, SPZ v2 header and 24-bit fixed-point position): an independent reader.
+function spzFirstSplat(glb, prim, spz) {
+  const dv = new DataView(glb.buffer, glb.byteOffset, glb.byteLength);
+  const jsonLen = dv.getUint32(12, true);
+  const json = JSON.parse(new TextDecoder().decode(glb.subarray(20, 20 + jsonLen)));
+  const bin = glb.subarray(28 + jsonLen, 28 + jsonLen + dv.getUint32(20 + jsonLen, true));
+  const view = json.bufferViews[spz.bufferView];
+  const raw = zlib.gunzipSync(bin.subarray(view.byteOffset || 0, (view.byteOffset || 0) + view.byteLength));
+  const h = new DataView(raw.buffer, raw.byteOffset, raw.byteLength);
+  const [magic, version, count, bits] = [h.getUint32(0, true), h.getUint32(4, true), h.getUint32(8, true), raw[13]];
+  const problems = [];
+  if (magic !== 0x5053474e || version !== 2) problems.push(`SPZ magic/version ${magic.toString(16)}/${version}, expected NGSP/2`);
+  if (spz.bufferView !== 0) problems.push(`SPZ bufferView ${spz.bufferView}: CesiumJS reads bufferView 0`);
+  for (const [name, index] of Object.entries(json.meshes[0].primitives[0].attributes)) {
+    if (json.accessors[index].count !== count) problems.push(`${name}: count ${json.accessors[index].count}, SPZ holds ${count}`);
+    if (json.accessors[index].bufferView !== undefined) problems.push(`${name}: has a bufferView beside the SPZ stream`);
+  }
+  for (const ext of [EXT, SPZ]) if (!(json.extensionsRequired || []).includes(ext)) problems.push(`${ext} not in extensionsRequired`);
+  const p = [0, 1, 2].map((k) => { let v = raw[16 + 3 * k] | (raw[17 + 3 * k] << 8) | (raw[18 + 3 * k] << 16); if (v & 0x800000) v -= 1 << 24; return v / 2 ** bits; });
+  return {p, problems};
+}
+const EXT = 'KHR_gaussian_splatting';
 
 function mul(a, b) { // 4x4 column-major
   const r = new Array(16).fill(0);
@@ -97,6 +133,7 @@ server.listen(0, '127.0.0.1', async () => {
   try {
     const base = `http://127.0.0.1:${server.address().port}/`;
     const tileset = await load(base + path.basename(file), Tiles3DLoader);
+    const contentGltf = (JSON.parse(fs.readFileSync(file, 'utf8')).extensions || {})['3DTILES_content_gltf'] || {};
     const rootTransform = tileset.root.transform || [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1];
     const stack = [tileset.root];
     let tiles = 0;
@@ -112,13 +149,23 @@ server.listen(0, '127.0.0.1', async () => {
       if (!prim.extensions || !prim.extensions.KHR_gaussian_splatting) { console.log(`ERROR ${uri}: no extension`); errors++; }
       const node = content.gltf.nodes[0].matrix || [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1];
       const m = mul(mul(rootTransform, Y_UP_TO_Z_UP), node);
-      const p = prim.attributes.POSITION.value;
+      const glb = new Uint8Array(fs.readFileSync(path.join(root, uri)));
+      const spz = ((prim.extensions || {}).KHR_gaussian_splatting || {}).extensions?.[SPZ];
+      let p, id = -1; // an SPZ stream cannot carry the id: the caller matches the position
+      if (spz) {
+        const first = spzFirstSplat(glb, prim, spz);
+        for (const what of first.problems) { console.log(`ERROR ${uri}: ${what}`); errors++; }
+        if (!(contentGltf.extensionsRequired || []).includes(SPZ)) { console.log(`ERROR tileset: ${SPZ} not required in 3DTILES_content_gltf`); errors++; }
+        p = first.p;
+      } else {
+        p = prim.attributes.POSITION.value;
+        id = prim.attributes['KHR_gaussian_splatting:SH_DEGREE_0_COEF_0'].value[0];
+      }
       const ecef = [0, 1, 2].map((r) => m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r]);
-      const id = prim.attributes['KHR_gaussian_splatting:SH_DEGREE_0_COEF_0'].value[0];
-      console.log(`TILE ${uri} ${id} ${ecef.map((v) => v.toFixed(6)).join(' ')}`);
-      const report = await validator.validateBytes(new Uint8Array(fs.readFileSync(path.join(root, uri))), {maxIssues: 1000});
+      console.log(`TILE ${uri} ${id} ${ecef.map((v) => v.toFixed(6)).join(' ')} ${spz ? 'spz' : 'float'}`);
+      const report = await validator.validateBytes(glb, {maxIssues: 1000});
       for (const msg of report.issues.messages) {
-        if (KNOWN(msg)) continue;
+        if (KNOWN(msg, spz)) continue;
         console.log(`ISSUE ${uri} severity ${msg.severity} ${msg.code} ${msg.pointer || ''}: ${msg.message}`);
         if (msg.severity <= 1) errors++; // 0 error, 1 warning
       }
@@ -133,7 +180,10 @@ server.listen(0, '127.0.0.1', async () => {
   process.exitCode = errors ? 1 : 0;
 });
 EOF
-NODE_PATH="$GT_PREFIX/node_modules" node "$WORK/check.cjs" "$TILESET"
+for TILESET in "${TILESETS[@]}"; do
+  echo "checking $TILESET"
+  NODE_PATH="$GT_PREFIX/node_modules" node "$WORK/check.cjs" "$TILESET"
+done
 
 if [ -x "$ST" ]; then
   "$PY" - "$WORK" "$ST" <<'EOF'

@@ -77,3 +77,51 @@ def test_a_tileset_export_is_placed_on_the_earth_by_the_input_crs(tmp_path):
     np.testing.assert_allclose(transform[:3, 3], ecef, atol=0.5)  # the local frame sits at the origin, on the earth
     glbs = sorted(out.parent.rglob("*.glb"))
     assert glbs and sum(len(read_splat_glb(p).to_gaussians()) for p in glbs) == len(gs)
+
+
+def test_tileset_export_compresses_with_spz_by_default_and_on_request_not(tmp_path):
+    """``--gltf-compression``: spz (default, KHR_gaussian_splatting_compression_spz_2: what CesiumJS draws) or none
+    (float32 attributes); anything else exits non-zero and writes nothing."""
+    from fusion.gltf_splats import SPZ_EXTENSION, read_splat_glb
+    from hybridsplat.cli import main
+
+    def cli(*argv) -> int:
+        try:
+            main([str(a) for a in argv])
+        except SystemExit as ex:
+            return int(ex.code or 0)
+        return 0
+
+    source = tmp_path / "in.ply"
+    gs = _georeferenced(source, UTM)
+    for flag, expected in ((None, "spz"), ("none", "none"), ("SPZ", "spz")):
+        out = tmp_path / (flag or "default") / "tileset.json"
+        extra = [] if flag is None else ["--gltf-compression", flag]
+        assert cli("export", source, "--out", out, *extra) == 0
+        required = json.loads(out.read_text())["extensions"]["3DTILES_content_gltf"].get("extensionsRequired", [])
+        assert (SPZ_EXTENSION in required) == (expected == "spz")
+        prims = [read_splat_glb(p) for p in sorted(out.parent.rglob("*.glb"))]
+        assert {p.compression for p in prims} == {expected} and sum(len(p) for p in prims) == len(gs)
+        decoded = np.concatenate([p.positions for p in prims]).astype(np.float64)
+        # SPZ: ±5 m fits 20 fractional bits, ±0.48 µm; both: float32 storage of ≤ 5 m (±0.24 µm) and this ENU
+        # frame, built here from pyproj's geodetic origin, against the writer's (≤ 0.5 µm apart): 1 µm in all
+        bound = (2.0**-21 if expected == "spz" else 0.0) + 1e-6
+        assert np.abs(np.sort(decoded, axis=0) - np.sort(_enu(gs), axis=0)).max() < bound
+    bad = tmp_path / "bad" / "tileset.json"
+    assert cli("export", source, "--out", bad, "--gltf-compression", "draco") != 0
+    assert not bad.exists()
+
+
+def _enu(gs) -> np.ndarray:
+    """Topocentric ENU offsets (metres) of the set's splats at its origin, through pyproj (exact placement)."""
+    import pyproj
+
+    to_ecef = pyproj.Transformer.from_crs(UTM, "EPSG:4978", always_xy=True)
+    to_geo = pyproj.Transformer.from_crs(UTM, "EPSG:4979", always_xy=True)
+    lon, lat, _h = (np.radians(v) if i < 2 else v for i, v in enumerate(to_geo.transform(*gs.origin)))
+    east = np.array([-np.sin(lon), np.cos(lon), 0.0])
+    north = np.array([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)])
+    up = np.cross(east, north)
+    world = gs.origin + gs.means
+    ecef = np.c_[to_ecef.transform(*world.T)] - np.array(to_ecef.transform(*gs.origin))
+    return ecef @ np.c_[east, north, up]

@@ -26,7 +26,9 @@ from core.errors import ConfigError, DataError, FormatError
 from core.gaussians import SH_C0, GaussianSet, sigmoid
 from fusion.gltf_splats import (
     EXTENSION,
+    SPZ_EXTENSION,
     ColorSpace,
+    GltfCompression,
     encode_splat_glb,
     read_splat_glb,
     rotate_sh_rest,
@@ -40,6 +42,8 @@ ORIGIN = np.array([500000.0, 4000000.0, 100.0])  # on zone 33's central meridian
 ORIGIN_EAST = np.array([600000.0, 4000000.0, 100.0])  # 100 km east of it: convergence ≈ 0.66°
 Y_UP_TO_Z_UP = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # 3D Tiles 1.1, row-major
 EARTH_RADIUS = 6.371e6
+RAW = GltfCompression.NONE  # float32 tiles: exact values, and splat ids carried in the SH DC (SPZ clips them)
+RAW_OPTIONS = TilesetOptions(compression=RAW)
 
 
 def _splats(n: int, extent: float = 500.0, degree: int = 0, seed: int = 0, origin=ORIGIN, layers=True) -> GaussianSet:
@@ -229,6 +233,103 @@ def test_reader_names_the_file_for_bad_glb(tmp_path):
         encode_splat_glb(_splats(3, layers=False).subset(np.zeros(3, bool)))
 
 
+# -- the SPZ-compressed GLB (KHR_gaussian_splatting_compression_spz_2) ----------------------------------------------
+# Tolerances are SPZ v2's quantisation as fusion/spz_format.py states it (per component): position half a fixed-point
+# step, α 1/510, SH DC 1/(2 · 0.15 · 255), log σ 1/32, rotation x, y, z 1/255 (w ≥ 0), SH rest 0.0352 (degree 1)
+# and 17/256 = 0.0664 (degrees 2-3); each plus 1e-6 for float32 storage and arithmetic.
+SPZ_BOUNDS = {"alpha": 1 / 510, "dc": 1 / (2 * 0.15 * 255), "log_scale": 1 / 32, "xyz": 1 / 255, "sh": 17 / 256}
+
+
+def _spz_ready(n: int, extent: float, degree: int, seed: int = 1, origin=ORIGIN, layers=False) -> GaussianSet:
+    """Splats whose values lie inside SPZ's ranges (SH DC |f| ≤ 3.33, SH rest |c| ≤ 1), so only rounding remains."""
+    gs = _splats(n, extent=extent, degree=degree, seed=seed, origin=origin, layers=layers)
+    rng = np.random.default_rng(seed + 100)
+    gs.sh_dc = rng.uniform(-3.0, 3.0, (n, 3)).astype(np.float32)
+    gs.sh_rest = np.clip(gs.sh_rest, -1.0, 1.0)
+    return gs
+
+
+def _spz_of(doc: dict, blob: bytes, tmp_path: Path):
+    """The SPZ stream the primitive's compression extension points at, decoded by fusion.spz_format.read_spz."""
+    from fusion.spz_format import read_spz
+
+    ext = doc["meshes"][0]["primitives"][0]["extensions"][EXTENSION]["extensions"][SPZ_EXTENSION]
+    view = doc["bufferViews"][ext["bufferView"]]
+    start = view.get("byteOffset", 0)
+    stream = blob[start : start + view["byteLength"]]
+    (tmp_path / "stream.spz").write_bytes(stream)
+    return stream, read_spz(tmp_path / "stream.spz")
+
+
+def test_spz_glb_follows_the_extension_and_decodes_to_the_input_within_spz_precision(tmp_path):
+    from fusion.spz_format import write_spz
+
+    gs = _spz_ready(800, extent=50.0, degree=3)
+    data = encode_splat_glb(gs, compression="spz")
+    doc, blob = _glb(data)  # a GLB: JSON chunk + BIN chunk, both 4-byte aligned
+    prim = doc["meshes"][0]["primitives"][0]
+    assert prim["mode"] == 0 and set(doc["extensionsUsed"]) >= {EXTENSION, SPZ_EXTENSION}
+    assert set(doc["extensionsRequired"]) == {EXTENSION, SPZ_EXTENSION}  # no float data to fall back on
+    assert prim["extensions"][EXTENSION]["extensions"] == {SPZ_EXTENSION: {"bufferView": 0}}  # CesiumJS reads view 0
+    assert prim["extensions"][EXTENSION]["kernel"] == "ellipse"
+    # the attributes the extension's mapping lists (COLOR_0 holds DC and α; no OPACITY, no SH degree 0)
+    sh_names = {f"{EXTENSION}:SH_DEGREE_{d}_COEF_{c}" for d in (1, 2, 3) for c in range(2 * d + 1)}
+    assert set(prim["attributes"]) == {"POSITION", "COLOR_0", f"{EXTENSION}:SCALE", f"{EXTENSION}:ROTATION"} | sh_names
+    for name, index in prim["attributes"].items():
+        acc = doc["accessors"][index]
+        assert acc["count"] == 800 and "bufferView" not in acc and "byteOffset" not in acc
+        kind = {"POSITION": "VEC3", "COLOR_0": "VEC4", f"{EXTENSION}:ROTATION": "VEC4"}.get(name, "VEC3")
+        assert acc["type"] == kind and acc["componentType"] == (5121 if name == "COLOR_0" else 5126)
+    assert doc["accessors"][prim["attributes"]["COLOR_0"]]["normalized"] is True
+    assert len(doc["bufferViews"]) == 1 and doc["buffers"][0]["byteLength"] == len(blob)
+
+    stream, spz = _spz_of(doc, blob, tmp_path)
+    bits = spz.header.fractional_bits
+    assert (spz.header.version, spz.header.num_points, spz.header.sh_degree, bits) == (
+        2,
+        800,
+        3,
+        17,
+    )  # ±50 m: 17 bits (±64 m)
+    write_spz(tmp_path / "ref.spz", gs, fractional_bits=bits)  # our .spz writer, at the same fractional bits
+    assert (tmp_path / "ref.spz").read_bytes() == stream
+    pos_acc = doc["accessors"][prim["attributes"]["POSITION"]]  # bounds of the decoded positions, as float32
+    assert pos_acc["min"] == spz.positions.min(axis=0).astype(np.float32).tolist()
+    assert pos_acc["max"] == spz.positions.max(axis=0).astype(np.float32).tolist()
+    assert np.abs(spz.positions - gs.means).max() <= 2.0 ** -(bits + 1) + 1e-9  # 3.8 µm at 17 bits
+    assert np.abs(spz.alphas - sigmoid(gs.logit_opacities)).max() <= SPZ_BOUNDS["alpha"] + 1e-6
+    assert np.abs(spz.sh_dc - gs.sh_dc).max() <= SPZ_BOUNDS["dc"] + 1e-6
+    assert np.abs(spz.log_scales - gs.log_scales).max() <= SPZ_BOUNDS["log_scale"] + 1e-6
+    q = gs.quats / np.linalg.norm(gs.quats, axis=1, keepdims=True)
+    q *= np.where(q[:, :1] < 0, -1.0, 1.0)  # SPZ v2 stores the sign with w ≥ 0
+    assert np.abs(spz.quats[:, 1:] - q[:, 1:]).max() <= SPZ_BOUNDS["xyz"] + 1e-6
+    assert np.abs(spz.sh_rest - gs.sh_rest).max() <= SPZ_BOUNDS["sh"] + 1e-6
+
+    back = read_splat_glb(data)  # our reader: the stream's values in glTF conventions, the same node matrix
+    assert back.compression == "spz" and back.spz_fractional_bits == bits
+    assert np.array_equal(back.positions, spz.positions.astype(np.float32))
+    assert np.allclose(back.rotations, spz.quats[:, [1, 2, 3, 0]], atol=1e-7)
+    assert np.allclose(back.scales, np.exp(spz.log_scales), rtol=1e-6) and np.allclose(back.opacities, spz.alphas)
+    assert np.allclose(back.colors[:, :3], np.clip(0.5 + SH_C0 * spz.sh_dc, 0, 1), atol=1e-6)
+    assert np.array_equal(back.node_matrix, read_splat_glb(encode_splat_glb(gs)).node_matrix)
+    assert len(data) < len(encode_splat_glb(gs)) / 4  # SPZ's point: here ~7× smaller than float32
+
+
+def test_spz_glb_refuses_what_it_cannot_hold_or_read(tmp_path):
+    far = _spz_ready(10, extent=5.0, degree=0)
+    far.means[0] = [9e6, 0.0, 0.0]  # beyond SPZ's 24-bit range even in whole metres
+    with pytest.raises(FormatError, match="24-bit"):
+        encode_splat_glb(far, compression="spz")
+    with pytest.raises(ValueError):
+        encode_splat_glb(far, compression="draco")
+    data = bytearray(encode_splat_glb(_spz_ready(10, extent=5.0, degree=0), compression="spz"))
+    doc, blob = _glb(bytes(data))
+    json_len = struct.unpack_from("<I", data, 12)[0]
+    data[28 + json_len : 28 + json_len + 4] = b"XXXX"  # break the gzip magic of the stream
+    with pytest.raises(FormatError, match=SPZ_EXTENSION):
+        read_splat_glb(bytes(data))
+
+
 # -- the tileset ---------------------------------------------------------------------------------------------------
 
 
@@ -236,7 +337,7 @@ def test_reader_names_the_file_for_bad_glb(tmp_path):
 def test_tileset_structure_boxes_and_layers(tmp_path, crs):
     gs = _splats(5000)
     out = tmp_path / "tiles" / "tileset.json"
-    summary = write_splat_tileset(gs, out, crs, TilesetOptions(max_splats_per_tile=700))
+    summary = write_splat_tileset(gs, out, crs, TilesetOptions(compression=RAW, max_splats_per_tile=700))
     tileset = json.loads(out.read_text())
     assert tileset["asset"]["version"] == "1.1" and tileset["geometricError"] > 0
     assert tileset["root"]["refine"] == "ADD" and len(tileset["root"]["transform"]) == 16
@@ -273,12 +374,57 @@ def test_tileset_structure_boxes_and_layers(tmp_path, crs):
     assert not list(out.parent.rglob(".*tmp*"))
 
 
+def _nearest_ids(points: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the nearest truth point of each point, and the distance (SPZ tiles cannot carry splat ids)."""
+    from scipy.spatial import cKDTree
+
+    dist, ids = cKDTree(truth).query(points)
+    return ids, dist
+
+
+def test_spz_tileset_requires_both_extensions_and_places_every_decoded_splat(tmp_path):
+    """The default (SPZ) tileset: 3DTILES_content_gltf requires both extensions (what CesiumJS checks before it draws
+    splats); every box encloses the decoded positions; every splat appears once, in ECEF within 0.1 mm of pyproj
+    (exact placement ≤ 0.02 mm, plus SPZ's ±30 µm per axis at the 14 fractional bits a ±500 m set allows)."""
+    gs = _spz_ready(5000, extent=500.0, degree=1, layers=True)
+    out = tmp_path / "tiles" / "tileset.json"
+    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(max_splats_per_tile=700))
+    tileset = json.loads(out.read_text())
+    content_gltf = tileset["extensions"]["3DTILES_content_gltf"]
+    assert tileset["extensionsUsed"] == ["3DTILES_content_gltf"]
+    assert {EXTENSION, SPZ_EXTENSION} <= set(content_gltf["extensionsUsed"])
+    assert set(content_gltf["extensionsRequired"]) == {EXTENSION, SPZ_EXTENSION}
+    assert "SPZ" in tileset["asset"]["extras"]["glTF"]
+    points, layers = [], []
+    for tile, t, ancestors, prim, doc in _contents(out):
+        assert prim.compression == "spz" and prim.spz_fractional_bits >= 14
+        assert set(doc["extensionsRequired"]) == {EXTENSION, SPZ_EXTENSION}
+        for box_tile in [tile, *ancestors]:
+            box = np.asarray(box_tile["boundingVolume"]["box"])
+            assert (np.abs(prim.positions - box[:3]) <= box[[3, 7, 11]]).all()
+        chain = t @ Y_UP_TO_Z_UP @ prim.node_matrix
+        points.append((np.c_[prim.positions.astype(np.float64), np.ones(len(prim))] @ chain.T)[:, :3])
+        layers.append(np.full(len(prim), tile["content"]["group"] + 1))
+    ids, dist = _nearest_ids(np.concatenate(points), _truth(gs, np.arange(len(gs))))
+    print(f"SPZ tiles: worst ECEF error {dist.max() * 1e3:.4f} mm over {len(dist)} splats")
+    assert np.array_equal(np.sort(ids), np.arange(5000)) and dist.max() < 1e-4
+    assert np.array_equal(gs.fields["source"][ids], np.concatenate(layers))  # each in its own layer's subtree
+    raw = write_splat_tileset(
+        gs, tmp_path / "raw" / "tileset.json", UTM, TilesetOptions(max_splats_per_tile=700, compression=RAW)
+    )
+    assert summary.bytes < raw.bytes / 3  # random values compress less than trained splats
+    assert (
+        "extensionsRequired"
+        not in json.loads((tmp_path / "raw" / "tileset.json").read_text())["extensions"]["3DTILES_content_gltf"]
+    )
+
+
 def test_ecef_of_every_splat_matches_pyproj_within_a_millimetre(tmp_path):
     """Exact placement, UTM 33N at (500 000 E, 4 000 000 N, 100 m), a 1 km × 1 km × 100 m set."""
     gs = _splats(3000)
     gs.means[:4] = [[-500, -500, -50], [500, 500, 50], [500, -500, 0], [-500, 500, 50]]  # the far corners
     out = tmp_path / "tileset.json"
-    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(max_splats_per_tile=1000))
+    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(compression=RAW, max_splats_per_tile=1000))
     ids, ecef = _ecef(out)
     err = np.linalg.norm(ecef - _truth(gs, ids), axis=1)
     print(f"exact placement: worst ECEF error {err.max() * 1e3:.4f} mm over {len(err)} splats")
@@ -300,7 +446,7 @@ def test_exact_placement_maps_shapes_and_view_dependent_colour(tmp_path):
     gs = _splats(60, extent=300, degree=2, seed=4, origin=ORIGIN_EAST, layers=False)
     before = [a.copy() for a in (gs.means, gs.quats, gs.log_scales, gs.sh_rest)]
     out = tmp_path / "tileset.json"
-    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(max_splats_per_tile=1000))
+    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(compression=RAW, max_splats_per_tile=1000))
     assert all(
         np.array_equal(a, b) for a, b in zip(before, (gs.means, gs.quats, gs.log_scales, gs.sh_rest), strict=True)
     )
@@ -340,7 +486,9 @@ def test_exact_placement_maps_shapes_and_view_dependent_colour(tmp_path):
 def test_grid_placement_keeps_local_positions_and_errs_by_the_earths_curvature(tmp_path):
     gs = _splats(2000, origin=ORIGIN_EAST)
     out = tmp_path / "tileset.json"
-    summary = write_splat_tileset(gs, out, UTM, TilesetOptions(max_splats_per_tile=800, placement=Placement.GRID))
+    summary = write_splat_tileset(
+        gs, out, UTM, TilesetOptions(compression=RAW, max_splats_per_tile=800, placement=Placement.GRID)
+    )
     for *_, prim, _doc in _contents(out):
         ids = prim.sh[:, 0, 0].astype(np.int64)
         assert np.array_equal(prim.positions, gs.means[ids].astype(np.float32))  # the set's local frame, exactly
@@ -359,7 +507,7 @@ def test_grid_placement_keeps_local_positions_and_errs_by_the_earths_curvature(t
 def test_without_crs_the_origin_is_a_translation(tmp_path):
     gs = _splats(1500, layers=False)
     out = tmp_path / "tileset.json"
-    summary = write_splat_tileset(gs, out, None, TilesetOptions(max_splats_per_tile=1000))
+    summary = write_splat_tileset(gs, out, None, TilesetOptions(compression=RAW, max_splats_per_tile=1000))
     root = np.asarray(json.loads(out.read_text())["root"]["transform"]).reshape(4, 4).T
     assert np.array_equal(root[:3, :3], np.eye(3)) and np.array_equal(root[:3, 3], ORIGIN)
     ids, world = _ecef(out)
@@ -373,7 +521,7 @@ def test_geocentric_crs_offsets_are_placed_exactly(tmp_path):
     origin = np.array(pyproj.Transformer.from_crs(UTM, "EPSG:4978", always_xy=True).transform(*ORIGIN))
     gs = _splats(500, extent=400, origin=origin, layers=False)  # local offsets are ECEF metres here
     out = tmp_path / "tileset.json"
-    summary = write_splat_tileset(gs, out, "EPSG:4978")
+    summary = write_splat_tileset(gs, out, "EPSG:4978", RAW_OPTIONS)
     ids, ecef = _ecef(out)
     assert np.linalg.norm(ecef - (origin + gs.means[ids]), axis=1).max() < 1e-4  # float32 of ≤ 400 m
     assert summary.convergence_deg is None and summary.transform_scale == pytest.approx((1, 1, 1))
@@ -388,7 +536,7 @@ def test_us_survey_feet_are_converted_and_a_datum_fallback_is_reported(tmp_path)
         best = pyproj.transformer.TransformerGroup(crs, "EPSG:4978", always_xy=True).best_available
     out = tmp_path / "tileset.json"
     with pytest.warns(TilesetWarning) as caught:
-        summary = write_splat_tileset(gs, out, crs)
+        summary = write_splat_tileset(gs, out, crs, RAW_OPTIONS)
     messages = [str(w.message) for w in caught]
     # pyproj takes a 2D CRS's heights in metres: mixed units are reported
     assert any("0.3048" in m and "along z" in m for m in messages)
@@ -404,10 +552,12 @@ def test_us_survey_feet_are_converted_and_a_datum_fallback_is_reported(tmp_path)
 
 def test_rewrite_removes_our_stale_tiles_only(tmp_path):
     out = tmp_path / "tileset.json"
-    write_splat_tileset(_splats(3000), out, None, TilesetOptions(max_splats_per_tile=300))
+    write_splat_tileset(_splats(3000), out, None, TilesetOptions(compression=RAW, max_splats_per_tile=300))
     (tmp_path / "survey" / "notes.txt").write_text("mine")
     before = sorted(p.name for p in (tmp_path / "survey").glob("*.glb"))
-    summary = write_splat_tileset(_splats(800, layers=False), out, None, TilesetOptions(max_splats_per_tile=1000))
+    summary = write_splat_tileset(
+        _splats(800, layers=False), out, None, TilesetOptions(compression=RAW, max_splats_per_tile=1000)
+    )
     assert len(before) > 1 and sorted(p.name for p in (tmp_path / "survey").glob("*.glb")) == ["r.glb"]
     assert not list((tmp_path / "fill").glob("*")) and (tmp_path / "survey" / "notes.txt").exists()
     assert [t.uri for t in summary.tiles] == ["survey/r.glb"]
@@ -432,7 +582,7 @@ def test_westing_southing_axes_are_placed_and_left_handed_axes_refused(tmp_path)
     # South African Lo29 (EPSG:2053): westing / southing axes, east / north turned by 180°: a proper rotation
     lo29 = _splats(300, extent=200, origin=[10000.0, 2900000.0, 1500.0], layers=False)
     out = tmp_path / "lo29" / "tileset.json"
-    write_splat_tileset(lo29, out, "EPSG:2053")
+    write_splat_tileset(lo29, out, "EPSG:2053", RAW_OPTIONS)
     ids, ecef = _ecef(out)
     assert np.linalg.norm(ecef - _truth(lo29, ids, "EPSG:2053"), axis=1).max() < 1e-3
     # east / south / up is a mirror image of east / north / up: no rotation places it
@@ -495,13 +645,19 @@ def _tool_prefix() -> Path:
     return gltf_tools_prefix()
 
 
-def test_gltf_validator_and_loaders_gl_accept_our_tiles_at_the_right_place(tmp_path):
-    """glTF-Validator finds no error (but the known one on extension-prefixed semantics, see the script) and
-    loaders.gl's reading of our transforms puts each tile's first splat where pyproj does."""
+@pytest.mark.parametrize("compression", ["spz", "none"])
+def test_gltf_validator_and_loaders_gl_accept_our_tiles_at_the_right_place(tmp_path, compression):
+    """glTF-Validator finds no error (but the known ones, see the script) and loaders.gl's reading of our transforms
+    puts each tile's first splat where pyproj does (SPZ tiles: the script decodes the splat from the GLB bytes and
+    checks the stream's header, counts and required extensions; the splat is identified by its position)."""
     prefix = _tool_prefix()
-    gs = _splats(1200, degree=1, origin=ORIGIN_EAST)
+    gs = (
+        _splats(1200, degree=1, origin=ORIGIN_EAST)
+        if compression == "none"
+        else _spz_ready(1200, 500.0, 1, 0, ORIGIN_EAST)
+    )
     out = tmp_path / "tileset.json"
-    write_splat_tileset(gs, out, UTM, TilesetOptions(max_splats_per_tile=500))
+    write_splat_tileset(gs, out, UTM, TilesetOptions(compression=compression, max_splats_per_tile=500))
     script = Path(__file__).resolve().parents[1] / "scripts" / "check_gltf_tiles.sh"
     env = {**os.environ, "GT_PREFIX": str(prefix), "GT_NO_INSTALL": "1", "ST": "/nonexistent"}
     proc = subprocess.run(["bash", str(script), str(out)], capture_output=True, text=True, timeout=300, env=env)
@@ -509,12 +665,18 @@ def test_gltf_validator_and_loaders_gl_accept_our_tiles_at_the_right_place(tmp_p
     rows = [line.split()[2:] for line in proc.stdout.splitlines() if line.startswith("TILE ")]
     assert len(rows) == len(list(_contents(out)))
     ids = np.array([int(float(r[0])) for r in rows])
-    ecef = np.array([[float(v) for v in r[1:]] for r in rows])
+    ecef = np.array([[float(v) for v in r[1:4]] for r in rows])
+    assert {r[4] for r in rows} == {"spz" if compression == "spz" else "float"}
+    if compression == "spz":  # no id in an SPZ stream: the nearest true splat, which must be within SPZ's precision
+        assert (ids == -1).all()
+        ids, _ = _nearest_ids(ecef, _truth(gs, np.arange(len(gs))))
     assert np.linalg.norm(ecef - _truth(gs, ids), axis=1).max() < 1e-3  # printed to 1 µm
 
 
 def test_summary_lines_report_the_placement(tmp_path):
-    summary = write_splat_tileset(_splats(100, origin=ORIGIN_EAST), tmp_path / "tileset.json", UTM)
+    summary = write_splat_tileset(_spz_ready(100, 500.0, 0, origin=ORIGIN_EAST), tmp_path / "tileset.json", UTM)
     text = "\n".join(summary.lines())
     assert "EPSG:32633" in text and "convergence 0.65" in text and "scale factor 0.9997" in text
+    assert "SPZ v2 (14 fractional bits or more): positions within 30.5 µm" in text  # ±500 m: 2^-15 m
+    assert summary.position_quantisation_m == 2.0**-15
     assert math.isfinite(summary.placement_error_m)

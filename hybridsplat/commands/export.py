@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -38,6 +39,12 @@ def export(
     spz_version: int = typer.Option(
         SPZ_VERSION, help="SPZ version of .spz outputs: 2 (every reader) or 3 (rotations exact near 180°)."
     ),
+    gltf_compression: str = typer.Option(
+        "spz",
+        "--gltf-compression",
+        help="glTF tiles of a tileset.json output: spz (KHR_gaussian_splatting_compression_spz_2, SPZ v2: what "
+        "CesiumJS draws as splats) or none (float32 KHR_gaussian_splatting attributes; CesiumJS shows points).",
+    ),
     layers: str | None = typer.Option(
         None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
     ),
@@ -54,6 +61,7 @@ def export(
         gs = select_layers(read_gaussian_ply(gaussians), chosen)
         crs = read_crs(gaussians)  # the input's CRS goes with every output
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields, crs, spz_version)
+    options = replace(options, gltf_compression=gltf_compression.lower())
     reports = []
     with output_transaction():  # every output (and sidecar) appears, or none does
         for path in out:
