@@ -172,11 +172,11 @@ def experiments(args, train_sets: dict[str, SceneData]) -> dict[str, tuple]:
     return out
 
 
-def score_scene(label: str, model, n: str, d: SceneData, classes, args) -> dict:
-    """Point scores of one scene (and, for the main model, its masks and the no-model fallback), printed."""
+def score_scene(label: str, model, n: str, d: SceneData, classes, args, with_masks: bool = False) -> dict:
+    """Point scores of one scene (and, ``with_masks``, its masks and the no-model fallback), printed."""
     sc = point_scores(model, d, classes)
     pred = sc.pop("pred")
-    if label == "main" and not args.no_masks:
+    if with_masks and not args.no_masks:
         mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
         sc["masks"] = m = mask_scores(d, pred.needs_splats, classes, mask_options)
         print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
@@ -240,7 +240,7 @@ def part_score(args) -> dict:
             main_model = model
             res["importances_top15"] = dict(sorted(report.importances.items(), key=lambda x: -x[1])[:15])
         for n, d in test_sets.items():
-            res[n] = score_scene(label, model, n, d, classes, args)
+            res[n] = score_scene(label, model, n, d, classes, args, with_masks=label == "main")
         with_positives = [res[n]["f1"] for n, d in test_sets.items() if d.truth.needs_splats[d.truth.scored].any()]
         if with_positives:
             res["min_f1"], res["mean_f1"] = float(min(with_positives)), float(np.mean(with_positives))
@@ -261,7 +261,7 @@ def score_model_file(path: Path, test_sets: dict[str, SceneData], classes, args)
     model = load_model(path)
     res: dict = {"threshold": model.info.get("threshold"), "scenes": model.info.get("scenes")}
     for n, d in test_sets.items():
-        res[n] = score_scene(f"model {path.name}", model, n, d, classes, args)
+        res[n] = score_scene(f"model {path.name}", model, n, d, classes, args, with_masks=True)
     f1s = [res[n]["f1"] for n, d in test_sets.items() if d.truth.needs_splats[d.truth.scored].any()]
     if f1s:
         res["min_f1"], res["mean_f1"] = float(min(f1s)), float(np.mean(f1s))
