@@ -179,6 +179,7 @@ def score_scene(label: str, model, n: str, d: SceneData, classes, args, with_mas
     if with_masks and not args.no_masks:
         mask_options = MaskOptions(dilate_px=args.dilate_px, dilate_spacings=args.dilate_spacings)
         sc["masks"] = m = mask_scores(d, pred.needs_splats, classes, mask_options)
+        sc["masks_with_true_classes"] = mask_scores(d, d.truth.needs_splats, classes, mask_options)
         print(f"  masks {n}: cover {m['coverage_of_needs']:.3f} of the truly-needs pixels, "
               f"{m['coverage_of_rest_incl_background']:.3f} of the rest "
               f"({m['coverage_of_rest_scene']:.3f} of the rest without background)")  # fmt: skip
