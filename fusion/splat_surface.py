@@ -48,6 +48,14 @@ from core.gaussians import GaussianSet
 from core.options import enum_choice
 
 
+SIGMA_FOOTPRINT = 0.0
+"""σ model: weight of the reference view's pixel footprint (z / f) — see :func:`sigma_model`."""
+SIGMA_ROUGHNESS = 0.0
+"""σ model: weight of the RMS normal offset of the nearest fused surface points."""
+SIGMA_ANCHOR = 0.0
+"""σ model: weight of the median normal offset of the nearest anchor (fused MVS) points."""
+
+
 class SurfaceDepth(str, Enum):
     """The rendered depth a point is taken from: the ray–plane depth of the blended flat splats, or the median
     Gaussian's depth (:class:`fusion.render.types.RenderGeometry`)."""
@@ -62,8 +70,11 @@ class SplatSurfaceOptions:
 
     depth: :class:`SurfaceDepth`. min_agreeing: other views that must agree (k ≥ 1). max_reproj_px: forward–backward
     reprojection error (px). max_rel_depth: relative depth difference of the round trip. front_margin: relative
-    depth behind the front surface beyond which a point is a virtual image. sigma_floor_px: smallest σ in pixel
-    footprints of the reference view (the rendered depth is one sample per pixel).
+    depth behind the front surface beyond which a point is a virtual image. sigma_floor_px: smallest spread in pixel
+    footprints of the reference view (the rendered depth is one sample per pixel). sigma_footprint,
+    sigma_roughness, sigma_anchor, sigma_neighbours: the σ model (:func:`sigma_model`): weights of the pixel
+    footprint, of the local roughness among the fused points and of the disagreement with the anchor (MVS)
+    surface along the normal, over ``sigma_neighbours`` nearest points each.
     """
 
     depth: SurfaceDepth = SurfaceDepth.PLANE
@@ -72,6 +83,10 @@ class SplatSurfaceOptions:
     max_rel_depth: float = 0.01
     front_margin: float = 0.01
     sigma_floor_px: float = 0.1
+    sigma_footprint: float = SIGMA_FOOTPRINT
+    sigma_roughness: float = SIGMA_ROUGHNESS
+    sigma_anchor: float = SIGMA_ANCHOR
+    sigma_neighbours: int = 8
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "depth", enum_choice(SurfaceDepth, self.depth, "depth"))
@@ -81,6 +96,10 @@ class SplatSurfaceOptions:
             raise ConfigError("need max_reproj_px > 0, max_rel_depth > 0 and front_margin >= 0")
         if not self.sigma_floor_px >= 0:
             raise ConfigError(f"sigma_floor_px must be >= 0, got {self.sigma_floor_px}")
+        if not min(self.sigma_footprint, self.sigma_roughness, self.sigma_anchor) >= 0:
+            raise ConfigError("need sigma_footprint, sigma_roughness and sigma_anchor >= 0")
+        if self.sigma_neighbours < 1:
+            raise ConfigError(f"sigma_neighbours must be >= 1, got {self.sigma_neighbours}")
 
 
 @dataclass(frozen=True)
@@ -89,11 +108,13 @@ class SplatSurfacePoints:
 
     positions: (N, 3) float64 metres, cameras' local frame. normals: (N, 3) float64 unit, the rendered normal,
     facing the reference camera. colours: (N, 3) float32 rendered colour in [0, 1]. sigma: (N,) float64 metres,
-    the spread of the agreeing views along the normal (floored). confidence: (N,) float64 in (0, 1]. n_views: (N,)
-    int32 views that agree, the reference included (≥ 1 + min_agreeing). reference: (N,) int32 index (in
+    the point's σ (:func:`sigma_model`). confidence: (N,) float64 in (0, 1]. n_views: (N,) int32 views that agree,
+    the reference included (≥ 1 + min_agreeing). reference: (N,) int32 index (among the masked views, in
     ``cameras`` order) of the view the point was taken from. counts: pixels per outcome (``candidates``: mask
     pixels with a valid depth; ``virtual``; ``inconsistent``: fewer than k views agree; ``used``: already fused
-    from an earlier view; ``kept``).
+    from an earlier view; ``kept``). spread: (N,) float64 metres, the spread of the agreeing views along the normal
+    (floored at ``sigma_floor_px`` footprints). footprint: (N,) float64 metres, the reference view's pixel
+    footprint at the point (z / f).
     """
 
     positions: np.ndarray
@@ -104,6 +125,8 @@ class SplatSurfacePoints:
     n_views: np.ndarray
     reference: np.ndarray
     counts: dict[str, int] = field(default_factory=dict)
+    spread: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    footprint: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __len__(self) -> int:
         return int(self.positions.shape[0])
@@ -230,8 +253,8 @@ def _fuse_view(
     ref: int, surfaces: list[_ViewSurface], used: list[np.ndarray], options: SplatSurfaceOptions,
     counts: dict[str, int],
 ) -> tuple[np.ndarray, ...] | None:  # fmt: skip
-    """The kept points of reference view ``ref`` (positions, normals, colours, σ, confidence, n_views), marking the
-    pixels they consumed in ``used``; None when none is kept."""
+    """The kept points of reference view ``ref`` (positions, normals, colours, spread, confidence, n_views,
+    footprint), marking the pixels they consumed in ``used``; None when none is kept."""
     s = surfaces[ref]
     rows, cols = np.nonzero(s.depth > 0)
     counts["candidates"] += len(rows)
@@ -260,7 +283,7 @@ def _fuse_view(
     normal = s.normal[r, c]
     positions = s.points(r, c, d) + mean[:, None] * normal
     confidence = ag.count[keep] / np.maximum(ag.seen[keep], 1)
-    return positions, normal, s.colour[r, c], sigma, confidence, (1 + ag.count[keep]).astype(np.int32)
+    return positions, normal, s.colour[r, c], sigma, confidence, (1 + ag.count[keep]).astype(np.int32), footprint
 
 
 def splat_surface_points(
@@ -269,6 +292,7 @@ def splat_surface_points(
     masks: Mapping[str, np.ndarray],
     front_depths: Mapping[str, np.ndarray] | None = None,
     options: SplatSurfaceOptions | None = None,
+    anchors: np.ndarray | None = None,
 ) -> SplatSurfacePoints:
     """Survey points of the surface ``splats`` render, checked across views (see the module docstring).
 
@@ -276,6 +300,8 @@ def splat_surface_points(
     views (undistorted), the local frame of the output. masks: image name → (H, W) bool region mask at the
     camera's size (views without a mask are skipped; they neither give nor check points). front_depths: image
     name → (H, W) z-depth (metres) of the front surface of mirrors / glass in that view, 0 where unknown.
+    anchors: (M, 3) points of an independent surface estimate in the cameras' local frame (the fused MVS cloud)
+    for the σ model's anchor term (None or empty: that term is 0).
     """
     opts = options or SplatSurfaceOptions()
     views = [v for v in cameras if v.name in masks]
@@ -301,9 +327,43 @@ def splat_surface_points(
         empty = np.zeros((0, 3))
         return SplatSurfacePoints(empty, empty.copy(), np.zeros((0, 3), np.float32), np.zeros(0), np.zeros(0),
                                   np.zeros(0, np.int32), np.zeros(0, np.int32), counts)  # fmt: skip
-    cols = [np.concatenate([p[k] for p in parts]) for k in range(6)]
-    return SplatSurfacePoints(cols[0], cols[1], cols[2].astype(np.float32), cols[3], cols[4],
-                              cols[5].astype(np.int32), np.concatenate(refs), counts)  # fmt: skip
+    cols = [np.concatenate([p[k] for p in parts]) for k in range(7)]
+    sigma = sigma_model(cols[0], cols[1], cols[3], cols[6], anchors, opts)
+    return SplatSurfacePoints(cols[0], cols[1], cols[2].astype(np.float32), sigma, cols[4], cols[5].astype(np.int32),
+                              np.concatenate(refs), counts, cols[3], cols[6])  # fmt: skip
+
+
+def sigma_model(
+    positions: np.ndarray, normals: np.ndarray, spread: np.ndarray, footprint: np.ndarray,
+    anchors: np.ndarray | None, options: SplatSurfaceOptions,
+) -> np.ndarray:  # fmt: skip
+    """σ (N,) float64 metres of fused splat-surface points: σ² = spread² + (a·footprint)² + (b·roughness)² +
+    (c·anchor)², a, b, c = ``sigma_footprint``, ``sigma_roughness``, ``sigma_anchor``.
+
+    The spread of the agreeing views misses the bias that all views share (they render the same fill layer), so
+    two terms measure the rendered surface against its neighbourhood: roughness = the RMS normal offset
+    n·(X_k − X) of the ``sigma_neighbours`` nearest other fused points (a surface the views agree on but that
+    is rough or layered); anchor = |median n·(M_k − X)| over the ``sigma_neighbours`` nearest ``anchors`` M (the
+    MVS surface at and around the hole: how far the point lies off it along its normal, a floater above a table
+    or a virtual layer behind a pane). positions, normals: (N, 3) local frame; spread, footprint: (N,) metres.
+    """
+    from scipy.spatial import cKDTree
+
+    pos = np.asarray(positions, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    var = np.asarray(spread, np.float64) ** 2 + (options.sigma_footprint * np.asarray(footprint, np.float64)) ** 2
+    k = options.sigma_neighbours
+    if options.sigma_roughness > 0 and len(pos) > 1:
+        _, nb = cKDTree(pos).query(pos, k=min(k + 1, len(pos)))
+        off = np.einsum("ikj,ij->ik", pos[nb[:, 1:]] - pos[:, None], nrm)
+        var += options.sigma_roughness**2 * (off**2).mean(axis=1)
+    if options.sigma_anchor > 0 and anchors is not None and len(anchors) and len(pos):
+        ref = np.asarray(anchors, np.float64).reshape(-1, 3)
+        _, nb = cKDTree(ref).query(pos, k=min(k, len(ref)))
+        nb = nb.reshape(len(pos), -1)
+        off = np.median(np.einsum("ikj,ij->ik", ref[nb] - pos[:, None], nrm), axis=1)
+        var += (options.sigma_anchor * off) ** 2
+    return np.sqrt(var)
 
 
 def front_depths_from_points(

@@ -248,9 +248,10 @@ def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any
     masks = project_io.read_region_masks(layout, views.cameras, training=True)
     masks = {k: m for k, m in masks.items() if k not in held_out and m.any() and len(splats)}  # none: nothing to render
     front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
-    found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points)
-    surface = as_point_set(found, views.cameras.origin)
     mvs, needs = mvs_needs
+    anchors = mvs.with_origin(views.cameras.origin).means  # the σ model's anchor surface: every fused MVS point
+    found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points, anchors)
+    surface = as_point_set(found, views.cameras.origin)
     support = None
     if opts.splat_surface_support is not None:
         support = (mvs.with_origin(products.points.origin).means, opts.splat_surface_support * views.spacing)
