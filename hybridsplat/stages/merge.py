@@ -234,7 +234,8 @@ def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any
     """Adds the splat-surface points of the cleaned fill layer (``splats``) to ``products.points`` and their counts
     to ``products.counts["splat_surface"]``: rendered in the training views (held-out photos left out) inside their
     training masks, the trusted MVS points (``views.trusted``) as the front surface, supported by the MVS Gaussians
-    (``splat_surface_support``), counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
+    (``splat_surface_support``; they are also the anchors of the σ model, :func:`fusion.splat_surface.sigma_model`),
+    counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
     the MVS Gaussians and their ``needs`` flags)."""
     import numpy as np
 
