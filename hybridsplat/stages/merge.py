@@ -303,15 +303,19 @@ def _same_rows(viewer: Any, survey: Any) -> Any:
 
 def _background_layer(path: Path | None, merged: Any) -> Any:
     """The background layer (splats/background.ply) with the merged set's fields (``source`` = BACKGROUND, the
-    others 0), or None when there is none."""
+    others 0), or None when there is none. Gaussians below the exporters' opacity threshold
+    (``ExportOptions.min_opacity``, invisible once quantised) are left out here, so that the layer's count in the
+    stage record is what export/merged.ply holds."""
     import numpy as np
 
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.convert_options import Source
+    from fusion.export import ExportOptions
 
     if path is None or not path.is_file():
         return None
     background = read_gaussian_ply(path)
+    background = background.subset(background.opacities >= np.float32(ExportOptions().min_opacity))
     if len(background) == 0:
         return None
     n = len(background)
