@@ -4,8 +4,8 @@ Training data: procedural data_synth layouts (``random-object`` and ``random-aer
 ``classify.training.DEFAULT_TRAINING_SCENES``), the even seeds at 24 views of 320×240, the odd ones at 16
 requested views of 288×216 (two sampling densities), 2 held-out views each, reconstructed with ``hybridsplat sfm``
 (the scene's known cameras) and ``hybridsplat mvs --threads 1`` (CPU MVS). Labels: the scenes' truth (τ = 3 GSD),
-the ignore band (points within τ of both kinds of surface) kept in training (leaving it out scored lower on the
-scored layouts' band-ignored F1: docs/experiments/2026-11-27-classify-procedural.md).
+the ignore band (points within τ of both kinds of surface) kept in training (a choice made on the scored layouts,
+not on training layouts: docs/experiments/2026-11-27-classify-procedural.md says so and what to redo).
 Forest: 32 trees, depth ≤ 14, leaves ≥ 5 points, balanced class weights, seed 0, probabilities smoothed once over
 the finest neighbourhood; the needs-splats threshold is chosen on leave-one-scene-out predictions (each scene
 predicted by a forest that never saw it, the scenes dealt to 6 folds; ``classify.training.train_on_scenes``). Scoring
