@@ -109,9 +109,13 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
     tau = 3.0 * scene.gsd_m
     collab = {m.id for m in scene.materials if m.collaborative}
     seen = SeenInView(data.cloud.visibility, data.cloud.colors, lambda name: read_image(workspace.images / name))
+    t0 = time.perf_counter()
     masks = region_masks(cams, data.cloud.positions, needs, spacing, options, seen=seen)
+    seconds = time.perf_counter() - t0
     tree = cKDTree(data.cloud.positions)
-    tot = {"need": 0, "need_hit": 0, "rest_scene": 0, "rest_scene_hit": 0, "rest_all": 0, "rest_all_hit": 0}
+    lo, hi = _survey_box(data.cloud.positions, tau)
+    tot = {k: 0 for k in ("need", "need_hit", "rest_scene", "rest_scene_hit", "rest_all", "rest_all_hit",
+                          "need_in", "need_in_hit", "need_out", "need_out_hit", "bg", "bg_hit")}  # fmt: skip
     empty = 0
     coverage = []
     for pm in masks:
@@ -120,19 +124,22 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
         depth = scene.depth("train", pm.name)
         dist = distance_to_cloud(cams, view, depth, tree)
         truth = pixel_truth(scene.labels("train", pm.name), depth, collab, dist, tau)
+        inside = _true_points_in_box(cams, view, depth, lo, hi)
         m = pm.mask
-        tot["need"] += int(truth.needs.sum())
-        tot["need_hit"] += int((m & truth.needs).sum())
-        rest = ~truth.needs
-        tot["rest_all"] += int(rest.sum())
-        tot["rest_all_hit"] += int((m & rest).sum())
-        rs = rest & ~truth.background
-        tot["rest_scene"] += int(rs.sum())
-        tot["rest_scene_hit"] += int((m & rs).sum())
+        for key, sel in (("need", truth.needs), ("need_in", truth.needs & inside), ("need_out", truth.needs & ~inside),
+                         ("rest_all", ~truth.needs), ("rest_scene", ~truth.needs & ~truth.background),
+                         ("bg", truth.background)):  # fmt: skip
+            tot[key] += int(sel.sum())
+            tot[key + "_hit"] += int((m & sel).sum())
         empty += pm.empty
     return {
         "views": len(masks),
         "empty_masks": empty,
+        "seconds_per_view": seconds / max(len(masks), 1),
+        "coverage_of_needs_in_box": tot["need_in_hit"] / max(tot["need_in"], 1),
+        "coverage_of_needs_outside_box": tot["need_out_hit"] / max(tot["need_out"], 1),
+        "needs_outside_box_share": tot["need_out"] / max(tot["need"], 1),
+        "coverage_of_background": tot["bg_hit"] / max(tot["bg"], 1),
         "coverage_of_needs": tot["need_hit"] / max(tot["need"], 1),
         "coverage_of_rest_scene": tot["rest_scene_hit"] / max(tot["rest_scene"], 1),
         "coverage_of_rest_incl_background": tot["rest_all_hit"] / max(tot["rest_all"], 1),
@@ -140,6 +147,25 @@ def mask_scores(data: SceneData, needs: np.ndarray, classes, options: MaskOption
         "mean_mask_coverage": float(np.mean(coverage)) if coverage else 0.0,
         "training_needed": empty < len(masks),
     }
+
+
+def _survey_box(positions: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fused cloud's 1st-99th percentile box per axis, grown by ``tau``: the survey region's bounds as the
+    background layer sees them (truth for the masks: a needs-splats pixel whose true surface lies outside them is
+    the background layer's, not the fill's)."""
+    lo, hi = np.percentile(positions, [1.0, 99.0], axis=0)
+    return lo - tau, hi + tau
+
+
+def _true_points_in_box(cams, view, depth: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose true surface point (true z-depth at the pixel centre) lies in the box."""
+    h, w = depth.shape
+    rows, cols = np.mgrid[0:h, 0:w]
+    ok = depth > 0
+    pts = cams.unproject(view, np.c_[cols[ok] + 0.5, rows[ok] + 0.5], depth[ok].astype(np.float64))
+    out = np.zeros((h, w), dtype=bool)
+    out[ok] = np.all((pts >= lo) & (pts <= hi), axis=1)
+    return out
 
 
 def ablation_groups() -> dict[str, tuple[FeatureGroup, ...]]:

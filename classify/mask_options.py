@@ -22,6 +22,7 @@ class HoleArea(str, Enum):
     HULL = "hull"
     BELOW = "below"
     ENCLOSED = "enclosed"
+    REGION = "region"
 
 
 class ExplainedBy(str, Enum):

@@ -31,7 +31,7 @@ class MasksStage(Stage):
             "dilate_spacings", help="Dilation radius in point spacings at the photo's median depth, when larger."
         ),
         CliOption("holes", help="Add MVS holes to the masks."),
-        CliOption("hole_area", help="Where holes are looked for: hull_below | hull | below | enclosed."),
+        CliOption("hole_area", help="Where holes are looked for: hull_below | hull | below | enclosed | region."),
         CliOption("explained_by", help="Points that explain pixels: seen (fused by the photo or of its colour) | all."),
         CliOption("hole_gsd", help="Radius (ground sample distances) within which a point explains pixels."),
         CliOption("grow_area", help="GrabCut iterations growing the hole area by what looks like the scene (0 off)."),
