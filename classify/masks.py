@@ -540,10 +540,11 @@ def hole_region(
 ) -> SurveyRegion:
     """The survey region of ``hole_area="region"`` (:mod:`classify.survey_region`): the cloud's height field along
     ``options.up`` with cells of the radius within which a point explains pixels (``hole_gsd`` × the cloud's GSD,
-    ``gsd`` or computed over ``cameras``; ``hole_footprint`` × ``spacing`` when ``hole_gsd`` is 0)."""
+    ``gsd`` or computed over ``cameras``; ``hole_footprint`` × ``spacing`` when ``hole_gsd`` is 0), and at least
+    the point ``spacing``, so that a sampled surface occupies neighbouring cells."""
     cell = options.hole_footprint * spacing
     if options.hole_gsd > 0:
         g = gsd if gsd is not None and gsd > 0 else ground_sample_distance(cameras, positions)
         if g > 0:
             cell = options.hole_gsd * g
-    return survey_region(positions, np.asarray(options.up, dtype=np.float64), cell)
+    return survey_region(positions, np.asarray(options.up, dtype=np.float64), max(cell, spacing))

@@ -95,7 +95,7 @@ def survey_region(positions: np.ndarray, up: np.ndarray, cell: float, max_cells:
     np.maximum.at(top, (i1, i2), local[:, 2] - low[2])
     occupied = np.isfinite(top)
     footprint = _hull_of(occupied)
-    # Enclosed empty cells take the height of the nearest occupied cell.
+    # Empty cells of the footprint take the height of the nearest occupied cell.
     _, (n1, n2) = ndimage.distance_transform_edt(~occupied, return_indices=True)
     heights = np.where(footprint, top[n1, n2], np.nan)
     return SurveyRegion(frame, np.array([low[0], low[1], low[2]]), float(cell), heights, occupied)

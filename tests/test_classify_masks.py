@@ -67,9 +67,15 @@ def test_holes_inside_the_cloud_but_not_at_the_border():
     rows, cols = np.nonzero(pm.mask)
     assert cols.min() >= 30 and cols.max() <= 60 and rows.min() >= 20 and rows.max() <= 40
     assert not pm.mask[:, :5].any()
-    # hull_below (default): a nadir photo sees no sky, so the uncovered band at the border is a hole too.
+    # hull_below: a nadir photo sees no sky, so the uncovered band at the border is a hole too (the region rule,
+    # opt-in, leaves it to the background: tests/test_survey_region.py).
     nadir = photo_mask(
-        cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0)
+        cams,
+        view,
+        pts,
+        np.zeros(len(pts), bool),
+        0.01,
+        MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0, hole_area="hull_below"),
     )
     assert nadir.mask[:, :5].all() and nadir.mask[30, 45] and not nadir.mask[10, 70]
 
@@ -196,7 +202,7 @@ def test_area_grows_over_unreconstructed_surface_that_looks_like_the_scene():
     colors = np.tile(np.array([140, 90, 40], np.uint8), (len(wall), 1))
     seen = SeenInView(None, colors, lambda name: photo)
     flags = np.zeros(len(wall), bool)
-    base = dict(close_px=0, dilate_px=0, dilate_spacings=0)
+    base = dict(close_px=0, dilate_px=0, dilate_spacings=0, hole_area="hull_below")
     grown = photo_mask(cams, view, wall, flags, 0.01, MaskOptions(**base), seen=seen)
     plain = photo_mask(cams, view, wall, flags, 0.01, MaskOptions(grow_area=0, **base), seen=seen)
     assert grown.mask[22:37, 5:75].all() and not grown.mask[:19].any() and not grown.mask[42:].any()

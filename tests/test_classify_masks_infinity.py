@@ -97,7 +97,9 @@ def test_the_environment_beside_the_reconstructed_square_is_no_hole_but_a_missin
     view = cams.by_name("v1.png")
 
     def holes(infinity: bool) -> np.ndarray:
-        opts = MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0, grow_area=0, infinity=infinity)
+        opts = MaskOptions(
+            close_px=0, dilate_px=0, dilate_spacings=0, grow_area=0, infinity=infinity, hole_area="hull_below"
+        )
         return photo_mask(cams, view, pts[~patch], np.zeros(int((~patch).sum()), bool), 0.01, opts, seen=seen).mask
 
     with_test, without = holes(True), holes(False)

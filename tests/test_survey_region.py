@@ -110,8 +110,8 @@ def test_nadir_floor_gap_is_region_and_beyond_the_floor_is_not():
     gap_px = (np.abs(x - 0.05) < 0.04)[None, :] & (np.abs(-(np.arange(60) + 0.5 - 30) / 100) < 0.04)[:, None]
     assert pm.mask[gap_px].all()
     assert not pm.mask[:, outside].any()  # hull_below counts that band as holes (a nadir photo sees no sky)
-    nadir = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01, MaskOptions(close_px=0, dilate_px=0,
-                                                                                       dilate_spacings=0))  # fmt: skip
+    nadir = photo_mask(cams, view, pts, np.zeros(len(pts), bool), 0.01,
+                       MaskOptions(close_px=0, dilate_px=0, dilate_spacings=0, hole_area="hull_below"))  # fmt: skip
     assert nadir.mask[:, outside].mean() > 0.5  # most of the band
 
 

@@ -16,6 +16,9 @@ from classify.mask_options import MaskOptions
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
 
+HOLE_AREA_HELP = ("Where MVS holes are looked for: hull_below | hull | below | enclosed | region (the rays that "
+                  "meet the survey region; the others are background).")  # fmt: skip
+
 
 class MasksStage(Stage):
     name = "masks"
@@ -31,12 +34,14 @@ class MasksStage(Stage):
             "dilate_spacings", help="Dilation radius in point spacings at the photo's median depth, when larger."
         ),
         CliOption("holes", help="Add MVS holes to the masks."),
-        CliOption("hole_area", help="Where holes are looked for: hull_below | hull | below | enclosed | region."),
+        CliOption("hole_area", help=HOLE_AREA_HELP),
         CliOption("explained_by", help="Points that explain pixels: seen (fused by the photo or of its colour) | all."),
         CliOption("hole_gsd", help="Radius (ground sample distances) within which a point explains pixels."),
         CliOption("grow_area", help="GrabCut iterations growing the hole area by what looks like the scene (0 off)."),
         CliOption("infinity", help="Pixels at infinity (no parallax: sky, backdrop) are no holes."),
     )
+
+    run_options = (CliOption("hole_area", help=HOLE_AREA_HELP),)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.sparse]
