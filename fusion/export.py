@@ -200,18 +200,24 @@ def export_sog(path: str | PathLike[str], gaussians: GaussianSet, options: Expor
 
 
 def export_tileset(
-    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+    path: str | PathLike[str],
+    gaussians: GaussianSet,
+    options: ExportOptions | None = None,
+    points: PointCloud | str | PathLike[str] | None = None,
+    mesh: str | PathLike[str] | None = None,
 ) -> ExportReport:
     """Write a 3D Tiles 1.1 tileset of glTF ``KHR_gaussian_splatting`` tiles at ``path`` (a ``tileset.json``; the
     GLBs go into one folder per layer beside it), placed on the earth through ``options.crs`` (its root transform;
-    no CRS: the origin as translation), SPZ-compressed unless ``options.gltf_compression`` is ``none``. See
-    :mod:`fusion.tiles3d`."""
+    no CRS: the origin as translation), SPZ-compressed unless ``options.gltf_compression`` is ``none``. ``points``
+    (the survey points: a cloud or a file such as export/merged_points.ply) and ``mesh`` (a ``.glb``, e.g.
+    export/mesh.glb) go beside the splats as a point-cloud layer and a mesh tile, in the same frame; the export
+    filters (crop, opacity) apply to the Gaussians only. See :mod:`fusion.tiles3d` and :mod:`fusion.tiles3d_points`."""
     from fusion.tiles3d import TilesetOptions, write_splat_tileset
 
     options = options or ExportOptions()
     prep = prepare(gaussians, options)
     tiles = TilesetOptions(compression=options.gltf_compression)  # type: ignore[arg-type]
-    summary = write_splat_tileset(prep.gaussians, path, options.crs, tiles)
+    summary = write_splat_tileset(prep.gaussians, path, options.crs, tiles, points=points, mesh=mesh)
     report = _report(Path(path), "3d-tiles", prep)
     report.notes = summary.lines()
     return report

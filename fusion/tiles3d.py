@@ -5,6 +5,7 @@
     tileset.json                every layer: root (transform) → one tile per layer → k-d tree → leaf contents
     survey/tileset.json         the same tiles of one layer alone (when ``layer_tilesets``), same transform
     survey/r.glb, survey/r01.glb, …   one GLB per leaf tile (fusion.gltf_splats layout); fill/…, background/…
+    survey_points/…, mesh/mesh.glb    optional: the survey points and a mesh in the same frame (fusion.tiles3d_points)
 
 3D Tiles conventions followed (CesiumGS/3d-tiles ``specification/README.adoc``, head 390f766, 2026-04-30)
 -------------------------------------------------------------------------------------------------------
@@ -85,6 +86,7 @@ from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from core.io.atomic import check_output_file, output_transaction, remove_output, write_bytes_atomic
 from core.io.json_io import write_json_atomic
+from core.pointcloud import PointCloud
 from fusion.convert_options import LAYERS, Source
 from fusion.gltf_splats import (
     EXTENSION,
@@ -120,7 +122,8 @@ class TilesetWarning(UserWarning):
 class TilesetOptions:
     """Options of :func:`write_splat_tileset`.
 
-    ``max_splats_per_tile``: most splats in one leaf GLB (≥ 1; 100 000 ≈ 6 MB at SH degree 0, 24 MB at degree 3).
+    ``max_splats_per_tile``: most splats in one leaf GLB (≥ 1; 100 000 ≈ 6 MB at SH degree 0, 24 MB at degree 3);
+    also the most survey points in one point tile (100 000 points ≈ 1.6 MB).
     ``placement``: ``exact`` or ``grid`` (ignored without a CRS). ``color_space``: the extension's ``colorSpace``.
     ``layer_tilesets``: also write ``<layer>/tileset.json`` per layer (same tiles, same transform).
     ``compression``: ``spz`` (default; ``KHR_gaussian_splatting_compression_spz_2``, the form CesiumJS draws as
@@ -164,14 +167,16 @@ class TileRecord:
 
 @dataclass(frozen=True)
 class LayerRecord:
-    """One layer: name, ``source`` code, splats, leaf tiles, bytes of its GLBs, its own tileset (or None)."""
+    """One layer: name, ``source`` code (None for the survey points and the mesh), splats (points, mesh vertices),
+    leaf tiles, bytes of its GLBs, its own tileset (or None), kind (``splats``, ``points`` or ``mesh``)."""
 
     name: str
-    source: int
+    source: int | None
     splats: int
     tiles: int
     bytes: int
     tileset: str | None
+    kind: str = "splats"
 
 
 @dataclass(frozen=True)
@@ -220,9 +225,16 @@ class TilesetSummary:
 
     def lines(self) -> list[str]:
         """A short human-readable report (one item per line)."""
-        out = [f"{self.path}: {self.splats} splats in {len(self.tiles)} tiles, {self.bytes / 1e6:.1f} MB"]
+        splat_tiles = sum(layer.tiles for layer in self.layers if layer.kind == "splats")
+        more = len(self.tiles) - splat_tiles
+        beside = f" (+ {more} tiles of survey points or mesh)" if more else ""
+        out = [f"{self.path}: {self.splats} splats in {splat_tiles} tiles{beside}, {self.bytes / 1e6:.1f} MB"]
         for layer in self.layers:
-            out.append(f"  layer {layer.name} (source {layer.source}): {layer.splats} splats, {layer.tiles} tiles")
+            if layer.kind == "splats":
+                out.append(f"  layer {layer.name} (source {layer.source}): {layer.splats} splats, {layer.tiles} tiles")
+            else:
+                items = "points" if layer.kind == "points" else "vertices"
+                out.append(f"  layer {layer.name}: {layer.splats} {items}, {layer.tiles} tiles")
         if self.crs is None:
             out.append("  not georeferenced (no CRS): the root transform is the translation by the origin")
         else:
@@ -595,11 +607,13 @@ def _schema() -> dict[str, Any]:
         "classes": {
             "layer": {
                 "name": "Layer",
-                "description": "A layer of the merged product: the source code of its Gaussians (Source in "
-                "fusion/convert_options.py: 1 survey (MVS), 2 fill (trained splats), 3 background).",
+                "description": "A layer of the merged product: its kind (splats, points: the survey points, mesh) "
+                "and, for splats, the source code of its Gaussians (Source in fusion/convert_options.py: 1 survey "
+                "(MVS), 2 fill (trained splats), 3 background).",
                 "properties": {
                     "name": {"type": "STRING", "required": True},
-                    "source": {"type": "SCALAR", "componentType": "UINT8", "required": True},
+                    "kind": {"type": "STRING", "required": True},
+                    "source": {"type": "SCALAR", "componentType": "UINT8"},
                 },
             }
         },
@@ -617,10 +631,22 @@ def gltf_extensions(compression: GltfCompression) -> dict[str, list[str]]:
     return {"extensionsUsed": [EXTENSION, "KHR_materials_unlit"]}
 
 
+def _group(name: str, code: int | None) -> dict[str, Any]:
+    """A metadata group of class ``layer``: splat layers carry their ``source`` code, the others none."""
+    if code is None:
+        from fusion.tiles3d_points import KINDS
+
+        return {"class": "layer", "properties": {"name": name, "kind": KINDS[name]}}
+    return {"class": "layer", "properties": {"name": name, "kind": "splats", "source": code}}
+
+
 def _tileset_json(
-    layers: list[tuple[str, int, dict[str, Any]]], frame: _Frame, extras: dict[str, Any], gltf: dict[str, list[str]]
+    layers: list[tuple[str, int | None, dict[str, Any]]],
+    frame: _Frame,
+    extras: dict[str, Any],
+    gltf: dict[str, list[str]],
 ) -> dict[str, Any]:
-    """A tileset whose root (with the transform) holds one subtree per layer (name, code, tile)."""
+    """A tileset whose root (with the transform) holds one subtree per layer (name, code or None, tile)."""
     boxes = np.array([t["boundingVolume"]["box"] for _, _, t in layers])
     lo = (boxes[:, :3] - boxes[:, [3, 7, 11]]).min(axis=0)
     hi = (boxes[:, :3] + boxes[:, [3, 7, 11]]).max(axis=0)
@@ -631,7 +657,7 @@ def _tileset_json(
         "extensionsUsed": ["3DTILES_content_gltf"],
         "extensions": {"3DTILES_content_gltf": {k: list(v) for k, v in gltf.items()}},
         "schema": _schema(),
-        "groups": [{"class": "layer", "properties": {"name": name, "source": code}} for name, code, _ in layers],
+        "groups": [_group(name, code) for name, code, _ in layers],
         "geometricError": error,
         "root": {
             "transform": [float(v) for v in frame.transform.T.reshape(-1)],  # column-major
@@ -648,6 +674,8 @@ def write_splat_tileset(
     out: str | PathLike[str],
     crs: str | None,
     options: TilesetOptions | None = None,
+    points: PointCloud | str | PathLike[str] | None = None,
+    mesh: str | PathLike[str] | None = None,
 ) -> TilesetSummary:
     """Write ``gaussians`` as a 3D Tiles 1.1 tileset of ``KHR_gaussian_splatting`` GLB tiles at ``out``.
 
@@ -663,6 +691,14 @@ def write_splat_tileset(
         The CRS of ``origin + local`` (e.g. ``"EPSG:32633"``; any pyproj input), or None: not georeferenced.
     options:
         :class:`TilesetOptions` (tile size, placement, colour space, per-layer tilesets).
+    points:
+        The survey points (a :class:`PointCloud`: positions float64 local metres, origin float64 world in ``crs``,
+        uint8 RGB colours or none; or a point-cloud file such as export/merged_points.ply, read with its origin
+        sidecar, whose CRS must be ``crs``): k-d tiled POINTS GLBs in ``survey_points/`` (metadata group
+        "survey points"), at most ``max_splats_per_tile`` per tile. See :mod:`fusion.tiles3d_points`.
+    mesh:
+        A ``.glb`` mesh (export/mesh.glb, with its ``mesh.origin.json`` sidecar) written as ``mesh/mesh.glb``, one
+        tile (metadata group "mesh").
 
     Returns a :class:`TilesetSummary` (counts and bytes per tile and layer, the transform, convergence, scale and
     measured placement error). Writes all files or none (one output transaction); GLBs named like ours
@@ -670,7 +706,8 @@ def write_splat_tileset(
 
     Raises :class:`ConfigError` naming ``out`` for an unknown or unusable CRS (geographic, left-handed axes, a
     ballpark datum transformation) or bad options; :class:`DataError` naming ``out`` for an empty set or NaN/inf
-    values (means, origin, scales, rotations, opacities, SH) or a zero quaternion.
+    values (means, origin, scales, rotations, opacities, SH) or a zero quaternion; errors of ``points`` and ``mesh``
+    (empty, NaN, not a GLB, another CRS, far from the splats) name their file (``out`` for an in-memory cloud).
     """
     options = options or TilesetOptions()
     out = Path(out)
@@ -692,8 +729,9 @@ def write_splat_tileset(
     ext = _extents(in_frame) + quantisation
 
     extras = _asset_extras(gaussians, crs, frame, options.compression)
+    others = _other_layers(points, mesh, gaussians.origin, crs, frame, int(options.max_splats_per_tile), out)
     with output_transaction():
-        tiles, records = _write_files(in_frame, _layers(gaussians), pos, ext, frame, out, options, extras)
+        tiles, records = _write_files(in_frame, _layers(gaussians), pos, ext, frame, out, options, extras, others)
     return TilesetSummary(
         path=out,
         crs=crs,
@@ -721,12 +759,16 @@ def _write_files(
     out: Path,
     options: TilesetOptions,
     extras: dict[str, Any],
+    others: list[Any],
 ) -> tuple[list[TileRecord], list[LayerRecord]]:
-    """Tile each layer, write its GLBs (and its own tileset), then ``out``; inside the caller's transaction."""
+    """Tile each layer, write its GLBs (and its own tileset), then the points and mesh layers (``others``,
+    :class:`fusion.tiles3d_points.ExtraLayer`), then ``out``; inside the caller's transaction."""
+    from fusion.tiles3d_points import layer_tileset_writer, write_extra_layers
+
     folder = out.parent
     tiles: list[TileRecord] = []
     records: list[LayerRecord] = []
-    subtrees: list[tuple[str, int, dict[str, Any]]] = []
+    subtrees: list[tuple[str, int | None, dict[str, Any]]] = []
     for group, (name, code, index) in enumerate(layers):
         tree = _build(pos, ext, index, int(options.max_splats_per_tile))
         written: dict[str, int] = {}
@@ -757,8 +799,30 @@ def _write_files(
         records.append(LayerRecord(name, code, len(index), len(written), sum(written.values()), layer_tileset))
     for stale in {layer_name(int(c)) for c in Source} - {r.name for r in records}:
         _remove_stale(folder / stale, set(), keep_tileset=False)
+
+    def own_tileset(ls: list[Any], gltf: dict[str, list[str]], note: str) -> dict[str, Any]:
+        return _tileset_json(ls, frame, {**extras, "glTF": note}, gltf)
+
+    own = layer_tileset_writer(folder, own_tileset, options.layer_tilesets)
+    more_tiles, more_records, more_subtrees = write_extra_layers(others, folder, len(subtrees), own)
+    tiles, records, subtrees = tiles + more_tiles, records + more_records, subtrees + more_subtrees
     write_json_atomic(out, _tileset_json(subtrees, frame, extras, gltf_extensions(options.compression)))
     return tiles, records
+
+
+def _other_layers(
+    points: Any, mesh: Any, origin: np.ndarray, crs: str | None, frame: _Frame, max_n: int, out: Path
+) -> list[Any]:
+    """The survey points' and the mesh's layers (:class:`fusion.tiles3d_points.ExtraLayer`), checked and encoded
+    before anything is written."""
+    from fusion.tiles3d_points import mesh_layer, points_layer
+
+    layers = []
+    if points is not None:
+        layers.append(points_layer(points, origin, crs, frame, max_n, out))
+    if mesh is not None:
+        layers.append(mesh_layer(mesh, origin, crs, frame))
+    return layers
 
 
 def _asset_extras(

@@ -7,10 +7,12 @@ from pathlib import Path
 
 import typer
 
+from core.errors import ConfigError
 from core.io.atomic import check_output_file, output_transaction
 from core.io.gaussian_ply import read_gaussian_ply
 from fusion.convert_options import parse_layers, select_layers
-from fusion.export import export_gaussians, export_points, is_compressed_ply_path
+from fusion.export import export_gaussians, export_points, export_tileset, is_compressed_ply_path, is_tileset_path
+from fusion.sog_format import is_sog_path
 from fusion.spz_format import SPZ_VERSION
 from hybridsplat.commands.convert import export_options, print_export
 
@@ -48,9 +50,23 @@ def export(
     layers: str | None = typer.Option(
         None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
     ),
+    survey_points: Path | None = typer.Option(
+        None,
+        "--survey-points",
+        help="tileset.json outputs only: add these survey points (e.g. export/merged_points.ply, with its origin "
+        "sidecar) as a 3D Tiles point-cloud layer (survey_points/).",
+    ),
+    mesh: Path | None = typer.Option(
+        None,
+        "--mesh",
+        help="tileset.json outputs only: add this mesh (a .glb such as export/mesh.glb, with its origin sidecar) as "
+        "one tile (mesh/mesh.glb).",
+    ),
 ) -> None:
-    """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .sog, .splat) or point clouds with class/source
-    fields (.ply, .las)."""
+    """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .sog, .splat, tileset.json) or point clouds
+    with class/source fields (.ply, .las). A tileset.json output can carry the survey points and the mesh beside the
+    splats (--survey-points, --mesh)."""
+    _refuse_layers_without_tileset(out, survey_points, mesh)
     for path in out:
         check_output_file(path)
     from core.io.origin import read_crs
@@ -67,10 +83,29 @@ def export(
         for path in out:
             if points and path.suffix.lower() == ".ply" and not is_compressed_ply_path(path):
                 reports.append(export_points(path, gs, options))
+            elif _is_tileset(path):
+                reports.append(export_tileset(path, gs, options, points=survey_points, mesh=mesh))
             else:
                 reports.append(export_gaussians(path, gs, options))
     for report in reports:
         print_export(report)
+
+
+def _is_tileset(path: Path) -> bool:
+    """A 3D Tiles output as :func:`fusion.export.export_gaussians` reads it: ``*.json``, not SOG's ``meta.json``."""
+    return is_tileset_path(path) and not is_sog_path(path)
+
+
+def _refuse_layers_without_tileset(out: list[Path], survey_points: Path | None, mesh: Path | None) -> None:
+    """--survey-points and --mesh only go into 3D Tiles: refuse them for any other output, in one line."""
+    given = [flag for flag, value in (("--survey-points", survey_points), ("--mesh", mesh)) if value is not None]
+    others = [str(p) for p in out if not _is_tileset(p)]
+    if given and others:
+        raise ConfigError(
+            f"{' and '.join(given)} {'apply' if len(given) > 1 else 'applies'} to a tileset.json output only, "
+            f"not to {', '.join(others)}: "
+            "export those in a separate command"
+        )
 
 
 def register(app: typer.Typer) -> None:

@@ -4,9 +4,10 @@ With cleaned splats (splats/cleaned.ply) and a classified cloud, the hybrid (:fu
 trusted MVS Gaussians + splats, a ``source`` and a ``surface`` field per Gaussian, and the point product of the
 Gaussians whose geometry is trustworthy); the splats alone also go to export/splats.ply. Without them, the
 converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
-3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable). ``splat_surface`` (``run --splat-surface``, off
-by default) adds the splat-surface points of the fill layer to the survey points (:mod:`fusion.splat_surface`,
-``source`` = 4), counted per predicted class in the record.
+3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable); the tileset also holds the survey points as a
+point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it). ``splat_surface``
+(``run --splat-surface``, off by default) adds the splat-surface points of the fill layer to the survey points
+(:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record.
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class MergeStage(Stage):
         sets' extra fields + ``classification``, ``source``, ``surface``; merged_points.ply and .las with n points
         and those fields + ``opacity``, ``scale`` and the normals (3DGS properties at 4 bytes, point fields at 8 at
         most), with ``splat_surface`` up to :meth:`_surface_bound` more points and a ``sigma`` field; export/splats.ply
-        at most splats/cleaned.ply's size; 4 origin sidecars and the log (64 KiB)."""
+        at most splats/cleaned.ply's size; a 3D Tiles viewer product also holds the survey points (20 bytes each); 4
+        origin sidecars and the log (64 KiB)."""
         layout = ctx.layout
         sets = [sizes.ply_vertices(layout.mvs_gaussians)]
         if self._hybrid(ctx):
@@ -93,7 +95,10 @@ class MergeStage(Stage):
         points = sizes.point_ply_bytes(n + surface, fields) + sizes.las_bytes(n + surface, fields)
         splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
         formats = ctx.options(self).viewer_formats  # each at most the PLY's size; a tileset adds its JSON (12 %)
-        viewer = sum(int(merged * (1.12 if f == "3dtiles" else 1.0)) + sizes.SIDECAR_BYTES for f in formats)
+        tiled_points = 20 * (n + surface)  # a tileset's survey points: float32 xyz + RGBA, 20 % for JSON and GLB
+        viewer = sum(
+            (int(merged * 1.12) + tiled_points if f == "3dtiles" else merged) + sizes.SIDECAR_BYTES for f in formats
+        )
         return merged + points + splats + viewer + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
     def _surface_bound(self, ctx: StageContext) -> int:
@@ -148,10 +153,7 @@ class MergeStage(Stage):
             write_origin(layout.merged_points_ply, points.origin, crs)
         else:
             export_points(layout.merged_points_las, points)
-        for fmt in ctx.options(self).viewer_formats:
-            from fusion.export import export_gaussians
-
-            export_gaussians(layout.merged_viewer(fmt), gaussians, ExportOptions(crs=crs))
+        _viewer_exports(ctx, gaussians, points, crs)
         return {"merged": len(gaussians), "written": written.num_written, "mvs": stats.mvs_kept,
                 "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
                 "points": len(points), **extra}  # fmt: skip
@@ -224,6 +226,22 @@ class MergeStage(Stage):
             per_class = ", ".join(f"{k} {v}" for k, v in c["per_class"].items()) or "none"
             text += f", {c['kept']} splat-surface points ({per_class})"
         return text
+
+
+def _viewer_exports(ctx: StageContext, gaussians: Any, points: Any, crs: str | None) -> None:
+    """The viewer product in every ``viewer_formats`` format; a 3D Tiles tileset also holds the survey points just
+    written to export/merged_points.ply (the same cloud, from memory: the file appears only when the stage ends).
+    The mesh cannot go into it here: the mesh stage runs after the merge (``hybridsplat export merged.ply --out
+    DIR/tileset.json --survey-points export/merged_points.ply --mesh export/mesh.glb`` adds both)."""
+    from fusion.export import ExportOptions, export_gaussians, export_tileset, gaussians_to_points, prepare
+
+    for fmt in ctx.options(MergeStage).viewer_formats:
+        path = ctx.layout.merged_viewer(fmt)
+        if fmt == "3dtiles":  # what export_points wrote: the default filters, then one point per Gaussian
+            cloud = gaussians_to_points(prepare(points, ExportOptions()).gaussians)
+            export_tileset(path, gaussians, ExportOptions(crs=crs), points=cloud)
+        else:
+            export_gaussians(path, gaussians, ExportOptions(crs=crs))
 
 
 def _mm(metres: Any) -> str:
