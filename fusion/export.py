@@ -32,7 +32,14 @@ from fusion.convert_options import Source
 from fusion.merge import subset
 from fusion.sog_format import is_sog_path, write_sog
 from fusion.splat_format import write_splat
-from fusion.spz_format import SPZ_VERSION, SPZ_WRITABLE_VERSIONS, finest_fractional_bits, write_spz
+from fusion.spz_format import (
+    EXPORT_SH1_BITS,
+    EXPORT_SH_REST_BITS,
+    SPZ_VERSION,
+    SPZ_WRITABLE_VERSIONS,
+    finest_fractional_bits,
+    write_spz,
+)
 
 GLTF_COMPRESSIONS = ("spz", "none")
 """Values of :attr:`ExportOptions.gltf_compression` (those of :class:`fusion.gltf_splats.GltfCompression`)."""
@@ -167,12 +174,14 @@ def _write_origin_sidecar(path: Path, gaussians: GaussianSet, options: ExportOpt
 
 def export_spz(path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None) -> ExportReport:
     """Write Niantic's SPZ (version 2 unless ``options.spz_version``, gzip; positions in 24-bit fixed point around
-    the local origin with the finest step the extent allows, 2^-12 m or finer, coarser only beyond ±2048 m) + origin
-    sidecar when non-zero. See :mod:`fusion.spz_format`."""
+    the local origin with the finest step the extent allows, 2^-12 m or finer, coarser only beyond ±2048 m; SH bytes
+    in buckets of :data:`fusion.spz_format.EXPORT_SH1_BITS` / ``EXPORT_SH_REST_BITS`` bits) + origin sidecar when
+    non-zero. See :mod:`fusion.spz_format`."""
     prep = prepare(gaussians, options)
     path = Path(path)
     version = SPZ_VERSION if options is None else options.spz_version
-    write_spz(path, prep.gaussians, version=version, fractional_bits=finest_fractional_bits(prep.gaussians.means))
+    write_spz(path, prep.gaussians, version=version, fractional_bits=finest_fractional_bits(prep.gaussians.means),
+              sh1_bits=EXPORT_SH1_BITS, sh_rest_bits=EXPORT_SH_REST_BITS)  # fmt: skip
     _write_origin_sidecar(path, prep.gaussians, options)
     return _report(path, "spz", prep)
 

@@ -343,11 +343,12 @@ def _spz_parts(gaussians: GaussianSet, name: str) -> tuple[list, list, dict[str,
     looks), attribute map, binary chunk (the gzipped SPZ v2 file, padded to 4 bytes) and the fractional bits."""
     import pygltflib as gl
 
-    from fusion.spz_format import encode_spz, finest_fractional_bits
+    from fusion.spz_format import EXPORT_SH1_BITS, EXPORT_SH_REST_BITS, encode_spz, finest_fractional_bits
 
     header, payload = encode_spz(
-        gaussians, version=2, fractional_bits=finest_fractional_bits(gaussians.means), name=f"glTF SPZ {name}"
-    )
+        gaussians, version=2, fractional_bits=finest_fractional_bits(gaussians.means), name=f"glTF SPZ {name}",
+        sh1_bits=EXPORT_SH1_BITS, sh_rest_bits=EXPORT_SH_REST_BITS,
+    )  # fmt: skip
     compressor = zlib.compressobj(6, zlib.DEFLATED, 16 + zlib.MAX_WBITS, 9)  # gzip, as fusion.spz_format writes
     stream = compressor.compress(payload) + compressor.flush()
     blob = bytearray(stream) + b"\0" * (-len(stream) % 4)

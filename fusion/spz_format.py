@@ -68,7 +68,8 @@ Precision (decoded minus input; per component)
 - rotation v2: x, y, z ≤ 1/255; w ≤ min(√D, D / w) with D = √3 · e · (2 √(1 − w²) + √3 · e), e = 1/255 (≤ 0.117
   near w = 0, ≤ 0.024 for w ≥ 0.5). v3: the three stored components ≤ √2 / 2044 = 6.9e-4; the largest
   ≤ 3e(1+e) / (1/2 + √(1/4 − 3e(1+e))) ≈ 2.1e-3 with e = 6.9e-4.
-- SH rest: ≤ (2^(8−bits) + 1) / 256, i.e. 0.0352 for degree 1 (5 bits) and 0.0664 for degrees 2–3 (4 bits), within
+- SH rest: ≤ (2^(8−bits) + 1) / 256, i.e. 0.0352 for degree 1 (5 bits) and 0.0664 for degrees 2–3 (4 bits; 0.0195 and
+  0.0352 with the 6 / 5 bits of ``hybridsplat export``, :data:`EXPORT_SH1_BITS`), within
   c ∈ [−1, 1] (the reference rounds to 1/128 first, then to the bucket, hence the + 1).
 Values outside these ranges (not positions) are clipped to the nearest code, with a warning that counts them.
 """
@@ -110,6 +111,15 @@ MAX_FRACTIONAL_BITS = 23
 SH1_BITS = 5
 SH_REST_BITS = 4
 """Bits kept per SH coefficient byte (degree 1, degrees 2–3): the reference's ``PackOptions`` defaults."""
+
+EXPORT_SH1_BITS = 6
+EXPORT_SH_REST_BITS = 5
+"""Bits kept per SH coefficient byte by ``hybridsplat export`` and the tileset's SPZ tiles (degree 1, degrees 2–3):
+one more than the reference's, which halves the SH error bound (0.0195 / 0.0352 instead of 0.0352 / 0.0664). Any
+SPZ reader reads them (the bytes are the format's; the buckets are the encoder's choice). Chosen as the fewest bits
+that keep the decoded renders ≥ 40 dB from the PLY's on the *training* views of two training layouts
+(random-object seed 0: 40.6 → 44.2 dB, random-aerial seed 2: 37.0 → 41.4 dB, for +0.010 / +0.014 of the PLY's
+size; docs/experiments/2026-11-27-export-formats.md)."""
 
 HEADER = struct.Struct("<IIIBBBB")
 """The 16-byte header of versions 1–3."""

@@ -262,7 +262,7 @@ def _spz_of(doc: dict, blob: bytes, tmp_path: Path):
 
 
 def test_spz_glb_follows_the_extension_and_decodes_to_the_input_within_spz_precision(tmp_path):
-    from fusion.spz_format import write_spz
+    from fusion.spz_format import EXPORT_SH1_BITS, EXPORT_SH_REST_BITS, write_spz
 
     gs = _spz_ready(800, extent=50.0, degree=3)
     data = encode_splat_glb(gs, compression="spz")
@@ -291,7 +291,10 @@ def test_spz_glb_follows_the_extension_and_decodes_to_the_input_within_spz_preci
         3,
         17,
     )  # ±50 m: 17 bits (±64 m)
-    write_spz(tmp_path / "ref.spz", gs, fractional_bits=bits)  # our .spz writer, at the same fractional bits
+    # our .spz writer, at the same fractional bits and SH buckets
+    write_spz(
+        tmp_path / "ref.spz", gs, fractional_bits=bits, sh1_bits=EXPORT_SH1_BITS, sh_rest_bits=EXPORT_SH_REST_BITS
+    )
     assert (tmp_path / "ref.spz").read_bytes() == stream
     pos_acc = doc["accessors"][prim["attributes"]["POSITION"]]  # bounds of the decoded positions, as float32
     assert pos_acc["min"] == spz.positions.min(axis=0).astype(np.float32).tolist()
