@@ -382,7 +382,7 @@ def test_photo_folder_with_a_georeferenced_reference_in_millimetres(tmp_path, ca
     project = tmp_path / "project"
     main(["run", str(photos), "--out", str(project), "--reference", str(reference), "--units", "mm",
           "--crs", "EPSG:32632", "--holdout", "0", "--lidar", str(tmp_path / "lidar_utm.ply"),
-          "--train-iterations", "20", "--quiet"])  # fmt: skip
+          "--train-iterations", "20", "--viewer-format", "spz", "--viewer-format", "3dtiles", "--quiet"])  # fmt: skip
     layout = ProjectLayout(project)
     origin = read_origin(layout.merged_ply)
     assert np.all(np.abs(origin - offset) < 5.0)  # a rounded local origin near the block
@@ -401,6 +401,44 @@ def test_photo_folder_with_a_georeferenced_reference_in_millimetres(tmp_path, ca
     assert c2c["median"] == pytest.approx(np.median(distances), rel=1e-3)  # the eval stage saw the same geometry
     report = (layout.report_dir / "report.md").read_text()
     assert "(mm)" in report and f"{c2c['mean'] * 1000:.3g}" in report  # lengths printed in the user's unit
+    _survey_layer_recovered_through_spz_and_3d_tiles(layout, "EPSG:32632")
+
+
+def _survey_layer_recovered_through_spz_and_3d_tiles(layout: ProjectLayout, crs: str) -> None:
+    """The survey layer's world positions (merged.ply: float64 origin + local) come back within 1 mm through
+    export/merged.spz (+ its origin sidecar) and through the tileset (tile transforms · the 3D Tiles y-up → z-up turn
+    · node matrix · POSITION, ECEF back to ``crs`` with pyproj); each decoded survey splat matched to its nearest."""
+    import pyproj
+
+    from core.io.origin import read_origin
+    from fusion.gltf_splats import read_splat_glb
+    from fusion.spz_format import read_spz
+
+    merged = read_gaussian_ply(layout.merged_ply)
+    survey = merged.origin + merged.means[np.asarray(merged.fields["source"]) == 1]
+    spz_path = layout.merged_viewer("spz")
+    spz_world = read_origin(spz_path) + read_spz(spz_path).to_gaussians().means
+    spz_error = cKDTree(spz_world).query(survey)[0].max()
+    y_up_to_z_up = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]])  # 3D Tiles 1.1 spec
+    tileset_path = layout.merged_viewer("3dtiles")
+    ecef = []
+
+    def walk(tile: dict, parent: np.ndarray) -> None:
+        t = parent @ np.asarray(tile.get("transform", np.eye(4).reshape(-1)), float).reshape(4, 4).T
+        uri = tile.get("content", {}).get("uri", "")
+        if uri.startswith("survey/") and uri.endswith(".glb"):
+            prim = read_splat_glb(tileset_path.parent / uri)
+            chain = t @ y_up_to_z_up @ prim.node_matrix
+            ecef.append((np.c_[prim.positions.astype(np.float64), np.ones(len(prim.positions))] @ chain.T)[:, :3])
+        for child in tile.get("children", []):
+            walk(child, t)
+
+    walk(json.loads(tileset_path.read_text())["root"], np.eye(4))
+    x, y, z = pyproj.Transformer.from_crs("EPSG:4978", crs, always_xy=True).transform(*np.concatenate(ecef).T)
+    tiles_error = cKDTree(np.c_[x, y, z]).query(survey)[0].max()
+    print(f"survey layer ({len(survey)} splats) recovered: SPZ {spz_error * 1e6:.2f} µm, "
+          f"3D Tiles {tiles_error * 1e6:.2f} µm")  # fmt: skip
+    assert spz_error < 1e-3 and tiles_error < 1e-3
 
 
 def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp_path, capsys):
