@@ -322,6 +322,12 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     assert not changed.cached and changed.counts["reused"] == len(measured) - 4  # merged and its three controls
     images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
     assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
+    from hybridsplat.stages.evaluate import EvalStage
+
+    line = EvalStage().summary(changed.counts)  # the headline the run prints: PSNR and, with weights, LPIPS
+    assert f"merged PSNR {images['psnr']:.2f} dB" in line
+    if images.get("lpips") is not None:
+        assert f"LPIPS {images['lpips']:.3f}" in line
 
     config = load_config(copy)
     config = config.with_stage_options("eval", replace(config.options("eval", EvalStageOptions), cache=False))

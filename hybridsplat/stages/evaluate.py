@@ -388,7 +388,9 @@ class EvalStage(Stage):
             if f"{name}_c2c_mean_m" in counts:
                 parts.append(f"{name} C2C mean {counts[f'{name}_c2c_mean_m']:.3g} m")
             if counts.get(f"{name}_psnr") is not None:
-                parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB")
+                lpips = counts.get(f"{name}_lpips")
+                parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB"
+                             + (f" LPIPS {lpips:.3f}" if lpips is not None else ""))  # fmt: skip
         return ", ".join(parts)
 
 
@@ -435,12 +437,14 @@ def _product_bytes(cloud: sizes.PlyVertices, renders: bool, geometry: bool, view
 
 
 def _count(counts: dict[str, Any], name: str, entry: dict[str, Any]) -> None:
-    """The stage's headline figures of one product (C2C mean, whole-image PSNR) from its metrics entry."""
+    """The stage's headline figures of one product (C2C mean, whole-image PSNR and LPIPS) from its metrics entry."""
     c2c, images = entry.get("c2c"), entry.get("images")
     if c2c is not None:
         counts[f"{name}_c2c_mean_m"] = c2c.get("mean")
     if images is not None:
-        counts[f"{name}_psnr"] = (images.get("full") or {}).get("psnr")
+        full = images.get("full") or {}
+        counts[f"{name}_psnr"] = full.get("psnr")
+        counts[f"{name}_lpips"] = full.get("lpips")
 
 
 def _mesh_points(path: Path, tau: float, max_points: int = 2_000_000) -> np.ndarray | None:
