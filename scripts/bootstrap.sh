@@ -55,9 +55,9 @@ if [ ! -f "$LPIPS_WEIGHTS" ]; then
   fi
 fi
 
-# Independent readers the export tests check our files with (splat-transform, gltf-validator, loaders.gl), pinned
-# with their lock in scripts/node_tools/ and installed into node_tools/ (git-ignored). Optional: without npm or the
-# npm registry those tests skip, the rest of the project is unaffected.
+# Independent readers the export tests check our files with (splat-transform, gltf-validator, loaders.gl,
+# CesiumJS), pinned with their lock in scripts/node_tools/ and installed into node_tools/ (git-ignored).
+# Optional: without npm or the npm registry those tests skip, the rest of the project is unaffected.
 NODE_TOOLS=node_tools
 NODE_STAMP=$NODE_TOOLS/.installed-$(cat scripts/node_tools/package.json scripts/node_tools/package-lock.json | sha1sum | cut -c1-12)
 if [ ! -f "$NODE_STAMP" ]; then
@@ -72,6 +72,6 @@ if [ ! -f "$NODE_STAMP" ]; then
       echo "bootstrap: warning: npm could not install the readers; the export tests that use them will skip" >&2
     fi
   else
-    echo "bootstrap: no npm; the export tests that use splat-transform / gltf-validator will skip" >&2
+    echo "bootstrap: no npm; the export tests that use splat-transform / gltf-validator / loaders.gl / CesiumJS will skip" >&2
   fi
 fi

@@ -44,3 +44,15 @@ def gltf_tools_prefix() -> Path:
         if c and all(p.is_dir() for p in needed):
             return prefix
     pytest.skip("gltf-validator / @loaders.gl/3d-tiles are not installed: run scripts/bootstrap.sh (needs npm)")
+
+
+def cesium_build() -> Path:
+    """CesiumJS's browser build (``Build/Cesium`` of npm ``cesium``: ``Cesium.js``, ``Workers/``, ``Assets/``…)."""
+    candidates = [
+        os.environ.get("HYBRIDSPLAT_CESIUM", ""),
+        str(NODE_TOOLS / "node_modules" / "cesium" / "Build" / "Cesium"),
+    ]
+    for c in candidates:
+        if c and (Path(c) / "Cesium.js").is_file():
+            return Path(c)
+    pytest.skip("CesiumJS (npm cesium) is not installed: run scripts/bootstrap.sh (needs npm)")
