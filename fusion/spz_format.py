@@ -116,10 +116,9 @@ EXPORT_SH1_BITS = 6
 EXPORT_SH_REST_BITS = 5
 """Bits kept per SH coefficient byte by ``hybridsplat export`` and the tileset's SPZ tiles (degree 1, degrees 2–3):
 one more than the reference's, which halves the SH error bound (0.0195 / 0.0352 instead of 0.0352 / 0.0664). Any
-SPZ reader reads them (the bytes are the format's; the buckets are the encoder's choice). Chosen as the fewest bits
-that keep the decoded renders ≥ 40 dB from the PLY's on the *training* views of two training layouts
-(random-object seed 0: 40.6 → 44.2 dB, random-aerial seed 2: 37.0 → 41.4 dB, for +0.010 / +0.014 of the PLY's
-size; docs/experiments/2026-11-27-export-formats.md)."""
+SPZ reader reads them (the bytes are the format's; the buckets are the encoder's choice). Chosen on the training
+views of two classifier training layouts, never on scored views (the measurements:
+docs/experiments/2026-11-27-export-formats.md)."""
 
 HEADER = struct.Struct("<IIIBBBB")
 """The 16-byte header of versions 1–3."""
