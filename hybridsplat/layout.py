@@ -266,6 +266,21 @@ class ProjectLayout:
         """The report's stable schema (``hybridsplat.report/1``)."""
         return self.report_dir / "report.json"
 
+    # -- tiles (``run --tiles``) ----------------------------------------------------------------------
+    @property
+    def tiles_dir(self) -> Path:
+        """Sub-projects of a tiled run, one folder per tile (``tiles/r0c1/``: a project of its own)."""
+        return self.root / "tiles"
+
+    @property
+    def tile_plan(self) -> Path:
+        """The tile plan (:func:`recon.tiling.write_tile_plan`): frame, grid, cores, bounds, photos per tile."""
+        return self.tiles_dir / "plan.json"
+
+    def tile_project(self, name: str) -> Path:
+        """The sub-project of tile ``name`` (``r{row}c{column}``)."""
+        return self.tiles_dir / name
+
     # -- the documented contract ----------------------------------------------------------------
     def documented_paths(self) -> dict[str, Path]:
         """Every user-facing path, relative to the root, as listed in docs/conventions.md."""
@@ -308,6 +323,8 @@ class ProjectLayout:
             "eval/masks/": self.eval_masks_dir,
             "cache/eval/": self.eval_cache_dir,
             "report/": self.report_dir,
+            "tiles/": self.tiles_dir,
+            "tiles/plan.json": self.tile_plan,
             "logs/": self.logs_dir,
         }
         return {name: path.relative_to(self.root) for name, path in paths.items()}

@@ -115,17 +115,29 @@ class Manifest:
 
 
 class PeakMemory:
-    """Peak resident memory (MB) of this process while the block runs, sampled every 20 ms by a thread."""
+    """Peak resident memory (MB) of this process while the block runs, sampled every 20 ms by a thread; with
+    ``children``, of this process and all its descendants together (a local Ray instance's workers)."""
 
-    def __init__(self, interval_s: float = 0.02) -> None:
+    def __init__(self, interval_s: float = 0.02, children: bool = False) -> None:
         self.interval_s = interval_s
         self.peak_mb = 0.0
+        self.children = children
         self._stop = threading.Event()
         self._process = psutil.Process()
 
+    def _rss_mb(self) -> float:
+        rss = self._process.memory_info().rss
+        if self.children:
+            for child in self._process.children(recursive=True):
+                try:
+                    rss += child.memory_info().rss
+                except psutil.Error:  # ended between the listing and the reading
+                    pass
+        return rss / 2**20
+
     def _sample(self) -> None:
         while not self._stop.is_set():
-            self.peak_mb = max(self.peak_mb, self._process.memory_info().rss / 2**20)
+            self.peak_mb = max(self.peak_mb, self._rss_mb())
             self._stop.wait(self.interval_s)
 
     def __enter__(self) -> PeakMemory:
@@ -136,7 +148,7 @@ class PeakMemory:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
-        self.peak_mb = max(self.peak_mb, self._process.memory_info().rss / 2**20)
+        self.peak_mb = max(self.peak_mb, self._rss_mb())
 
 
 def hash_path(path: str | PathLike[str], chunk: int = 1 << 20) -> str:

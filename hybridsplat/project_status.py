@@ -124,7 +124,7 @@ def _stage_status(stage: Stage, ctx: StageContext, manifest: Manifest, changing:
 
     name = stage.name
     try:
-        skip = stage.needs(ctx)
+        skip = stage.made_elsewhere(ctx) or stage.needs(ctx)
         config = stage_config(stage, ctx)
         inputs = {manifest.relative(p): hash_path(p) for p in stage.inputs(ctx)}
     except Exception as err:  # an input that cannot be read: the run would tell the same

@@ -58,6 +58,9 @@ def run_stage(
 ) -> StageRecord:
     """Run one stage unless it is up to date or not needed; the manifest is saved after every change."""
     config = stage_config(stage, ctx)
+    elsewhere = stage.made_elsewhere(ctx)
+    if elsewhere is not None:  # its outputs belong to the stage that made them: kept
+        return manifest.record(StageRecord(name=stage.name, skipped=True, reason=elsewhere, config=config))
     reason = stage.needs(ctx)
     outputs = stage.outputs(ctx)
     if reason is not None:
@@ -81,7 +84,7 @@ def run_stage(
         manifest.invalidate(stage.name)
         _remove(outputs)
         with terminal.stage(stage.name, ctx.layout.log(stage.name)) as progress, PeakMemory() as memory:
-            ctx.progress, ctx.input_hashes = progress, hashes
+            ctx.progress, ctx.input_hashes, ctx.say = progress, hashes, terminal.line
             start = time.perf_counter()
             counts = stage.run(ctx)
             seconds = time.perf_counter() - start
@@ -95,7 +98,7 @@ def run_stage(
             raise told from err
         raise
     finally:
-        ctx.progress, ctx.input_hashes = StageContext.progress, {}
+        ctx.progress, ctx.input_hashes, ctx.say = StageContext.progress, {}, StageContext.say
     record = StageRecord(
         name=stage.name,
         seconds=round(seconds, 4),

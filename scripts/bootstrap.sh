@@ -40,7 +40,7 @@ if [ ! -f "$STAMP" ]; then
   if ! "$VENV/bin/python" -c "import torch" 2>/dev/null; then
     "$VENV/bin/python" -m pip install -q "torch==2.13.0"
   fi
-  "$VENV/bin/python" -m pip install -q -e ".[dev]"
+  "$VENV/bin/python" -m pip install -q -e ".[dev,distributed]"
   rm -f "$VENV"/.installed-*
   touch "$STAMP"
 fi

@@ -15,6 +15,7 @@ report. Registering a stage (one line in :mod:`hybridsplat.stages`) is all the r
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -69,15 +70,21 @@ def _no_progress(label: str, done: int, total: int) -> None:
     return None
 
 
+def _no_line(text: str) -> None:
+    return None
+
+
 @dataclass
 class StageContext:
-    """Everything a stage may use: the project layout, the configuration, the input, a progress callback, and
-    (while it runs) the content hashes the runner took of its ``inputs``."""
+    """Everything a stage may use: the project layout, the configuration, the input, a progress callback, a line
+    for the terminal (``say``: what the user must see before the stage ends, such as a prediction), and (while it
+    runs) the content hashes the runner took of its ``inputs``."""
 
     layout: ProjectLayout
     config: ProjectConfig
     source: Source
     progress: ProgressCallback = field(default=_no_progress)
+    say: Callable[[str], None] = field(default=_no_line)
     input_hashes: dict[Path, str] = field(default_factory=dict)
 
     def options(self, stage: Stage) -> Any:
@@ -125,6 +132,18 @@ class Stage:
     def needs(self, ctx: StageContext) -> str | None:
         """None when the stage must run for this project, else the reason it is skipped."""
         return None
+
+    def made_elsewhere(self, ctx: StageContext) -> str | None:
+        """Why another stage of this project makes this stage's products, or None (the usual case). The runner then
+        skips this stage and keeps its outputs: a tiled run's ``tiles`` stage stitches the mvs, classify, train and
+        clean products from its tiles (:data:`hybridsplat.tile_projects.PER_TILE_IN_PARENT`)."""
+        from hybridsplat.tile_projects import PER_TILE_IN_PARENT
+
+        if self.name not in PER_TILE_IN_PARENT:
+            return None
+        from hybridsplat.stages.tiles import tiling_on
+
+        return "made per tile (--tiles): stage 'tiles' stitched its products" if tiling_on(ctx) else None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         """Do the work; return counts for the manifest (JSON-serialisable)."""

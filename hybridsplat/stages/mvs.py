@@ -60,7 +60,7 @@ class MvsStage(Stage):
         64 KiB + 256 bytes a photo; the log 64 KiB + 8 KiB a photo."""
         opts: MvsOptions = ctx.options(self)
         n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
-        width, height = _dense_size(ctx.layout.sparse, opts.max_image_size)
+        width, height = dense_size(ctx.layout.sparse, opts.max_image_size)
         photos = n * (sizes.png_bytes(width, height, 3) + 2 * (4 + 12) * width * height + 4 * 64)
         fused_pixels = max(n - len(ctx.source.holdout_names), 0) * width * height
         points = -(-fused_pixels // max(opts.fusion.min_num_pixels, 1))
@@ -96,7 +96,7 @@ class MvsStage(Stage):
         )
 
 
-def _dense_size(sparse: Path, max_image_size: int) -> tuple[int, int]:
+def dense_size(sparse: Path, max_image_size: int) -> tuple[int, int]:
     """(width, height) in pixels bounding the undistorted photos: the largest camera of ``sparse`` with 10 % more a
     side (undistortion of a distorted camera may enlarge it), capped at ``max_image_size`` (-1: no cap)."""
     cameras = sizes.camera_sizes(sparse)

@@ -1,0 +1,100 @@
+"""Running the tiles of a tiled run: one after another in this process, or as Ray tasks (issue 34).
+
+``workers`` ≤ 1 and no ``ray_address``: the tiles run here, in plan order (Ray is not needed). Otherwise each tile is
+a Ray task (:func:`hybridsplat.tile_projects.run_tile`) declaring ``cpus_per_tile`` CPUs (its stages' threads: Ray
+sets ``OMP_NUM_THREADS`` to it, and ``NUMBA_NUM_THREADS`` is set alike) and, when known, the memory it needs; a task
+whose worker dies is retried (``max_retries``), and since a tile's stages are recorded in its own manifest a retry
+resumes after the last stage that finished. ``workers = N`` starts a local Ray instance of N CPUs (N tiles at a time
+with one CPU each); ``ray_address`` joins a running cluster instead (``ray start --head`` on one machine, ``ray
+start --address ...`` on the others; the project folder must be at the same path on every node, e.g. a shared file
+system). Inputs and outputs are files in the project folder; the object store carries only each tile's job (paths
+and options) and its small record.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from core.errors import ConfigError
+from hybridsplat.tile_projects import TileJob, run_tile
+
+TileDone = Callable[[str, int, int], None]
+"""Called as each tile finishes: (tile name, tiles done, tiles in all)."""
+
+
+@dataclass(frozen=True)
+class ExecutionOptions:
+    """How tiles run: ``workers`` tiles at a time on a local Ray instance (≤ 1: here, one by one, no Ray), or on the
+    Ray cluster at ``ray_address``; ``cpus_per_tile`` CPUs declared per task; ``memory_mb_per_tile`` the memory
+    declared per task (0: none declared); ``max_retries`` of a task whose worker died."""
+
+    workers: int = 1
+    ray_address: str = ""
+    cpus_per_tile: int = 1
+    memory_mb_per_tile: int = 0
+    max_retries: int = 2
+
+    def __post_init__(self) -> None:
+        if self.workers < 0 or self.cpus_per_tile < 1 or self.max_retries < 0 or self.memory_mb_per_tile < 0:
+            raise ConfigError(
+                "workers ≥ 0, cpus_per_tile ≥ 1, memory_mb_per_tile ≥ 0 and max_retries ≥ 0 are needed, got "
+                f"{self.workers}, {self.cpus_per_tile}, {self.memory_mb_per_tile}, {self.max_retries}"
+            )
+
+    @property
+    def uses_ray(self) -> bool:
+        return bool(self.ray_address) or self.workers > 1
+
+
+def run_tiles(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None = None) -> list[dict]:
+    """Run every job; the tiles' records (:func:`run_tile`) in the order of ``jobs``."""
+    if not options.uses_ray:
+        results = []
+        for k, job in enumerate(jobs):
+            results.append(run_tile(job))
+            if on_done is not None:
+                on_done(job.name, k + 1, len(jobs))
+        return results
+    return _run_on_ray(jobs, options, on_done)
+
+
+def import_ray() -> Any:
+    """The ray module, or a :class:`ConfigError` saying how to install it."""
+    try:
+        import ray
+    except ImportError as err:
+        raise ConfigError(
+            "tiles on several workers need Ray: pip install 'hybridsplat[distributed]' (or run with --workers 1)"
+        ) from err
+    return ray
+
+
+def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None) -> list[dict]:
+    ray = import_ray()
+    started_here = not ray.is_initialized()
+    if started_here:
+        threads = str(options.cpus_per_tile)
+        env = {"env_vars": {"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}}
+        if options.ray_address:
+            ray.init(address=options.ray_address, runtime_env=env, log_to_driver=False)
+        else:
+            ray.init(num_cpus=options.workers, include_dashboard=False, log_to_driver=False, runtime_env=env)
+    try:
+        resources: dict[str, Any] = {"num_cpus": options.cpus_per_tile, "max_retries": options.max_retries}
+        if options.memory_mb_per_tile:
+            resources["memory"] = options.memory_mb_per_tile * 2**20
+        task = ray.remote(**resources)(run_tile)
+        pending = {task.remote(job): k for k, job in enumerate(jobs)}
+        results: list[dict | None] = [None] * len(jobs)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            k = pending.pop(ready[0])
+            results[k] = ray.get(ready[0])
+            if on_done is not None:
+                on_done(jobs[k].name, len(jobs) - len(pending), len(jobs))
+        return [r for r in results if r is not None]
+    finally:
+        if started_here:
+            ray.shutdown()

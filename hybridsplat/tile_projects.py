@@ -1,0 +1,96 @@
+"""A tile of a tiled run as a project of its own (issue 34): made from the parent, run through the same runner.
+
+A tile's project (``PROJECT/tiles/r0c1/``) has the parent's input and options (tiling off), a ``sparse/`` model with
+the tile's photos and the sparse points in its bounds (:func:`recon.tile_models.write_tile_model`) and the parent's
+sfm record (its origin: every tile is in the parent's local frame). The stages of :data:`TILE_STAGES` then run on
+it through :func:`hybridsplat.pipeline.run_pipeline`, with the tile's own manifest: a second run finds the stages of
+a finished tile up to date and redoes only what an interrupted one left. :func:`run_tile` is what a Ray task runs
+(:mod:`hybridsplat.tile_execution`); it takes and returns only small, picklable values.
+"""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Collection
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hybridsplat.config import ProjectConfig
+from hybridsplat.layout import ProjectLayout
+from recon.tiling import TilePlan
+
+TILE_STAGES: tuple[str, ...] = ("mvs", "classify", "masks", "convert", "train", "clean")
+"""The stages each tile runs. The parent runs the rest on the stitched products: its own masks (on the stitched
+classified cloud, for every photo, held-out ones included) and conversion (exact neighbour spacing across tile
+borders), then background, appearance, merge, mesh, baseline, eval and report on the whole scene."""
+
+PER_TILE_IN_PARENT: frozenset[str] = frozenset({"mvs", "classify", "train", "clean"})
+"""Stages whose product the parent takes stitched from its tiles: skipped in the parent while tiling is on."""
+
+
+@dataclass(frozen=True)
+class TileJob:
+    """What a worker needs to run one tile: its name, its project folder and its configuration."""
+
+    name: str
+    root: str
+    config: ProjectConfig
+
+
+def tile_config(config: ProjectConfig) -> ProjectConfig:
+    """The parent's configuration for a tile: the same input, seed and options, tiling off."""
+    from hybridsplat.stages.tiles import TilesOptions
+
+    return config.with_stage_options("tiles", TilesOptions())
+
+
+def prepare_tile(
+    parent: ProjectLayout, plan: TilePlan, tile: int, config: ProjectConfig, held_out: Collection[str]
+) -> TileJob:
+    """Write tile ``tile``'s model and sfm record into its project folder; the job that runs it."""
+    from recon.tile_models import write_tile_model
+
+    name = plan.tiles[tile].name
+    layout = ProjectLayout(parent.tile_project(name))
+    staging = layout.root / "sparse.new"
+    if staging.exists():
+        shutil.rmtree(staging)
+    write_tile_model(parent.sparse, staging, plan, tile, exclude_names=held_out)
+    if _same_model(staging, layout.sparse):  # unchanged: keep the files (and the tile's stages up to date)
+        shutil.rmtree(staging)
+    else:
+        if layout.sparse.exists():
+            shutil.rmtree(layout.sparse)
+        staging.rename(layout.sparse)
+    layout.logs_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(parent.record("sfm"), layout.record("sfm"))
+    return TileJob(name=name, root=str(layout.root), config=tile_config(config))
+
+
+def _same_model(new: Path, old: Path) -> bool:
+    from hybridsplat.manifest import hash_path
+
+    return old.is_dir() and hash_path(new) == hash_path(old)
+
+
+def run_tile(job: TileJob) -> dict[str, Any]:
+    """Run the tile's stages (:data:`TILE_STAGES`) in its project; per stage what the tile's manifest recorded
+    (seconds, peak MB, cached or skipped), for the parent's record and the cost model."""
+    from hybridsplat.pipeline import run_pipeline
+    from hybridsplat.stages import stage_named
+    from hybridsplat.terminal import Terminal
+
+    stages = [stage_named(n) for n in TILE_STAGES]
+    manifest = run_pipeline(job.root, job.config, stages=stages, terminal=Terminal(quiet=True))
+    records = {}
+    for name in TILE_STAGES:
+        record = manifest.stages[name]
+        records[name] = {
+            "seconds": float(record.seconds or 0.0),
+            "peak_mb": float(record.peak_mb or 0.0),
+            "cached": bool(record.cached),
+            "skipped": bool(record.skipped),
+            "counts": record.counts if not record.skipped else {},
+        }
+    return {"tile": job.name, "stages": records}

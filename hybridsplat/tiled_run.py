@@ -1,0 +1,185 @@
+"""The ``tiles`` stage's work: plan, make the tiles' projects, run them, stitch their products (issue 34).
+
+See :mod:`hybridsplat.stages.tiles` for what the stage is; this module is the sequence, each step in the module
+that owns it: :mod:`recon.tiling` (the plan), :mod:`hybridsplat.tile_projects` (a tile's project),
+:mod:`hybridsplat.tile_execution` (here or on Ray), :mod:`hybridsplat.tile_cost` (the prediction) and
+:mod:`hybridsplat.tile_stitch` (the parent's products).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hybridsplat.layout import ProjectLayout
+from hybridsplat.manifest import Manifest, PeakMemory
+from hybridsplat.stages.base import StageContext
+from hybridsplat.tile_cost import CostPrediction, TileSize
+from hybridsplat.tile_projects import TILE_STAGES, TileJob
+from recon.tiling import TilePlan
+
+
+def plan_project_tiles(ctx: StageContext, options: Any) -> TilePlan:
+    """The tile plan of the project's sparse model (written to ``tiles/plan.json``)."""
+    from hybridsplat.project_io import read_project_model
+    from recon.tiling import TileOptions, parse_tiles, plan_tiles, write_tile_plan
+
+    cameras, sparse = read_project_model(ctx.layout, ctx.layout.sparse)
+    tile_options = TileOptions(
+        grid=parse_tiles(options.grid),
+        overlap_m=options.overlap_m,
+        up=options.up,
+        photos_per_tile=options.photos_per_tile,
+        points_per_tile=options.points_per_tile,
+    )
+    plan = plan_tiles(cameras, sparse.positions, tile_options, visibility=sparse.visibility)
+    write_tile_plan(ctx.layout.tile_plan, plan)
+    return plan
+
+
+def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
+    """Plan, run every tile, stitch; the stage's record (JSON-ready)."""
+    from hybridsplat.tile_execution import ExecutionOptions, run_tiles
+    from hybridsplat.tile_projects import prepare_tile
+
+    layout = ctx.layout
+    plan = plan_project_tiles(ctx, options)
+    held_out = set(ctx.source.holdout_names)
+    jobs: list[tuple[int, TileJob]] = []
+    too_few: list[str] = []
+    for tile in plan.tiles:
+        if len([n for n in tile.photo_names if n not in held_out]) < 2:
+            too_few.append(tile.name)  # its core is seen by fewer than two photos: nothing to match depth between
+            continue
+        jobs.append((tile.index, prepare_tile(layout, plan, tile.index, ctx.config, held_out)))
+    execution = ExecutionOptions(workers=options.workers, ray_address=options.ray_address,
+                                 cpus_per_tile=options.cpus_per_tile)  # fmt: skip
+
+    def done(name: str, finished: int, total: int) -> None:
+        ctx.progress(f"tiles: {name} done", finished, total)
+
+    sizes = tile_sizes(ctx, plan, [t for t, _ in jobs], held_out)
+    prediction = predict_tiles(ctx, sizes, [job for _, job in jobs], execution.workers if execution.uses_ray else 1)
+    ctx.say(
+        f"  tiles      {len(jobs)} tiles on {prediction.workers} worker(s): predicted {prediction.wall_s:.0f} s, "
+        f"peak {prediction.peak_mb:.0f} MB ({prediction.rates.source} rates)"
+    )
+    ctx.progress("tiles", 0, len(jobs))
+    with PeakMemory(interval_s=0.2, children=True) as memory:
+        start = time.perf_counter()
+        results = run_tiles([job for _, job in jobs], execution, done)
+        measured_s = time.perf_counter() - start
+    stitched = stitch_products(ctx, plan, [t for t, _ in jobs])
+    return {
+        "tiles": len(plan.tiles),
+        "grid": f"{plan.columns}x{plan.rows}",
+        "overlap_m": plan.overlap_m,
+        "photos_per_tile": [len(t.photo_ids) for t in plan.tiles],
+        "without_photos": too_few,
+        "workers": execution.workers if execution.uses_ray else 1,
+        "per_tile": results,
+        "stitched": stitched,
+        "prediction": {**prediction.to_json(), "measured_wall_s": measured_s, "measured_peak_mb": memory.peak_mb},
+    }
+
+
+def tile_sizes(ctx: StageContext, plan: TilePlan, tiles: list[int], held_out: set[str]) -> list[TileSize]:
+    """Each tile's size for the cost model: training photos, megapixels a dense photo, training iterations."""
+    from hybridsplat.stages.mvs import dense_size
+    from hybridsplat.stages.train import TrainStage
+    from recon.mvs import MvsOptions
+
+    width, height = dense_size(ctx.layout.sparse, ctx.config.options("mvs", MvsOptions).max_image_size)
+    iterations = int(ctx.config.options("train", TrainStage.Options).training.iterations)
+    return [
+        TileSize(
+            plan.tiles[t].name,
+            sum(n not in held_out for n in plan.tiles[t].photo_names),
+            width * height / 1e6,
+            iterations,
+        )  # fmt: skip
+        for t in tiles
+    ]
+
+
+def predict_tiles(ctx: StageContext, sizes: list[TileSize], jobs: list[TileJob], workers: int) -> CostPrediction:
+    """The cost model's prediction, with rates fitted to this project's tiles that finished every stage before
+    (a resumed or repeated run), else the reference rates."""
+    from hybridsplat.tile_cost import REFERENCE_RATES, fit_rates, predict
+
+    known_sizes, seconds, peaks = [], [], []
+    for size, job in zip(sizes, jobs, strict=True):
+        path = ProjectLayout(job.root).manifest
+        records = Manifest(path).stages if path.is_file() else {}
+        ran = [records.get(n) for n in TILE_STAGES]
+        if all(r is not None for r in ran) and all(r.finished_at or r.skipped for r in ran):
+            known_sizes.append(size)
+            seconds.append(sum(r.seconds for r in ran))
+            peaks.append(max(r.peak_mb for r in ran))
+    rates = fit_rates(known_sizes, seconds, peaks) if known_sizes else REFERENCE_RATES
+    import psutil
+
+    return predict(sizes, rates, workers, driver_mb=psutil.Process().memory_info().rss / 2**20)
+
+
+def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> dict[str, Any]:
+    """The parent's dense workspace, classified cloud and splats from the tiles (``tiles``: indices in plan order)."""
+    from hybridsplat.tile_stitch import gather_depth_maps, stitch_fused, stitch_ply
+    from recon.mvs import MvsOptions
+    from recon.tiling import seam_check
+    from recon.workspace import setup_dense_workspace
+
+    layout = ctx.layout
+    subs = {t: ProjectLayout(layout.tile_project(plan.tiles[t].name)) for t in tiles}
+    mvs: MvsOptions = ctx.config.options("mvs", MvsOptions)
+    setup_dense_workspace(layout.sparse, ctx.source.image_dir, layout.dense, mvs.max_image_size)
+    maps = gather_depth_maps([subs[t].dense for t in tiles], layout.dense)
+    fused = stitch_fused(plan, [(t, subs[t].dense) for t in tiles if subs[t].fused_ply.is_file()], layout.dense)
+    counts: dict[str, Any] = {"depth_maps": maps, "fused": fused.kept, "fused_dropped": list(fused.dropped)}
+    classified = [(t, subs[t].classified_points) for t in tiles if subs[t].classified_points.is_file()]
+    if classified:
+        counts["classified"] = stitch_ply(plan, classified, layout.classified_points)[0].kept
+        _merge_classify_reports([subs[t].classify_report for t, _ in classified], layout)
+    for key, path_of in (("trained", lambda lay: lay.trained_splats), ("cleaned", lambda lay: lay.cleaned_splats)):
+        parts = [(t, path_of(subs[t])) for t in tiles if path_of(subs[t]).is_file()]
+        counts[key] = stitch_ply(plan, parts, path_of(layout))[0].kept if parts else 0
+    from recon.workspace import read_fused
+
+    positions = read_fused(layout.dense).positions
+    if len(positions) >= 2 and len(plan.tiles) > 1:
+        seam = seam_check(plan, positions)
+        counts["seam"] = {"ratio": seam.ratio, "spacing_inside_m": seam.spacing_inside, "border_points": seam.n_border}
+    return counts
+
+
+def _merge_classify_reports(reports: list[Path], layout: ProjectLayout) -> None:
+    """classify/report.json of the parent: the first tile's (its model, classes, threshold), with the counts of the
+    stitched cloud and the tiles it came from."""
+    from core.io.json_io import read_json_object, write_json_atomic
+    from core.io.ply import read_ply
+
+    report = dict(read_json_object(reports[0]))
+    cloud = read_ply(layout.classified_points)
+    classes = np.asarray(cloud.fields.get("classification", np.zeros(0)), dtype=np.int64)
+    needs = np.asarray(cloud.fields.get("needs_splats", np.zeros(0)), dtype=bool)
+    report["points"] = len(cloud)
+    report["needs_splats"] = int(needs.sum())
+    if isinstance(report.get("per_class"), dict):
+        names = _class_names(report, layout.classify_report)
+        codes, n = np.unique(classes, return_counts=True)
+        report["per_class"] = {names.get(int(c), str(int(c))): int(k) for c, k in zip(codes, n, strict=True)}
+    report["tiles"] = [str(p.parent.parent.name) for p in reports]
+    write_json_atomic(layout.classify_report, json.loads(json.dumps(report)))
+
+
+def _class_names(report: dict[str, Any], path: Path) -> dict[int, str]:
+    stored = report.get("classes")
+    if not stored:
+        return {}
+    from classify.classes import ClassSet
+
+    return {c.code: c.name for c in ClassSet.from_dict(stored, path).classes}

@@ -1,0 +1,169 @@
+"""A tiled run (``run --tiles 2x1``) on a small aerial block (24 photos of 256 × 192): tiles as projects of their
+own, products stitched by core ownership (no duplicate, nothing lost, rows byte for byte), the parent's later stages
+on the stitched products, its disk estimate, a second run up to date, an interrupted tile resumed alone, and the
+same tiles as tasks on a 2-worker local Ray instance."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from core.io.colmap_vis import read_vis
+from core.io.ply import load_ply_data
+from data_synth import generate_scene
+from fusion.appearance import AppearanceOptions
+from fusion.train.masked import MaskedTrainingOptions
+from hybridsplat.config import InputOptions, ProjectConfig
+from hybridsplat.layout import ProjectLayout
+from hybridsplat.manifest import Manifest
+from hybridsplat.options import options_with
+from hybridsplat.pipeline import run_pipeline
+from hybridsplat.stages.tiles import TilesOptions
+from hybridsplat.tile_projects import PER_TILE_IN_PARENT, TILE_STAGES
+from recon.mvs import MvsOptions
+from recon.tiling import read_tile_plan
+
+pytestmark = pytest.mark.slow  # about 3 min on 2 cores: MVS and training of two tiles, twice (here and on Ray)
+
+FAST = {
+    "mvs": options_with(MvsOptions, {"max_image_size": 160}),
+    "train": options_with(MaskedTrainingOptions, {"training.iterations": 30, "snapshot_iterations": [20]}),
+    "appearance": options_with(AppearanceOptions, {"enabled": False}),
+}
+
+
+def _config(scene, **tiles) -> ProjectConfig:
+    stages = {**FAST, "tiles": TilesOptions(grid="2x1", **tiles)}
+    return ProjectConfig(input=InputOptions(path=str(scene)), stages=stages)
+
+
+@pytest.fixture(scope="module")
+def tiled(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tiled")
+    # the aerial layout at a test's size: its sparse points span the block, so a 2 x 1 grid cuts the fused cloud
+    scene = generate_scene("aerial", root / "scene", seed=0, views=24, width=256, height=192, supersample=1,
+                           test_views=2)  # fmt: skip
+    project = root / "project"
+    run_pipeline(project, _config(scene))
+    return scene, project
+
+
+def _rows(path):
+    return load_ply_data(path)["vertex"].data
+
+
+def test_tiles_run_as_projects_and_the_parent_skips_what_they_made(tiled):
+    _, project = tiled
+    layout = ProjectLayout(project)
+    stages = Manifest(layout.manifest).stages
+    assert not stages["tiles"].skipped and stages["tiles"].counts["tiles"] == 2
+    for name in PER_TILE_IN_PARENT:
+        assert stages[name].skipped and "made per tile" in stages[name].reason, name
+    for name in ("masks", "convert", "merge", "eval", "report"):
+        assert not stages[name].skipped, name
+    plan = read_tile_plan(layout.tile_plan)
+    assert [t.name for t in plan.tiles] == ["r0c0", "r0c1"]
+    for tile in plan.tiles:
+        sub = Manifest(ProjectLayout(layout.tile_project(tile.name)).manifest).stages
+        assert list(sub) == list(TILE_STAGES)
+        assert not sub["mvs"].skipped and not sub["classify"].skipped
+
+
+def test_stitched_clouds_keep_each_point_once_from_the_tile_that_owns_it(tiled):
+    _, project = tiled
+    layout = ProjectLayout(project)
+    plan = read_tile_plan(layout.tile_plan)
+    import pycolmap
+
+    parent_ids = list(pycolmap.Reconstruction(str(layout.dense_workspace.sparse)).reg_image_ids())
+    parent_names = {k: pycolmap.Reconstruction(str(layout.dense_workspace.sparse)).image(i).name
+                    for k, i in enumerate(parent_ids)}  # fmt: skip
+    for product in ("fused_ply", "classified_points", "cleaned_splats"):
+        stitched = _rows(getattr(layout, product))
+        expected, expected_vis, parts = [], [], []
+        for tile in plan.tiles:
+            sub = ProjectLayout(layout.tile_project(tile.name))
+            rows = _rows(getattr(sub, product))
+            pos = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
+            own = plan.owner(pos) == tile.index
+            assert 0 < own.sum() <= len(rows), (product, tile.name)
+            if product == "fused_ply":  # each tile reconstructs into its overlap and gives those points up
+                assert own.sum() < len(rows), tile.name
+            expected.append(rows[own])
+            parts.append(rows[own])
+            if product == "fused_ply":
+                rec = pycolmap.Reconstruction(str(sub.dense_workspace.sparse))
+                names = [rec.image(i).name for i in rec.reg_image_ids()]
+                vis = read_vis(sub.fused_vis, len(rows))
+                expected_vis += [sorted(names[j] for j in v) for v, keep in zip(vis, own, strict=True) if keep]
+        expected = np.concatenate(expected)
+        assert stitched.tobytes() == expected.tobytes(), product  # byte for byte, tile by tile
+        xyz = np.stack([stitched["x"], stitched["y"], stitched["z"]], axis=1)
+        per_tile = sum(len(np.unique(np.stack([e["x"], e["y"], e["z"]], axis=1), axis=0)) for e in parts)
+        assert len(np.unique(xyz, axis=0)) == per_tile, product  # no position from two tiles
+        if product == "fused_ply":
+            assert per_tile == len(xyz)  # and no fused point twice (training may clone a splat in place)
+        if product == "fused_ply":
+            vis = read_vis(layout.fused_vis, len(stitched))
+            assert [sorted(parent_names[j] for j in v) for v in vis] == expected_vis
+
+
+def test_the_disk_estimate_bounds_the_tiles_and_the_stitched_products(tiled):
+    from hybridsplat.disk_space import tree_bytes
+
+    _, project = tiled
+    layout = ProjectLayout(project)
+    record = Manifest(layout.manifest).stages["tiles"]
+    written = record.bytes_written + tree_bytes([layout.tiles_dir])
+    assert 0 < written <= record.bytes_expected <= 20 * written + 4 * 2**20
+
+
+def test_the_parent_products_come_from_the_stitched_cloud(tiled):
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.convert_options import Source
+
+    _, project = tiled
+    layout = ProjectLayout(project)
+    fused = _rows(layout.fused_ply)
+    mvs = read_gaussian_ply(layout.mvs_gaussians)
+    assert len(mvs) == len(fused)  # the parent's conversion ran on the stitched cloud
+    merged = read_gaussian_ply(layout.merged_ply)
+    source = np.asarray(merged.fields["source"])
+    assert int((source == Source.SPLAT).sum()) > 0 and int((source == Source.MVS).sum()) > 0
+    metrics = json.loads(layout.metrics_json.read_text())["products"]
+    assert np.isfinite(metrics["merged"]["images"]["full"]["psnr"])
+    record = json.loads(layout.record("tiles").read_text())
+    assert record["prediction"]["wall_s"] > 0 and record["prediction"]["measured_wall_s"] > 0
+    assert "Tiles" in (layout.report_dir / "report.md").read_text()
+
+
+def test_a_second_run_is_up_to_date_and_an_interrupted_tile_resumes_alone(tiled):
+    scene, project = tiled
+    layout = ProjectLayout(project)
+    again = run_pipeline(project, _config(scene))
+    assert all(r.cached or r.skipped for r in again.stages.values())
+    # an interrupted run: the parent's tiles stage unfinished, tile r0c1 stopped before training
+    Manifest(layout.manifest).invalidate("tiles")
+    sub = Manifest(ProjectLayout(layout.tile_project("r0c1")).manifest)
+    sub.invalidate("train")
+    sub.invalidate("clean")
+    before = _rows(layout.fused_ply).tobytes()
+    run_pipeline(project, _config(scene))
+    per_tile = {t["tile"]: t["stages"] for t in json.loads(layout.record("tiles").read_text())["per_tile"]}
+    assert all(s["cached"] or s["skipped"] for s in per_tile["r0c0"].values())
+    assert [n for n, s in per_tile["r0c1"].items() if not (s["cached"] or s["skipped"])] == ["train", "clean"]
+    assert _rows(layout.fused_ply).tobytes() == before
+
+
+def test_tiles_on_a_two_worker_ray_instance_make_the_same_clouds(tiled, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'hybridsplat[distributed]')")
+    scene, sequential = tiled
+    project = tmp_path / "ray"
+    config = _config(scene, workers=2)
+    manifest = run_pipeline(project, replace(config, stages={k: v for k, v in config.stages.items()}))
+    assert manifest.stages["tiles"].counts["workers"] == 2
+    for product in ("fused_ply", "classified_points"):
+        ours = _rows(getattr(ProjectLayout(project), product)).tobytes()
+        assert ours == _rows(getattr(ProjectLayout(sequential), product)).tobytes(), product
+    assert ProjectLayout(project).cleaned_splats.is_file() and ProjectLayout(project).merged_ply.is_file()
