@@ -7,6 +7,7 @@ mapping seconds (features and matching, identical for every mapper, are printed 
 incremental.
 
     python bench/bench_sfm_mappers.py [--fountain ../shared/data/real/fountain-P11] [--preset demo --preset tiny]
+    python bench/bench_sfm_mappers.py --fountain none --scene BLOCK/scene      # the 126-photo aerial block
 
 Synthetic presets are generated into ``--cache`` (their true cameras are the scene's sparse/0).
 """
@@ -41,7 +42,10 @@ def _photo_sets(args: argparse.Namespace) -> list[tuple[str, Path, dict[str, np.
         print(f"{fountain} is absent: fountain-P11 skipped")
     from data_synth import generate_scene
 
-    for preset in args.preset or ["tiny", "demo"]:
+    for scene in args.scene or []:  # a generated scene, e.g. the 126-photo aerial block (docs/tiling.md)
+        cameras = from_reconstruction(read_reconstruction(Path(scene) / "sparse" / "0"))
+        sets.append((Path(scene).parent.name, Path(scene) / "images", {v.name: v.center for v in cameras}))
+    for preset in args.preset or ([] if args.scene else ["tiny", "demo"]):
         root = Path(args.cache) / preset
         if not (root / "scene.json").is_file():
             generate_scene(preset, root, seed=1)
@@ -56,6 +60,7 @@ def main() -> None:
         "--fountain", default=str(Path(__file__).resolve().parents[2] / "shared/data/real/fountain-P11")
     )
     parser.add_argument("--preset", action="append", help="data_synth presets (default: tiny, demo)")
+    parser.add_argument("--scene", action="append", help="a generated data_synth scene folder (its sparse/0: truth)")
     parser.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "hybridsplat_bench_mappers"))
     args = parser.parse_args()
     for name, images, truth in _photo_sets(args):

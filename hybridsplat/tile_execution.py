@@ -71,6 +71,19 @@ def import_ray() -> Any:
     return ray
 
 
+def _result(ray: Any, ref: Any, tile: str) -> dict:
+    """A finished task's record; a task that failed raises its own error (a readable one-liner for the CLI, with
+    the tile named in a note), not Ray's wrapper with the remote traceback."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as err:
+        cause = getattr(err, "cause", None)
+        if isinstance(cause, Exception):
+            cause.add_note(f"in tile {tile} (a Ray task)")
+            raise cause from None
+        raise
+
+
 def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None) -> list[dict]:
     ray = import_ray()
     started_here = not ray.is_initialized()
@@ -91,7 +104,7 @@ def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: Til
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             k = pending.pop(ready[0])
-            results[k] = ray.get(ready[0])
+            results[k] = _result(ray, ready[0], jobs[k].name)
             if on_done is not None:
                 on_done(jobs[k].name, len(jobs) - len(pending), len(jobs))
         return [r for r in results if r is not None]

@@ -167,3 +167,16 @@ def test_tiles_on_a_two_worker_ray_instance_make_the_same_clouds(tiled, tmp_path
         ours = _rows(getattr(ProjectLayout(project), product)).tobytes()
         assert ours == _rows(getattr(ProjectLayout(sequential), product)).tobytes(), product
     assert ProjectLayout(project).cleaned_splats.is_file() and ProjectLayout(project).merged_ply.is_file()
+
+
+def test_a_failing_tile_task_raises_its_own_error_naming_the_tile(tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'hybridsplat[distributed]')")
+    from core.errors import InputFileError
+    from hybridsplat.tile_execution import ExecutionOptions, run_tiles
+    from hybridsplat.tile_projects import TileJob
+
+    bad = ProjectConfig(input=InputOptions(path=str(tmp_path / "no_such_photos")))
+    jobs = [TileJob(name="r0c0", root=str(tmp_path / "r0c0"), config=bad)]
+    with pytest.raises(InputFileError, match="no_such_photos") as err:
+        run_tiles(jobs, ExecutionOptions(workers=2))
+    assert "in tile r0c0 (a Ray task)" in err.value.__notes__
