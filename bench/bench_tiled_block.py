@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 import psutil
 
+from hybridsplat.layout import ProjectLayout
+
 
 def _tree_rss_mb(process: psutil.Process) -> float:
     total = 0
@@ -62,7 +64,8 @@ def timed_run(args: list[str]) -> tuple[float, float]:
 
 
 def products(project: Path) -> dict[str, float]:
-    metrics = json.loads((project / "eval" / "metrics.json").read_text())["products"]
+    layout = ProjectLayout(project)
+    metrics = json.loads(layout.metrics_json.read_text())["products"]
     out: dict[str, float] = {}
     for name in ("mvs", "merged"):
         c2c = metrics[name]["c2c"]
@@ -71,7 +74,7 @@ def products(project: Path) -> dict[str, float]:
     images = metrics["merged"]["images"]
     out["merged PSNR whole (dB)"] = images["full"]["psnr"]
     out["merged PSNR masked (dB)"] = images["masked"]["psnr"]
-    manifest = json.loads((project / "manifest.json").read_text())["stages"]
+    manifest = json.loads(layout.manifest.read_text())["stages"]
     out["fused points"] = manifest["convert"]["counts"]["gaussians"]
     return out
 
@@ -98,7 +101,7 @@ def border_statistics(plan, positions: np.ndarray) -> tuple[float, int]:
 def _fused(project: Path) -> np.ndarray:
     from core.io.ply import load_ply_data
 
-    rows = load_ply_data(project / "dense" / "fused.ply")["vertex"].data
+    rows = load_ply_data(ProjectLayout(project).fused_ply)["vertex"].data
     return np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
 
 
@@ -128,11 +131,12 @@ def main() -> None:
         a = runs["untiled"][i] if "untiled" in runs else float("nan")
         b = runs["tiled"][i]
         print(f"{what:28s} {a:12.1f} {b:12.1f} {b / a:14.3f}")
-    record = json.loads((args.work / "tiled" / "logs" / "tiles.json").read_text())
+    tiled = ProjectLayout(args.work / "tiled")
+    record = json.loads(tiled.record("tiles").read_text())
     pred = record["prediction"]
     from recon.tiling import read_tile_plan
 
-    plan = read_tile_plan(args.work / "tiled" / "tiles" / "plan.json")
+    plan = read_tile_plan(tiled.tile_plan)
     print(f"tiles {record['grid']}, photos per tile {record['photos_per_tile']}, overlap {record['overlap_m']:.2f} m")
     tiled_xyz, untiled_xyz = _fused(args.work / "tiled"), _fused(args.work / "untiled")
     exact = len(tiled_xyz) - len(np.unique(tiled_xyz, axis=0))

@@ -25,6 +25,8 @@ import threading
 import time
 from pathlib import Path
 
+from hybridsplat.layout import ProjectLayout
+
 PRODUCTS = ("dense/fused.ply", "classify/points.ply", "splats/trained.ply", "splats/cleaned.ply", "export/merged.ply")
 TILE_OPTIONS = ["--train-iterations", "200", "--max-image-size", "192"]
 
@@ -46,7 +48,7 @@ def _config(scene: Path, tiles: str, address: str):
 
 def _tile_manifests(project: Path) -> dict[str, dict]:
     out = {}
-    for path in sorted((project / "tiles").glob("r*c*/manifest.json")):
+    for path in sorted(ProjectLayout(project).tiles_dir.glob("r*c*/manifest.json")):
         try:
             out[path.parent.name] = json.loads(path.read_text())["stages"]
         except (OSError, ValueError):
@@ -107,7 +109,7 @@ def interrupted_and_resumed(scene: Path, work: Path, tiles: str) -> None:
     before = {t: set(s) for t, s in _tile_manifests(project).items()}
     start = time.perf_counter()
     subprocess.run(args, check=True)
-    record = json.loads((project / "logs" / "tiles.json").read_text())
+    record = json.loads(ProjectLayout(project).record("tiles").read_text())
     print(f"resumed in {time.perf_counter() - start:.1f} s; per tile (recorded before the resume -> redone):")
     for tile in record["per_tile"]:
         redone = [n for n, s in tile["stages"].items() if not (s["cached"] or s["skipped"])]

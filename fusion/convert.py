@@ -110,7 +110,7 @@ def convert_points(
     cloud.validate("MVS cloud")
 
     stats = ConvertStats(mode=mode, num_points=n, mean_nn_spacing=float("nan"), median_spacing=float("nan"))
-    sh_dc = _sh_dc_from_colors(cloud.colors, n, stats)
+    sh_dc = sh_dc_from_colors(cloud.colors, n, stats)
     if mode is ConvertMode.PAPER:
         log_scales, quats, logits = _paper(cloud.positions, options, stats)
     else:
@@ -175,7 +175,7 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
     positions = cloud.positions
     n = len(positions)
     k = min(options.k_neighbors, n - 1)
-    quats, missing = _quats_from_given_normals(cloud)
+    quats, missing = quats_from_given_normals(cloud)
     t = time.perf_counter()
     if k >= 1 and options.neighbor_backend == "grid" and not missing.any():
         # no PCA needed: the per-point statistics come straight from the search, without (N, k) arrays
@@ -200,7 +200,7 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
     nth = numba.get_num_threads()
     clamped = np.empty(n, dtype=np.float64)
     bad = np.zeros(nth, dtype=np.int64)
-    run_threads(_clamp_kernel, (spacing, options.min_spacing, options.max_spacing, clamped, bad), nth)
+    run_threads(clamp_kernel, (spacing, options.min_spacing, options.max_spacing, clamped, bad), nth)
     spacing = clamped
     stats.clamped_spacing = int(bad.sum())
     if stats.clamped_spacing:
@@ -212,24 +212,24 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
 
     _fill_missing_normals(cloud.positions, quats, missing, idx, stats)
 
-    conf_kind, conf = _confidence_source(cloud)
+    conf_kind, conf = confidence_source(cloud)
     log_scales = np.empty((n, 3), dtype=np.float32)
     logits = np.empty(n, dtype=np.float64)
     args = (spacing, conf_kind, conf, options.view_saturation, options.tangent_scale, options.thickness_ratio)
     args += (options.min_spacing, options.outlier_spacing_factor * stats.median_spacing, options.max_opacity)
-    run_threads(_surfel_kernel, (*args, _LOGIT_EPS, log_scales, logits), nth)
+    run_threads(surfel_kernel, (*args, LOGIT_EPS, log_scales, logits), nth)
     return log_scales, quats, logits
 
 
-_LOGIT_EPS = 1e-6
+LOGIT_EPS = 1e-6
 """Opacities are clamped to [eps, 1 − eps] before the logit (as ``core.gaussians.logit(alpha, eps)``)."""
 
 _CONF_ONES, _CONF_FIELD, _CONF_VIEWS = 0, 1, 2
 
 
-def _confidence_source(cloud: PointCloud) -> tuple[int, np.ndarray]:
+def confidence_source(cloud: PointCloud) -> tuple[int, np.ndarray]:
     """What c_views comes from: (_CONF_VIEWS, view counts float64), (_CONF_FIELD, the raw ``confidence`` field) or
-    (_CONF_ONES, an empty array); :func:`_surfel_kernel` turns it into c_views."""
+    (_CONF_ONES, an empty array); :func:`surfel_kernel` turns it into c_views."""
     if cloud.visibility is not None:
         return _CONF_VIEWS, np.fromiter((len(v) for v in cloud.visibility), dtype=np.float64, count=len(cloud))
     if "confidence" in cloud.fields:
@@ -238,7 +238,7 @@ def _confidence_source(cloud: PointCloud) -> tuple[int, np.ndarray]:
 
 
 @numba.njit(nogil=True, cache=True)
-def _clamp_kernel(s: np.ndarray, lo: float, hi: float, out: np.ndarray, bad: np.ndarray, th: int, nth: int) -> None:
+def clamp_kernel(s: np.ndarray, lo: float, hi: float, out: np.ndarray, bad: np.ndarray, th: int, nth: int) -> None:
     """out = clip(s, lo, hi) (NaN stays NaN, as np.clip); bad[th] = count of values not in [lo, hi] (NaN included)
     over the th-th of nth contiguous ranges."""
     n = len(s)
@@ -254,7 +254,7 @@ def _clamp_kernel(s: np.ndarray, lo: float, hi: float, out: np.ndarray, bad: np.
 
 
 @numba.njit(nogil=True, cache=True)
-def _surfel_kernel(
+def surfel_kernel(
     spacing, conf_kind, conf, view_saturation, tangent_scale, thickness_ratio, min_spacing, ref, max_opacity, eps,
     log_scales, logits, th, nth,
 ):  # fmt: skip
@@ -328,7 +328,7 @@ def _robust_spacing(dist: np.ndarray) -> np.ndarray:
     return median_nonzero(dist)
 
 
-def _quats_from_given_normals(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
+def quats_from_given_normals(cloud: PointCloud) -> tuple[np.ndarray, np.ndarray]:
     """Quaternions (N, 4) float32 turning +z onto the cloud's normals (as :func:`quats_z_to` of the normalised
     normals, in one pass without temporaries) and the (N,) bool mask of points whose normal is missing (absent,
     non-finite or shorter than 1e-6); their quaternions are left for :func:`_fill_missing_normals`."""
@@ -407,7 +407,7 @@ def quats_z_to(normals: np.ndarray) -> np.ndarray:
     return (q / norm[:, None]).astype(np.float32)
 
 
-def _sh_dc_from_colors(colors: np.ndarray | None, n: int, stats: ConvertStats) -> np.ndarray:
+def sh_dc_from_colors(colors: np.ndarray | None, n: int, stats: ConvertStats) -> np.ndarray:
     """Eq. 1: f_dc = (RGB/255 − 0.5) / C0, (N, 3) float32; mid grey with a warning when the cloud has no colours."""
     if colors is None:
         stats.missing_colors = True

@@ -25,6 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,11 @@ from core.io import colmap_vis
 from core.io.atomic import atomic_path
 from core.io.colmap_scan import scan_model
 from core.pointcloud import PointCloud
+
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+
+    from core.io.point_stream import PointSource
 
 MAP_SUFFIXES = ("geometric", "photometric")
 # Source-list keywords of COLMAP's patch-match.cfg (src/colmap/mvs/patch_match.cc, PatchMatchController::ReadProblems).
@@ -268,6 +274,31 @@ def read_fused(dense_dir: str | PathLike[str]) -> PointCloud:
         rec = pycolmap.Reconstruction(str(ws.sparse))
         cloud.visibility = colmap_vis.positions_to_image_ids(vis, rec.reg_image_ids(), ws.fused_vis)
     return cloud
+
+
+def fused_source(dense_dir: str | PathLike[str]) -> PointSource:
+    """The fused cloud of a dense workspace as a chunk stream, as :func:`recon.workspace.read_fused` reads it whole:
+    ``fused.ply`` and, when present, ``fused.ply.vis`` with ``visibility`` as COLMAP image ids (the positions checked
+    against the sparse model's registered images chunk by chunk: the same :class:`FormatError`)."""
+    from core.io.colmap_vis import positions_to_image_ids
+    from core.io.point_stream import PointSource, ply_source  # noqa: F811 (the annotation's name, at run time)
+
+    ws = DenseWorkspace(Path(dense_dir))
+    if not ws.fused_ply.is_file():
+        raise InputFileError("dense workspace has no fused.ply", ws.root)
+    if not ws.fused_vis.is_file():
+        return ply_source(ws.fused_ply)
+    import pycolmap
+
+    base = ply_source(ws.fused_ply, ws.fused_vis)
+    image_ids = pycolmap.Reconstruction(str(ws.sparse)).reg_image_ids()
+
+    def chunks() -> Iterator[PointCloud]:
+        for chunk in base.chunks():
+            chunk.visibility = positions_to_image_ids(chunk.visibility, image_ids, ws.fused_vis)
+            yield chunk
+
+    return PointSource(chunks, ws.fused_ply)
 
 
 def import_dense_workspace(source: str | PathLike[str], dense_dir: str | PathLike[str]) -> DenseWorkspace:

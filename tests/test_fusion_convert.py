@@ -213,7 +213,7 @@ def test_bad_input_raises_typed_errors():
 def test_quaternions_from_given_normals_equal_quats_z_to_and_flag_missing_normals():
     """The one-pass kernel used for MVS normals gives exactly quats_z_to of the normalised normals; missing normals
     (zero, NaN, inf) are flagged and get PCA normals (or +z with too few neighbours)."""
-    from fusion.convert import _quats_from_given_normals
+    from fusion.convert import quats_from_given_normals
 
     rng = np.random.default_rng(4)
     normals = rng.normal(size=(5000, 3)).astype(np.float32)
@@ -221,12 +221,12 @@ def test_quaternions_from_given_normals_equal_quats_z_to_and_flag_missing_normal
     bad = np.array([10, 11, 12, 13])
     normals[bad] = [[0, 0, 0], [np.nan, 0, 1], [np.inf, 0, 0], [1e-7, 0, 0]]
     cloud = PointCloud(rng.random((5000, 3)), normals=normals)
-    quats, missing = _quats_from_given_normals(cloud)
+    quats, missing = quats_from_given_normals(cloud)
     np.testing.assert_array_equal(np.flatnonzero(missing), bad)
     good = ~missing
     n64 = normals[good].astype(np.float64)
     np.testing.assert_array_equal(quats[good], quats_z_to(n64 / np.linalg.norm(n64, axis=1, keepdims=True)))
-    assert _quats_from_given_normals(PointCloud(rng.random((5, 3))))[1].all()
+    assert quats_from_given_normals(PointCloud(rng.random((5, 3))))[1].all()
 
 
 @pytest.mark.parametrize("confidence", ["views", "field", "none"])

@@ -5,7 +5,8 @@ coordinates (``X·scale + offset``) expressed relative to a local origin; writin
 ``round((world − offset) / scale)`` with the offset at the cloud's origin, so georeferenced clouds keep
 their millimetres. RGB is 16-bit in LAS (value·257 on write; /257 on read, or kept when the file holds 8-bit
 values), ``classification`` maps to the LAS classification, normals travel as extra dims ``nx, ny, nz``, other
-scalar fields as extra dims.
+scalar fields as extra dims. A cloud is written whole (:func:`write_las`) or chunk by chunk with bounded memory
+(:class:`LasChunkWriter`: the same header and records; :func:`write_las_chunks`: positions only).
 """
 
 from __future__ import annotations
@@ -181,10 +182,32 @@ def write_las(
     if ints.size and np.abs(ints).max() > limit:
         raise DataError(f"coordinates span more than ±{limit * scale:.0f} m from the offset at scale {scale}", path)
 
+    header = _las_header(cloud, offset_arr, scale, crs, path)
+    las = laspy.LasData(header)
+    _fill_points(las, cloud, ints, path)
+    with atomic_path(path) as tmp:
+        las.write(str(tmp), do_compress=path.suffix.lower() == ".laz")
+    return path
+
+
+def _las_extras(cloud: PointCloud) -> dict[str, np.ndarray]:
+    """The cloud's attributes stored as LAS extra dims: normals as ``nx, ny, nz``, then every field except
+    ``classification`` and the standard dimensions kept (``intensity``)."""
+    extras = {k: v for k, v in cloud.fields.items() if k not in ("classification",) + _STANDARD_KEPT}
+    if cloud.normals is not None:
+        extras = {"nx": cloud.normals[:, 0], "ny": cloud.normals[:, 1], "nz": cloud.normals[:, 2], **extras}
+    return extras
+
+
+def _las_header(cloud: PointCloud, offset: np.ndarray, scale: float, crs: str | None, path: Path) -> laspy.LasHeader:
+    """The LAS 1.4 header :func:`write_las` and :class:`LasChunkWriter` write for ``cloud`` (or its first chunk):
+    point format 7 (RGB) or 6, ``scale`` (metres) on x, y, z, ``offset`` (world metres), the CRS as WKT, one extra
+    dim per :func:`_las_extras` entry (bool as uint8). :class:`ConfigError` for an unknown CRS, :class:`DataError`
+    for a field dtype LAS cannot hold; ``path`` is named in both."""
     point_format = 7 if cloud.colors is not None else 6
     header = laspy.LasHeader(point_format=point_format, version="1.4")
     header.scales = np.array([scale] * 3)
-    header.offsets = offset_arr
+    header.offsets = offset
     if crs:
         import pyproj
 
@@ -192,37 +215,75 @@ def write_las(
             header.add_crs(pyproj.CRS.from_user_input(crs))
         except pyproj.exceptions.CRSError as err:
             raise ConfigError(f"unknown CRS {crs!r} ({err})", path) from err
-    extras = {k: v for k, v in cloud.fields.items() if k not in ("classification",) + _STANDARD_KEPT}
-    if cloud.normals is not None:
-        extras = {"nx": cloud.normals[:, 0], "ny": cloud.normals[:, 1], "nz": cloud.normals[:, 2], **extras}
-    for name, values in extras.items():
+    for name, values in _las_extras(cloud).items():
         dtype = np.dtype(values.dtype)
         if dtype == np.bool_:
             dtype = np.dtype(np.uint8)
         if dtype not in _EXTRA_TYPES:
             raise DataError(f"field {name!r} of dtype {values.dtype} cannot be stored as a LAS extra dim", path)
         header.add_extra_dim(laspy.ExtraBytesParams(name=name[:32], type=dtype))
+    return header
 
-    las = laspy.LasData(header)
-    las.X = ints[:, 0].astype(np.int32)
-    las.Y = ints[:, 1].astype(np.int32)
-    las.Z = ints[:, 2].astype(np.int32)
+
+def _fill_points(
+    points: laspy.LasData | laspy.ScaleAwarePointRecord, cloud: PointCloud, ints: np.ndarray, path: Path
+) -> None:
+    """Set the records of ``points`` (made from :func:`_las_header` of the same attributes) from ``cloud``: integer
+    coordinates ``ints`` (N, 3) (float, already rounded and range-checked), classification (0..255, else
+    :class:`DataError` naming ``path``), ``intensity``, RGB as 16-bit (value·257), the extra dims."""
+    points.X = ints[:, 0].astype(np.int32)
+    points.Y = ints[:, 1].astype(np.int32)
+    points.Z = ints[:, 2].astype(np.int32)
     if "classification" in cloud.fields:
         cls = np.asarray(cloud.fields["classification"])
         if cls.size and (cls.min() < 0 or cls.max() > 255):
             raise DataError("classification codes must lie in 0..255 for LAS", path)
-        las.classification = cls.astype(np.uint8)
+        points.classification = cls.astype(np.uint8)
     for name in _STANDARD_KEPT:
         if name in cloud.fields:
-            las[name] = np.asarray(cloud.fields[name])
+            points[name] = np.asarray(cloud.fields[name])
     if cloud.colors is not None:
         rgb16 = cloud.colors.astype(np.uint16) * 257
-        las.red, las.green, las.blue = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
-    for name, values in extras.items():
-        las[name[:32]] = np.asarray(values).astype(np.uint8) if values.dtype == np.bool_ else values
-    with atomic_path(path) as tmp:
-        las.write(str(tmp), do_compress=path.suffix.lower() == ".laz")
-    return path
+        points.red, points.green, points.blue = rgb16[:, 0], rgb16[:, 1], rgb16[:, 2]
+    for name, values in _las_extras(cloud).items():
+        points[name[:32]] = np.asarray(values).astype(np.uint8) if values.dtype == np.bool_ else values
+
+
+class LasChunkWriter:
+    """Writes point-cloud chunks (one origin, the same attributes) to one LAS 1.4 / LAZ file as :func:`write_las`
+    writes a whole cloud (the same header and records: :func:`_las_header`, :func:`_fill_points`): ``scale`` (metres,
+    default 1 mm), offset at the first chunk's origin rounded to the scale, ``crs`` as WKT. ``path`` is written
+    directly (give a temporary name and rename after, e.g. :func:`core.io.atomic.atomic_path`); ``target`` (default
+    ``path``) is the final name: its suffix chooses LAZ compression and errors name it. The header's counts and
+    bounds are completed by laspy on :meth:`close`; :attr:`count` is the number of points written."""
+
+    def __init__(self, path: Path, *, scale: float = 0.001, crs: str | None = None, target: Path | None = None):
+        self.path, self.target, self.scale, self.crs = path, target or path, scale, crs
+        self.writer = None
+        self.count = 0
+
+    def _open(self, first: PointCloud) -> None:
+        self.offset = np.round(first.origin / self.scale) * self.scale
+        self.header = _las_header(first, self.offset, self.scale, self.crs, self.target)
+        compress = self.target.suffix.lower() == ".laz"
+        self.writer = laspy.open(self.path, mode="w", header=self.header, do_compress=compress)
+
+    def write(self, cloud: PointCloud) -> None:
+        """Append a chunk (positions relative to the first chunk's origin)."""
+        if self.writer is None:
+            self._open(cloud)
+        ints = np.round((cloud.positions + (cloud.origin - self.offset)) / self.scale)
+        limit = np.iinfo(np.int32).max
+        if ints.size and np.abs(ints).max() > limit:
+            raise DataError(f"coordinates span more than ±{limit * self.scale:.0f} m from the offset", self.target)
+        rec = laspy.ScaleAwarePointRecord.zeros(len(ints), header=self.header)
+        _fill_points(rec, cloud, ints, self.target)
+        self.writer.write_points(rec)
+        self.count += len(ints)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
 
 
 def write_las_chunks(

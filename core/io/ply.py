@@ -22,8 +22,8 @@ from core.io.atomic import atomic_path
 from core.io.origin import read_origin, remove_origin, write_origin
 from core.pointcloud import PointCloud, choose_origin
 
-_COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
-_NORMAL_NAMES = ("nx", "ny", "nz")
+COLOR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+NORMAL_NAMES = ("nx", "ny", "nz")
 # plyfile property type names for numpy dtypes PLY can hold.
 _PLY_TYPES = {
     np.dtype(np.int8): "i1",
@@ -219,16 +219,16 @@ def read_ply(path: str | PathLike[str]) -> PointCloud:
 
     used = {"x", "y", "z"}
     colors = None
-    for triple in _COLOR_NAMES:
+    for triple in COLOR_NAMES:
         if all(n in names for n in triple):
             raw = np.stack([scalar_column(vertex, n, path) for n in triple], axis=1)
-            colors = _colors_from_ply(raw, path)
+            colors = colors_from_ply(raw, path)
             used.update(triple)
             break
     normals = None
-    if all(n in names for n in _NORMAL_NAMES):
-        normals = np.stack([scalar_column(vertex, n, path).astype(np.float32) for n in _NORMAL_NAMES], axis=1)
-        used.update(_NORMAL_NAMES)
+    if all(n in names for n in NORMAL_NAMES):
+        normals = np.stack([scalar_column(vertex, n, path).astype(np.float32) for n in NORMAL_NAMES], axis=1)
+        used.update(NORMAL_NAMES)
 
     fields: dict[str, np.ndarray] = {}
     skipped = []
@@ -245,7 +245,7 @@ def read_ply(path: str | PathLike[str]) -> PointCloud:
     return PointCloud(positions, origin, colors, normals, fields)
 
 
-def _colors_from_ply(raw: np.ndarray, path: Path) -> np.ndarray:
+def colors_from_ply(raw: np.ndarray, path: Path) -> np.ndarray:
     if np.issubdtype(raw.dtype, np.floating):
         if not np.isfinite(raw).all():
             raise DataError("colours contain NaN or infinite values", path)
@@ -280,7 +280,7 @@ def write_ply(
         xyz = cloud.positions
     columns: list[tuple[str, np.ndarray]] = [(n, xyz[:, i].astype(position_dtype)) for i, n in enumerate("xyz")]
     if cloud.normals is not None:
-        columns += [(n, cloud.normals[:, i].astype("f4")) for i, n in enumerate(_NORMAL_NAMES)]
+        columns += [(n, cloud.normals[:, i].astype("f4")) for i, n in enumerate(NORMAL_NAMES)]
     if cloud.colors is not None:
         c = cloud.colors if color_dtype == "u1" else cloud.colors.astype(np.float32) / 255.0
         columns += [(n, c[:, i]) for i, n in enumerate(("red", "green", "blue"))]
