@@ -93,7 +93,9 @@ def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: Til
         if options.ray_address:
             ray.init(address=options.ray_address, runtime_env=env, log_to_driver=False)
         else:
-            ray.init(num_cpus=options.workers, include_dashboard=False, log_to_driver=False, runtime_env=env)
+            # address="local": a new instance of our own, even where another Ray cluster runs on this machine
+            ray.init(address="local", num_cpus=options.workers, include_dashboard=False, log_to_driver=False,
+                     runtime_env=env)  # fmt: skip
     try:
         resources: dict[str, Any] = {"num_cpus": options.cpus_per_tile, "max_retries": options.max_retries}
         if options.memory_mb_per_tile:

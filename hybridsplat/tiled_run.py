@@ -65,7 +65,7 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
     sizes = tile_sizes(ctx, plan, [t for t, _ in jobs], held_out)
     prediction = predict_tiles(ctx, sizes, [job for _, job in jobs], execution.workers if execution.uses_ray else 1)
     ctx.say(
-        f"  tiles      {len(jobs)} tiles on {prediction.workers} worker(s): predicted {prediction.wall_s:.0f} s, "
+        f"  tiles      {len(jobs)} tiles on {_where(execution)}: predicted {prediction.wall_s:.0f} s, "
         f"peak {prediction.peak_mb:.0f} MB ({prediction.rates.source} rates)"
     )
     ctx.progress("tiles", 0, len(jobs))
@@ -81,19 +81,30 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
         "photos_per_tile": [len(t.photo_ids) for t in plan.tiles],
         "without_photos": too_few,
         "workers": execution.workers if execution.uses_ray else 1,
+        "where": _where(execution),
         "per_tile": results,
         "stitched": stitched,
         "prediction": {**prediction.to_json(), "measured_wall_s": measured_s, "measured_peak_mb": memory.peak_mb},
     }
 
 
+def _where(execution: Any) -> str:
+    if execution.ray_address:  # the cost model assumes --workers tiles at a time there
+        return f"the Ray cluster at {execution.ray_address}"
+    return f"{execution.workers} Ray workers" if execution.uses_ray else "this process, one at a time"
+
+
 def tile_sizes(ctx: StageContext, plan: TilePlan, tiles: list[int], held_out: set[str]) -> list[TileSize]:
     """Each tile's size for the cost model: training photos, megapixels a dense photo, training iterations."""
-    from hybridsplat.stages.mvs import dense_size
+    from hybridsplat.stages import sizes as stage_sizes
     from hybridsplat.stages.train import TrainStage
     from recon.mvs import MvsOptions
 
-    width, height = dense_size(ctx.layout.sparse, ctx.config.options("mvs", MvsOptions).max_image_size)
+    # the photos' pixels as MVS sees them (capped by --max-image-size), as the reference rates were fitted: not the
+    # mvs stage's disk estimate, which pads each side by 10 % for undistortion
+    largest = stage_sizes.largest(stage_sizes.camera_sizes(ctx.layout.sparse))
+    max_size = ctx.config.options("mvs", MvsOptions).max_image_size
+    width, height = stage_sizes.capped_size(largest, max_size)
     iterations = int(ctx.config.options("train", TrainStage.Options).training.iterations)
     return [
         TileSize(

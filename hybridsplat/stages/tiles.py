@@ -34,7 +34,8 @@ class TilesOptions:
     least 5 sparse spacings). up: ``z`` (surveys, georeferenced blocks) or ``pca`` (façades, object orbits).
     photos_per_tile / points_per_tile: what ``auto`` aims a tile at.
     workers: tiles run at a time (≤ 1: one by one in this process, no Ray; N > 1: a local Ray instance of N CPUs);
-    ray_address: a running Ray cluster to join instead; cpus_per_tile: CPUs (threads) each tile's task declares.
+    ray_address: a running Ray cluster to join instead (``workers`` then only tells the cost model how many tiles
+    the cluster runs at once); cpus_per_tile: CPUs (threads) each tile's task declares.
     These three decide how the tiles run, not what they make (a change reruns only the stitch: the tiles' own
     stages stay up to date).
     """
@@ -120,12 +121,14 @@ class TilesStage(Stage):
         from core.io.json_io import write_json_atomic
 
         write_json_atomic(ctx.layout.record(self.name), record)
-        return {k: record[k] for k in ("tiles", "grid", "photos_per_tile", "stitched", "prediction", "workers")}
+        return {
+            k: record[k] for k in ("tiles", "grid", "photos_per_tile", "stitched", "prediction", "workers", "where")
+        }
 
     def summary(self, counts: dict[str, Any]) -> str:
         stitched = counts["stitched"]
         return (
-            f"{counts['tiles']} tiles ({counts['grid']}) on {counts['workers']} worker(s): "
+            f"{counts['tiles']} tiles ({counts['grid']}) on {counts.get('where', counts['workers'])}: "
             f"{stitched['fused']} fused points, {stitched['cleaned']} splats stitched"
         )
 
@@ -135,7 +138,7 @@ class TilesStage(Stage):
         pred = counts.get("prediction") or {}
         lines = [
             f"{counts['tiles']} tiles ({counts['grid']}), photos per tile {counts['photos_per_tile']}, "
-            f"{counts['workers']} worker(s).",
+            f"run on {counts.get('where', counts['workers'])}.",
         ]
         if pred:
             lines.append(
