@@ -212,13 +212,24 @@ def _adaptive(cloud: PointCloud, options: ConvertOptions, stats: ConvertStats):
 
     _fill_missing_normals(cloud.positions, quats, missing, idx, stats)
 
+    log_scales, logits = surfel_attributes(cloud, spacing, options, stats.median_spacing)
+    return log_scales, quats, logits
+
+
+def surfel_attributes(
+    cloud: PointCloud, spacing: np.ndarray, options: ConvertOptions, median_spacing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Adaptive log-scales (N, 3) float32 and opacity logits (N,) float64 of ``cloud``'s points from their clamped
+    ``spacing`` (metres) and the cloud's ``median_spacing`` (outliers are judged against it); the streamed
+    conversion calls it per chunk."""
+    n, nth = len(cloud), numba.get_num_threads()
     conf_kind, conf = confidence_source(cloud)
     log_scales = np.empty((n, 3), dtype=np.float32)
     logits = np.empty(n, dtype=np.float64)
     args = (spacing, conf_kind, conf, options.view_saturation, options.tangent_scale, options.thickness_ratio)
-    args += (options.min_spacing, options.outlier_spacing_factor * stats.median_spacing, options.max_opacity)
+    args += (options.min_spacing, options.outlier_spacing_factor * median_spacing, options.max_opacity)
     run_threads(surfel_kernel, (*args, LOGIT_EPS, log_scales, logits), nth)
-    return log_scales, quats, logits
+    return log_scales, logits
 
 
 LOGIT_EPS = 1e-6

@@ -70,21 +70,20 @@ from scipy.spatial import cKDTree
 from core.errors import ConfigError, DataError, FormatError
 from core.gaussians import GaussianSet
 from core.io.atomic import atomic_path
+from core.io.gaussian_ply import gaussian_ply_rows
 from core.io.origin import remove_origin, write_origin
 from core.io.point_stream import PointSource, rechunk
 from core.knn import knn_grid, median_nonzero, run_threads
 from core.pointcloud import PointCloud
 from eval.c2c_stream import CellFiles, Grid, grid_for
 from fusion.convert import (
-    LOGIT_EPS,
     ConvertStats,
     clamp_kernel,
-    confidence_source,
     pca_normals,
     quats_from_given_normals,
     quats_z_to,
     sh_dc_from_colors,
-    surfel_kernel,
+    surfel_attributes,
 )
 from fusion.convert_options import DEFAULT_MODE, ConversionWarning, ConvertMode, ConvertOptions, Source
 
@@ -438,12 +437,7 @@ def _adaptive_chunk(chunk: PointCloud, res: np.ndarray | None, glob: _Globals) -
     bad = np.zeros(nth, dtype=np.int64)
     run_threads(clamp_kernel, (raw, o.min_spacing, o.max_spacing, spacing, bad), nth)
     glob.clamped_spacing += int(bad.sum())
-    conf_kind, conf = confidence_source(chunk)
-    log_scales = np.empty((n, 3), dtype=np.float32)
-    logits = np.empty(n, dtype=np.float64)
-    args = (spacing, conf_kind, conf, o.view_saturation, o.tangent_scale, o.thickness_ratio)
-    args += (o.min_spacing, o.outlier_spacing_factor * glob.median, o.max_opacity)
-    run_threads(surfel_kernel, (*args, LOGIT_EPS, log_scales, logits), nth)
+    log_scales, logits = surfel_attributes(chunk, spacing, o, glob.median)
     return log_scales, quats, logits
 
 
@@ -502,29 +496,6 @@ def ply_header(count: int, names: list[str]) -> bytes:
     return f"ply\nformat binary_little_endian 1.0\nelement vertex {count}\n{props}end_header\n".encode("ascii")
 
 
-def gaussian_ply_rows(gs: GaussianSet, extra_fields: bool = False) -> tuple[list[str], np.ndarray]:
-    """Property names and the (N, P) little-endian float32 rows that :func:`write_gaussian_ply` writes for ``gs``."""
-    from core.io.gaussian_ply import gaussian_property_names
-
-    n = len(gs)
-    names = gaussian_property_names(gs.sh_degree)
-    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, -1)  # type: ignore[union-attr]
-    normal_names = ("nx", "ny", "nz")
-    has_normals = all(k in gs.fields for k in normal_names)
-    normals = (
-        np.stack([gs.fields[k].astype(np.float32) for k in normal_names], axis=1)
-        if has_normals
-        else np.zeros((n, 3), np.float32)
-    )
-    parts = [gs.means.astype(np.float32), normals, gs.sh_dc, rest, gs.logit_opacities[:, None], gs.log_scales]
-    rows = np.concatenate([*parts, gs.quats], axis=1).astype("<f4")
-    extras = sorted(k for k in gs.fields if not (has_normals and k in normal_names))
-    if extra_fields and extras:
-        names = names + extras
-        rows = np.concatenate([rows] + [gs.fields[k].astype("<f4")[:, None] for k in extras], axis=1)
-    return names, np.ascontiguousarray(rows)
-
-
 @dataclass(frozen=True)
 class StreamOptions:
     """How :func:`convert_stream` works: ``memory_limit_mb`` (MiB) sets the cell and chunk sizes
@@ -576,7 +547,7 @@ def _output_pass(source: PointSource, n: int, grid: Grid, work: Path, glob: _Glo
             res = _chunk_results(piece, grid, work, cursor) if glob.mode is ConvertMode.ADAPTIVE and glob.k else None
             gs = _chunk_gaussians(piece, res, glob)
             if ply_file is not None:
-                names, rows = gaussian_ply_rows(gs, out.extra_fields)
+                names, rows = gaussian_ply_rows(gs, out.extra_fields)  # core.io.gaussian_ply's layout
                 if start == 0:
                     ply_file.write(ply_header(n, names))
                 ply_file.write(rows.tobytes())

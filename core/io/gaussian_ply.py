@@ -38,6 +38,31 @@ def gaussian_property_names(sh_degree: int) -> list[str]:
     )
 
 
+def gaussian_ply_rows(gs: GaussianSet, extra_fields: bool = False) -> tuple[list[str], np.ndarray]:
+    """Property names and the (N, P) little-endian float32 rows of a 3DGS PLY for ``gs`` (what
+    :func:`write_gaussian_ply` writes; the streamed conversion appends them chunk by chunk): position, normal (the
+    ``nx/ny/nz`` fields, else zeros), SH DC, channel-major SH rest, logit opacity, log scales, quaternion, then with
+    ``extra_fields`` the other fields in name order."""
+    names = gaussian_property_names(gs.sh_degree)
+    n = len(gs)
+    # channel-major f_rest: (N, K-1, 3) -> (N, 3, K-1) -> flat
+    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, 3 * gs.sh_rest.shape[1])  # type: ignore[union-attr]
+    normal_names = ("nx", "ny", "nz")
+    has_normals = all(k in gs.fields for k in normal_names)
+    normals = (
+        np.stack([gs.fields[k].astype(np.float32) for k in normal_names], axis=1)
+        if has_normals
+        else np.zeros((n, 3), np.float32)
+    )
+    parts = [gs.means.astype(np.float32), normals, gs.sh_dc, rest, gs.logit_opacities[:, None], gs.log_scales]
+    rows = np.concatenate([*parts, gs.quats], axis=1).astype("<f4")
+    extras = sorted(k for k in gs.fields if not (has_normals and k in normal_names))
+    if extra_fields and extras:
+        names = names + extras
+        rows = np.concatenate([rows] + [gs.fields[k].astype("<f4")[:, None] for k in extras], axis=1)
+    return names, np.ascontiguousarray(rows)
+
+
 def write_gaussian_ply(
     path: str | PathLike[str],
     gaussians: GaussianSet,
@@ -54,34 +79,8 @@ def write_gaussian_ply(
     path = Path(path)
     gs = gaussians if sh_degree is None else gaussians.with_sh_degree(sh_degree)
     gs.validate(str(path))
-    degree = gs.sh_degree
-    names = gaussian_property_names(degree)
+    names, payload = gaussian_ply_rows(gs, extra_fields)
     n = len(gs)
-    # channel-major f_rest: (N, K-1, 3) -> (N, 3, K-1) -> flat
-    rest = np.ascontiguousarray(gs.sh_rest.transpose(0, 2, 1)).reshape(n, 3 * gs.sh_rest.shape[1])  # type: ignore[union-attr]
-    normal_names = ("nx", "ny", "nz")
-    has_normals = all(k in gs.fields for k in normal_names)
-    normals = (
-        np.stack([gs.fields[k].astype(np.float32) for k in normal_names], axis=1)
-        if has_normals
-        else np.zeros((n, 3), np.float32)
-    )
-    payload = np.concatenate(
-        [
-            gs.means.astype(np.float32),
-            normals,
-            gs.sh_dc,
-            rest,
-            gs.logit_opacities[:, None],
-            gs.log_scales,
-            gs.quats,
-        ],
-        axis=1,
-    ).astype("<f4")
-    extras = sorted(k for k in gs.fields if not (has_normals and k in normal_names))
-    if extra_fields and extras:
-        names = names + extras
-        payload = np.concatenate([payload] + [gs.fields[k].astype("<f4")[:, None] for k in extras], axis=1)
     vertex = np.ascontiguousarray(payload).view(np.dtype([(name, "<f4") for name in names])).reshape(n)
     ply = plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")], text=False, byte_order="<")
     with atomic_path(path) as tmp:
