@@ -58,8 +58,16 @@ def _run_parameters() -> list[inspect.Parameter]:
     hints = typing.get_type_hints(_run_input)
     params = [p.replace(annotation=hints[p.name]) for p in inspect.signature(_run_input).parameters.values()]
     params = [p.replace(kind=inspect.Parameter.KEYWORD_ONLY) if p.name != "input_path" else p for p in params]
+    own = {p.name for p in params}
+    shared: dict[str, inspect.Parameter] = {}
     for stage in registered_stages():
-        params += cli_parameters(stage.Options, stage.run_options)
+        for param in cli_parameters(stage.Options, stage.run_options):
+            if param.name in own or (param.name in shared and shared[param.name].annotation != param.annotation):
+                raise TypeError(f"stage {stage.name}: run option --{param.name} clashes with another option")
+            # a flag several stages declare (``--memory-limit``) is one parameter; its value sets each of them
+            if param.name not in shared:
+                shared[param.name] = param
+                params.append(param)
     return params
 
 
