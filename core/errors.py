@@ -64,6 +64,11 @@ class ReconstructionError(HybridSplatError):
     """A reconstruction stage failed on valid input (images do not overlap, too few registered images)."""
 
 
+class EmptyFusionError(ReconstructionError):
+    """Depth-map fusion kept no point (every depth map empty or inconsistent). A tile of a tiled run where this
+    happens (water, a textureless roof) contributes nothing instead of failing the run."""
+
+
 class ProjectBusyError(HybridSplatError):
     """Another process holds the project's lock (``hybridsplat.project_lock``; exit code 3 on the command line)."""
 

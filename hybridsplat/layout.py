@@ -281,6 +281,12 @@ class ProjectLayout:
         """The sub-project of tile ``name`` (``r{row}c{column}``)."""
         return self.tiles_dir / name
 
+    @property
+    def empty_tile_record(self) -> Path:
+        """In a tile's project: why its MVS fused no point, with the hash of the model it was run on (the tile then
+        adds nothing to the run, and a second run does not redo it while the model is the same)."""
+        return self.logs_dir / "empty_tile.json"
+
     # -- the documented contract ----------------------------------------------------------------
     def documented_paths(self) -> dict[str, Path]:
         """Every user-facing path, relative to the root, as listed in docs/conventions.md."""

@@ -60,6 +60,7 @@ def prepare_tile(
     if _same_model(staging, layout.sparse):  # unchanged: keep the files (and the tile's stages up to date)
         shutil.rmtree(staging)
     else:
+        layout.empty_tile_record.unlink(missing_ok=True)  # a new model may fuse points
         if layout.sparse.exists():
             shutil.rmtree(layout.sparse)
         staging.rename(layout.sparse)
@@ -77,12 +78,23 @@ def _same_model(new: Path, old: Path) -> bool:
 def run_tile(job: TileJob) -> dict[str, Any]:
     """Run the tile's stages (:data:`TILE_STAGES`) in its project; per stage what the tile's manifest recorded
     (seconds, peak MB, cached or skipped), for the parent's record and the cost model."""
+    from core.errors import EmptyFusionError
     from hybridsplat.pipeline import run_pipeline
     from hybridsplat.stages import stage_named
     from hybridsplat.terminal import Terminal
 
+    layout = ProjectLayout(job.root)
+    empty = _empty_record(layout)
+    if empty is not None:
+        return {"tile": job.name, "empty": empty, "stages": {}}
     stages = [stage_named(n) for n in TILE_STAGES]
-    manifest = run_pipeline(job.root, job.config, stages=stages, terminal=Terminal(quiet=True))
+    try:
+        manifest = run_pipeline(job.root, job.config, stages=stages, terminal=Terminal(quiet=True))
+    except EmptyFusionError as err:
+        # nothing in the tile survives fusion (water, a textureless roof): it adds nothing, the others go on; the
+        # record keeps a second run from redoing its MVS while its model is unchanged
+        _write_empty_record(layout, err.problem)
+        return {"tile": job.name, "empty": err.problem, "stages": {}}
     records = {}
     for name in TILE_STAGES:
         record = manifest.stages[name]
@@ -94,3 +106,22 @@ def run_tile(job: TileJob) -> dict[str, Any]:
             "counts": record.counts if not record.skipped else {},
         }
     return {"tile": job.name, "stages": records}
+
+
+def _empty_record(layout: ProjectLayout) -> str | None:
+    """Why the tile fused no point, when an earlier run recorded so for the tile's current model; else None."""
+    from core.io.json_io import read_json_object
+    from hybridsplat.manifest import hash_path
+
+    path = layout.empty_tile_record
+    if not path.is_file():
+        return None
+    record = read_json_object(path)
+    return str(record.get("reason", "")) if record.get("sparse") == hash_path(layout.sparse) else None
+
+
+def _write_empty_record(layout: ProjectLayout, reason: str) -> None:
+    from core.io.json_io import write_json_atomic
+    from hybridsplat.manifest import hash_path
+
+    write_json_atomic(layout.empty_tile_record, {"reason": reason, "sparse": hash_path(layout.sparse)})

@@ -73,13 +73,19 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
         start = time.perf_counter()
         results = run_tiles([job for _, job in jobs], execution, done)
         measured_s = time.perf_counter() - start
-    stitched = stitch_products(ctx, plan, [t for t, _ in jobs])
+    empty = {r["tile"]: r["empty"] for r in results if r.get("empty")}
+    if len(empty) == len(jobs):
+        from core.errors import EmptyFusionError
+
+        raise EmptyFusionError(f"no tile fused a point ({len(jobs)} tiles; see their logs)", layout.tiles_dir)
+    stitched = stitch_products(ctx, plan, [t for t, job in jobs if job.name not in empty])
     return {
         "tiles": len(plan.tiles),
         "grid": f"{plan.columns}x{plan.rows}",
         "overlap_m": plan.overlap_m,
         "photos_per_tile": [len(t.photo_ids) for t in plan.tiles],
         "without_photos": too_few,
+        "without_points": sorted(empty),
         "workers": execution.workers if execution.uses_ray else 1,
         "where": _where(execution),
         "per_tile": results,

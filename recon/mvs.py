@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from core.errors import ConfigError, InputFileError, ReconstructionError
+from core.errors import ConfigError, EmptyFusionError, InputFileError, ReconstructionError
 from core.options import enum_choice, runtime_factory
 from recon.colmap_log import native_output_to
 from recon.mvs_colmap import COLMAP_NUM_SOURCES, colmap_available, patch_match_problems, run_patch_match
@@ -302,7 +302,7 @@ def fuse(
     """``pycolmap.stereo_fusion`` (CPU) of the workspace's geometric maps (photometric when those are absent).
 
     Writes ``fused.ply`` and ``fused.ply.vis``; returns the number of fused points. Raises
-    :class:`ReconstructionError` when fusion yields no point. log_path: COLMAP's output goes there (appended);
+    :class:`EmptyFusionError` when fusion yields no point. log_path: COLMAP's output goes there (appended);
     its warnings are appended to ``warnings`` when a list is given.
     """
     import pycolmap
@@ -333,7 +333,7 @@ def fuse(
         warnings.extend(log.warnings)
     n = int(rec.num_points3D()) if rec is not None else 0
     if n == 0 or not ws.fused_ply.is_file():
-        raise ReconstructionError(
+        raise EmptyFusionError(
             "fusion produced no points (depth maps empty or inconsistent, or the sparse model has no points)", ws.root
         )
     return n

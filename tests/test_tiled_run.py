@@ -180,3 +180,44 @@ def test_a_failing_tile_task_raises_its_own_error_naming_the_tile(tmp_path):
     with pytest.raises(InputFileError, match="no_such_photos") as err:
         run_tiles(jobs, ExecutionOptions(workers=2))
     assert "in tile r0c0 (a Ray task)" in err.value.__notes__
+
+
+def test_a_tile_that_fuses_no_point_adds_nothing_and_is_not_redone(tiled, tmp_path, monkeypatch):
+    import shutil
+
+    import hybridsplat.pipeline
+    from core.errors import EmptyFusionError
+
+    scene, sequential = tiled
+    project = tmp_path / "copy"
+    shutil.copytree(sequential, project)
+    layout = ProjectLayout(project)
+    real_run = hybridsplat.pipeline.run_pipeline
+    calls = []
+
+    def fusion_fails_in_r0c1(root, *args, **kwargs):  # as COLMAP's fusion does over water or a bare roof
+        calls.append(str(root))
+        if str(root).endswith("r0c1"):
+            raise EmptyFusionError("fusion produced no points", root)
+        return real_run(root, *args, **kwargs)
+
+    monkeypatch.setattr(hybridsplat.pipeline, "run_pipeline", fusion_fails_in_r0c1)
+    tiles_only = [stage_named("sfm"), stage_named("tiles")]
+    record = run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]).stages["tiles"]
+    assert record.counts["without_points"] == ["r0c1"]
+    assert "fused no point: r0c1" in stage_named("tiles").summary(record.counts)
+    plan = read_tile_plan(layout.tile_plan)
+    r0c0 = _rows(ProjectLayout(layout.tile_project("r0c0")).fused_ply)
+    own = plan.owner(np.stack([r0c0["x"], r0c0["y"], r0c0["z"]], axis=1).astype(np.float64)) == 0
+    assert _rows(layout.fused_ply).tobytes() == r0c0[own].tobytes()  # only the other tile's core
+    # a second run takes the tile's record while its model is unchanged: its MVS is not run again
+    calls.clear()
+    again = run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]).stages["tiles"]
+    assert again.counts["without_points"] == ["r0c1"] and not any(c.endswith("r0c1") for c in calls)
+    # every tile empty: the run fails, naming the tiles' folder
+    monkeypatch.setattr(hybridsplat.pipeline, "run_pipeline", lambda root, *a, **k: (_ for _ in ()).throw(
+        EmptyFusionError("fusion produced no points", root)))  # fmt: skip
+    (ProjectLayout(layout.tile_project("r0c1")).empty_tile_record).unlink()
+    ProjectLayout(layout.tile_project("r0c0")).manifest.unlink()
+    with pytest.raises(EmptyFusionError, match="no tile fused a point"):
+        run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"])

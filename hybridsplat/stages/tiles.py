@@ -122,14 +122,16 @@ class TilesStage(Stage):
 
         write_json_atomic(ctx.layout.record(self.name), record)
         return {
-            k: record[k] for k in ("tiles", "grid", "photos_per_tile", "stitched", "prediction", "workers", "where")
-        }
+            k: record[k]
+            for k in ("tiles", "grid", "photos_per_tile", "stitched", "prediction", "workers", "where",
+                      "without_photos", "without_points")
+        }  # fmt: skip
 
     def summary(self, counts: dict[str, Any]) -> str:
         stitched = counts["stitched"]
         return (
             f"{counts['tiles']} tiles ({counts['grid']}) on {counts.get('where', counts['workers'])}: "
-            f"{stitched['fused']} fused points, {stitched['cleaned']} splats stitched"
+            f"{stitched['fused']} fused points, {stitched['cleaned']} splats stitched" + _left_out(counts)
         )
 
     def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
@@ -138,7 +140,7 @@ class TilesStage(Stage):
         pred = counts.get("prediction") or {}
         lines = [
             f"{counts['tiles']} tiles ({counts['grid']}), photos per tile {counts['photos_per_tile']}, "
-            f"run on {counts.get('where', counts['workers'])}.",
+            f"run on {counts.get('where', counts['workers'])}{_left_out(counts)}.",
         ]
         if pred:
             lines.append(
@@ -146,6 +148,16 @@ class TilesStage(Stage):
                 f"measured {pred.get('measured_wall_s', 0):.0f} s and {pred.get('measured_peak_mb', 0):.0f} MB."
             )
         return ReportSection("Tiles", tuple(lines))
+
+
+def _left_out(counts: dict[str, Any]) -> str:
+    """Which tiles added nothing, and why (empty when every tile did)."""
+    parts = []
+    if counts.get("without_photos"):
+        parts.append(f"seen by fewer than 2 photos: {', '.join(counts['without_photos'])}")
+    if counts.get("without_points"):
+        parts.append(f"fused no point: {', '.join(counts['without_points'])}")
+    return f" (tiles left out, {'; '.join(parts)})" if parts else ""
 
 
 def _tile_count(ctx: StageContext, options: TilesOptions) -> int:
