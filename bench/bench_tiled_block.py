@@ -8,6 +8,9 @@ kept by two tiles (must be 0), the cost model's prediction against what happened
 
     python bench/bench_tiled_block.py --scene BLOCK/scene --work W --tiles 2x2 --workers 2 --train-iterations 600
 
+``--name`` names the tiled project (default ``tiled``), ``--also`` shows tiled projects of earlier runs beside it
+(e.g. one run with ``-- --no-tile-context``: the tiles trained alone, the control of the neighbour context).
+
 The scene: ``hybridsplat synth --preset aerial --seed 2 --views 124 --test-views 6 --width 320 --height 240``
 (126 training photos: a 11 × 10 nadir grid and 16 obliques over the 100 m × 80 m yard). Both runs get the same
 options; extra ``run`` options after ``--``.
@@ -113,32 +116,43 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--train-iterations", type=int, default=600)
     parser.add_argument("--skip-untiled", action="store_true", help="reuse WORK/untiled from an earlier run")
+    parser.add_argument("--name", default="tiled", help="folder of the tiled project in WORK")
+    parser.add_argument("--untiled-name", default="untiled", help="folder of the untiled project in WORK")
+    parser.add_argument("--also", nargs="*", default=[], help="tiled projects of earlier runs in WORK to show beside")
     parser.add_argument("extra", nargs="*", help="more run options (after --)")
     args = parser.parse_args()
     common = [str(args.scene), "--train-iterations", str(args.train_iterations), *args.extra]
     runs = {}
     if not args.skip_untiled:
-        runs["untiled"] = timed_run([*common, "--out", str(args.work / "untiled")])
-    runs["tiled"] = timed_run(
-        [*common, "--out", str(args.work / "tiled"), "--tiles", args.tiles, "--workers", str(args.workers)]
+        runs[args.untiled_name] = timed_run([*common, "--out", str(args.work / args.untiled_name)])
+    runs[args.name] = timed_run(
+        [*common, "--out", str(args.work / args.name), "--tiles", args.tiles, "--workers", str(args.workers)]
     )
-    figures = {name: products(args.work / name) for name in ("untiled", "tiled")}
-    print(f"{'':28s} {'untiled':>12s} {'tiled':>12s} {'tiled/untiled':>14s}")
-    for key in figures["untiled"]:
-        a, b = figures["untiled"][key], figures["tiled"][key]
-        print(f"{key:28s} {a:12.4f} {b:12.4f} {b / a if a else float('nan'):14.4f}")
+    names = [args.untiled_name, args.name, *args.also]
+    figures = {name: products(args.work / name) for name in names}
+    print(
+        f"{'':28s} "
+        + " ".join(f"{n:>14s}" for n in names)
+        + " "
+        + " ".join(f"{n + '/untiled':>20s}" for n in names[1:])
+    )
+    for key in figures[args.untiled_name]:
+        a = figures[args.untiled_name][key]
+        row = " ".join(f"{figures[n][key]:14.4f}" for n in names)
+        ratios = " ".join(f"{figures[n][key] / a if a else float('nan'):20.4f}" for n in names[1:])
+        print(f"{key:28s} {row} {ratios}")
     for i, what in enumerate(("wall time (s)", "peak memory (MB)")):
-        a = runs["untiled"][i] if "untiled" in runs else float("nan")
-        b = runs["tiled"][i]
-        print(f"{what:28s} {a:12.1f} {b:12.1f} {b / a:14.3f}")
-    tiled = ProjectLayout(args.work / "tiled")
+        a = runs[args.untiled_name][i] if args.untiled_name in runs else float("nan")
+        b = runs[args.name][i]
+        print(f"{what:28s} {args.untiled_name} {a:.1f}, {args.name} {b:.1f} ({b / a:.3f}x; this run's projects only)")
+    tiled = ProjectLayout(args.work / args.name)
     record = json.loads(tiled.record("tiles").read_text())
     pred = record["prediction"]
     from recon.tiling import read_tile_plan
 
     plan = read_tile_plan(tiled.tile_plan)
     print(f"tiles {record['grid']}, photos per tile {record['photos_per_tile']}, overlap {record['overlap_m']:.2f} m")
-    tiled_xyz, untiled_xyz = _fused(args.work / "tiled"), _fused(args.work / "untiled")
+    tiled_xyz, untiled_xyz = _fused(args.work / args.name), _fused(args.work / args.untiled_name)
     exact = len(tiled_xyz) - len(np.unique(tiled_xyz, axis=0))
     print(
         f"fused points the tiles gave up to a neighbour's core {sum(record['stitched']['fused_dropped'])}, "

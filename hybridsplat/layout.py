@@ -142,6 +142,12 @@ class ProjectLayout:
         return self.splats_dir / "cleaned.ply"
 
     @property
+    def neighbour_splats(self) -> Path:
+        """In a tile's project: the neighbouring tiles' cleaned splats that lie in this tile's overlap, frozen as
+        context in its training (written by the tiled run before the tile trains; absent elsewhere)."""
+        return self.splats_dir / "neighbours.ply"
+
+    @property
     def background_splats(self) -> Path:
         """The background layer: what the photos see beyond the survey region (``fusion.background``)."""
         return self.splats_dir / "background.ply"

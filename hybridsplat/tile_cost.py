@@ -10,7 +10,8 @@ and its peak memory (one worker process) as ``base_mb + per_photo_mpx_mb × phot
 the tiles of this project that already finished (a resumed or repeated run: least squares, non-negative), else
 :data:`REFERENCE_RATES`. The wall time for N workers replays Ray's order: tiles are dispatched in plan order, each
 to the first worker that is free (list scheduling), so the prediction is that schedule's makespan; the peak memory
-is the driver's plus the N largest tiles running at once.
+is the driver's plus the N largest tiles running at once. Tiles that train in phases (their neighbours' splats as
+context) add one such schedule per phase for their training.
 """
 
 from __future__ import annotations
@@ -125,9 +126,25 @@ def makespan(durations: Sequence[float], workers: int) -> float:
     return end
 
 
-def predict(sizes: Sequence[TileSize], rates: CostRates, workers: int, driver_mb: float = 0.0) -> CostPrediction:
-    """The wall time and peak memory of running ``sizes`` (in dispatch order) on ``workers`` workers."""
+def predict(
+    sizes: Sequence[TileSize],
+    rates: CostRates,
+    workers: int,
+    driver_mb: float = 0.0,
+    phases: Sequence[Sequence[int]] | None = None,
+) -> CostPrediction:
+    """The wall time and peak memory of running ``sizes`` (in dispatch order) on ``workers`` workers.
+
+    phases: None when each tile runs all its stages in one task; else the training phases (positions in ``sizes``):
+    every tile's work before training at once, then each phase's training (``per_step_mpx_s`` term) after the
+    previous phase finished (:func:`hybridsplat.tiled_run.run_in_phases`)."""
     seconds = [tile_seconds(s, rates) for s in sizes]
     peaks = sorted((tile_peak_mb(s, rates) for s in sizes), reverse=True)
     peak = driver_mb + sum(peaks[: max(workers, 1)]) if workers > 1 else max([driver_mb, *peaks])
-    return CostPrediction(workers, makespan(seconds, workers), float(peak), tuple(seconds), rates)
+    if phases is None:
+        wall = makespan(seconds, workers)
+    else:
+        training = [s.iterations * s.mpx * rates.per_step_mpx_s for s in sizes]
+        wall = makespan([t - r for t, r in zip(seconds, training, strict=True)], workers)
+        wall += sum(makespan([training[k] for k in phase], workers) for phase in phases)
+    return CostPrediction(workers, wall, float(peak), tuple(seconds), rates)

@@ -13,7 +13,8 @@ and options) and its small record.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,18 +85,44 @@ def _result(ray: Any, ref: Any, tile: str) -> dict:
         raise
 
 
+@contextmanager
+def execution_session(options: ExecutionOptions) -> Iterator[int]:
+    """Ray started (or joined) once for several :func:`run_tiles` calls, shut down after; nothing without Ray.
+    Gives how many tiles run at once: 1 without Ray, ``workers`` on a local instance, and on a cluster
+    (``ray_address``) its CPUs over ``cpus_per_tile`` (at least 1)."""
+    if not options.uses_ray:
+        yield 1
+        return
+    ray = import_ray()
+    started_here = _start_ray(ray, options)
+    try:
+        slots = options.workers
+        if options.ray_address:
+            slots = max(1, int(ray.cluster_resources().get("CPU", 1) // options.cpus_per_tile))
+        yield slots
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _start_ray(ray: Any, options: ExecutionOptions) -> bool:
+    """Start or join Ray unless this process already did; whether it did now."""
+    if ray.is_initialized():
+        return False
+    threads = str(options.cpus_per_tile)
+    env = {"env_vars": {"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}}
+    if options.ray_address:
+        ray.init(address=options.ray_address, runtime_env=env, log_to_driver=False)
+    else:
+        # address="local": a new instance of our own, even where another Ray cluster runs on this machine
+        ray.init(address="local", num_cpus=options.workers, include_dashboard=False, log_to_driver=False,
+                 runtime_env=env)  # fmt: skip
+    return True
+
+
 def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None) -> list[dict]:
     ray = import_ray()
-    started_here = not ray.is_initialized()
-    if started_here:
-        threads = str(options.cpus_per_tile)
-        env = {"env_vars": {"NUMBA_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}}
-        if options.ray_address:
-            ray.init(address=options.ray_address, runtime_env=env, log_to_driver=False)
-        else:
-            # address="local": a new instance of our own, even where another Ray cluster runs on this machine
-            ray.init(address="local", num_cpus=options.workers, include_dashboard=False, log_to_driver=False,
-                     runtime_env=env)  # fmt: skip
+    started_here = _start_ray(ray, options)
     try:
         resources: dict[str, Any] = {"num_cpus": options.cpus_per_tile, "max_retries": options.max_retries}
         if options.memory_mb_per_tile:

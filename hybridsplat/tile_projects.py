@@ -25,17 +25,23 @@ TILE_STAGES: tuple[str, ...] = ("mvs", "classify", "masks", "convert", "train", 
 classified cloud, for every photo, held-out ones included) and conversion (exact neighbour spacing across tile
 borders), then background, appearance, merge, mesh, baseline, eval and report on the whole scene."""
 
+TRAINING_STAGES: tuple[str, ...] = ("train", "clean")
+"""The tile stages that may wait for the neighbouring tiles (their splats frozen in the overlap,
+:mod:`hybridsplat.tile_context`); the stages before them run in every tile at once."""
+
 PER_TILE_IN_PARENT: frozenset[str] = frozenset({"mvs", "classify", "train", "clean"})
 """Stages whose product the parent takes stitched from its tiles: skipped in the parent while tiling is on."""
 
 
 @dataclass(frozen=True)
 class TileJob:
-    """What a worker needs to run one tile: its name, its project folder and its configuration."""
+    """What a worker needs to run one tile: its name, its project folder, its configuration and which of
+    :data:`TILE_STAGES` to run (in their order)."""
 
     name: str
     root: str
     config: ProjectConfig
+    stages: tuple[str, ...] = TILE_STAGES
 
 
 def tile_config(config: ProjectConfig) -> ProjectConfig:
@@ -76,8 +82,8 @@ def _same_model(new: Path, old: Path) -> bool:
 
 
 def run_tile(job: TileJob) -> dict[str, Any]:
-    """Run the tile's stages (:data:`TILE_STAGES`) in its project; per stage what the tile's manifest recorded
-    (seconds, peak MB, cached or skipped), for the parent's record and the cost model."""
+    """Run the job's stages (:data:`TILE_STAGES` or a part of them) in its project; per stage what the tile's
+    manifest recorded (seconds, peak MB, cached or skipped), for the parent's record and the cost model."""
     from core.errors import EmptyFusionError
     from hybridsplat.pipeline import run_pipeline
     from hybridsplat.stages import stage_named
@@ -87,7 +93,7 @@ def run_tile(job: TileJob) -> dict[str, Any]:
     empty = _empty_record(layout)
     if empty is not None:
         return {"tile": job.name, "empty": empty, "stages": {}}
-    stages = [stage_named(n) for n in TILE_STAGES]
+    stages = [stage_named(n) for n in job.stages]
     try:
         manifest = run_pipeline(job.root, job.config, stages=stages, terminal=Terminal(quiet=True))
     except EmptyFusionError as err:
@@ -96,7 +102,7 @@ def run_tile(job: TileJob) -> dict[str, Any]:
         _write_empty_record(layout, err.problem)
         return {"tile": job.name, "empty": err.problem, "stages": {}}
     records = {}
-    for name in TILE_STAGES:
+    for name in job.stages:
         record = manifest.stages[name]
         records[name] = {
             "seconds": float(record.seconds or 0.0),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,8 @@ def plan_project_tiles(ctx: StageContext, options: Any) -> TilePlan:
 
 def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
     """Plan, run every tile, stitch; the stage's record (JSON-ready)."""
-    from hybridsplat.tile_execution import ExecutionOptions, run_tiles
+    from hybridsplat.tile_context import training_phases
+    from hybridsplat.tile_execution import ExecutionOptions, execution_session
     from hybridsplat.tile_projects import prepare_tile
 
     layout = ctx.layout
@@ -59,19 +61,20 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
     execution = ExecutionOptions(workers=options.workers, ray_address=options.ray_address,
                                  cpus_per_tile=options.cpus_per_tile)  # fmt: skip
 
-    def done(name: str, finished: int, total: int) -> None:
-        ctx.progress(f"tiles: {name} done", finished, total)
-
+    phases = None  # the training phases as positions in ``jobs``, for the cost model
+    if options.neighbour_context:
+        position = {t: k for k, (t, _) in enumerate(jobs)}
+        phases = [[position[t] for t in phase] for phase in training_phases(plan, list(position))]
     sizes = tile_sizes(ctx, plan, [t for t, _ in jobs], held_out)
-    prediction = predict_tiles(ctx, sizes, [job for _, job in jobs], execution.workers if execution.uses_ray else 1)
-    ctx.say(
-        f"  tiles      {len(jobs)} tiles on {_where(execution)}: predicted {prediction.wall_s:.0f} s, "
-        f"peak {prediction.peak_mb:.0f} MB ({prediction.rates.source} rates)"
-    )
-    ctx.progress("tiles", 0, len(jobs))
     with PeakMemory(interval_s=0.2, children=True) as memory:
         start = time.perf_counter()
-        results = run_tiles([job for _, job in jobs], execution, done)
+        with execution_session(execution) as workers:  # a cluster's size is known once joined
+            prediction = predict_tiles(ctx, sizes, [job for _, job in jobs], workers, phases)
+            ctx.say(
+                f"  tiles      {len(jobs)} tiles on {_where(execution, workers)}: predicted {prediction.wall_s:.0f} "
+                f"s, peak {prediction.peak_mb:.0f} MB ({prediction.rates.source} rates)"
+            )
+            results = run_in_phases(ctx, plan, jobs, execution, options.neighbour_context)
         measured_s = time.perf_counter() - start
     empty = {r["tile"]: r["empty"] for r in results if r.get("empty")}
     if len(empty) == len(jobs):
@@ -86,17 +89,54 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
         "photos_per_tile": [len(t.photo_ids) for t in plan.tiles],
         "without_photos": too_few,
         "without_points": sorted(empty),
-        "workers": execution.workers if execution.uses_ray else 1,
-        "where": _where(execution),
+        "workers": workers,
+        "where": _where(execution, workers),
         "per_tile": results,
         "stitched": stitched,
         "prediction": {**prediction.to_json(), "measured_wall_s": measured_s, "measured_peak_mb": memory.peak_mb},
     }
 
 
-def _where(execution: Any) -> str:
-    if execution.ray_address:  # the cost model assumes --workers tiles at a time there
-        return f"the Ray cluster at {execution.ray_address}"
+def run_in_phases(
+    ctx: StageContext, plan: TilePlan, jobs: list[tuple[int, TileJob]], execution: Any, neighbour_context: bool
+) -> list[dict]:
+    """Run the tiles (``jobs``: plan index and job); their records in the order of ``jobs``. Without
+    ``neighbour_context`` every tile runs all its stages at once; with it, the stages before training run in every
+    tile at once, then the training stages in :func:`hybridsplat.tile_context.training_phases`, each tile given its
+    finished neighbours' splats (:func:`hybridsplat.tile_context.write_neighbour_splats`)."""
+    from hybridsplat.tile_context import training_phases, write_neighbour_splats
+    from hybridsplat.tile_execution import run_tiles
+    from hybridsplat.tile_projects import TRAINING_STAGES
+
+    total = len(jobs) * (2 if neighbour_context else 1)
+    finished_tasks = [0]
+
+    def done(name: str, _finished: int, _total: int) -> None:
+        finished_tasks[0] += 1
+        ctx.progress(f"tiles: {name} done", finished_tasks[0], total)
+
+    ctx.progress("tiles", 0, total)
+    if not neighbour_context:
+        for _, job in jobs:  # trained alone: a context an earlier run gave the tile is its input no more
+            ProjectLayout(job.root).neighbour_splats.unlink(missing_ok=True)
+        return run_tiles([job for _, job in jobs], execution, done)
+    before = tuple(s for s in TILE_STAGES if s not in TRAINING_STAGES)
+    records = {r["tile"]: r for r in run_tiles([replace(j, stages=before) for _, j in jobs], execution, done)}
+    by_index = dict(jobs)
+    ready = [t for t, job in jobs if not records[job.name].get("empty")]
+    finished: list[int] = []
+    for phase in training_phases(plan, ready):
+        for t in phase:
+            write_neighbour_splats(ctx.layout, plan, t, finished)
+        for record in run_tiles([replace(by_index[t], stages=TRAINING_STAGES) for t in phase], execution, done):
+            records[record["tile"]]["stages"].update(record["stages"])
+        finished += phase
+    return [records[job.name] for _, job in jobs]
+
+
+def _where(execution: Any, workers: int) -> str:
+    if execution.ray_address:
+        return f"the Ray cluster at {execution.ray_address} ({workers} tiles at a time)"
     return f"{execution.workers} Ray workers" if execution.uses_ray else "this process, one at a time"
 
 
@@ -123,9 +163,12 @@ def tile_sizes(ctx: StageContext, plan: TilePlan, tiles: list[int], held_out: se
     ]
 
 
-def predict_tiles(ctx: StageContext, sizes: list[TileSize], jobs: list[TileJob], workers: int) -> CostPrediction:
+def predict_tiles(
+    ctx: StageContext, sizes: list[TileSize], jobs: list[TileJob], workers: int, phases: list[list[int]] | None
+) -> CostPrediction:
     """The cost model's prediction, with rates fitted to this project's tiles that finished every stage before
-    (a resumed or repeated run), else the reference rates."""
+    (a resumed or repeated run), else the reference rates; ``phases``: the training phases (positions in
+    ``sizes``), None when every tile runs all its stages at once."""
     from hybridsplat.tile_cost import REFERENCE_RATES, fit_rates, predict
 
     known_sizes, seconds, peaks = [], [], []
@@ -140,7 +183,7 @@ def predict_tiles(ctx: StageContext, sizes: list[TileSize], jobs: list[TileJob],
     rates = fit_rates(known_sizes, seconds, peaks) if known_sizes else REFERENCE_RATES
     import psutil
 
-    return predict(sizes, rates, workers, driver_mb=psutil.Process().memory_info().rss / 2**20)
+    return predict(sizes, rates, workers, driver_mb=psutil.Process().memory_info().rss / 2**20, phases=phases)
 
 
 def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> dict[str, Any]:

@@ -61,3 +61,17 @@ def test_prediction_of_n_workers():
     assert one.peak_mb == pytest.approx(140.0)  # the largest tile, run where the driver is
     assert two.peak_mb == pytest.approx(50.0 + 140.0 + 130.0)  # the driver and the two largest tiles at once
     assert two.to_json()["tile_seconds"] == [10.0, 20.0, 30.0, 40.0]
+
+
+def test_training_in_phases_waits_for_the_phase_before():
+    # work before training 10, 20, 30, 40 s; training 5, 5, 5, 5 s (5 steps of 1 megapixel at 1 s)
+    rates = CostRates(10.0, 1.0, 0.0, 100.0, 10.0)
+    sizes = [TileSize(f"t{k}", n, 1.0, 5) for k, n in enumerate([1, 2, 3, 4])]
+    together = predict(sizes, rates, 2)
+    assert together.wall_s == pytest.approx(70.0)  # 15 | 25, 35 at 15, 45 at 25
+    phased = predict(sizes, rates, 2, phases=[[0, 3], [1, 2]])
+    # before training: 10 | 20, 30 at 10, 40 at 20 -> 60; then each phase's two trainings side by side: 5 + 5
+    assert phased.wall_s == pytest.approx(70.0)
+    assert predict(sizes, rates, 1, phases=[[0, 3], [1, 2]]).wall_s == pytest.approx(120.0)  # one worker: the sum
+    assert phased.tile_seconds == together.tile_seconds == (15.0, 25.0, 35.0, 45.0)
+    assert predict(sizes, rates, 4, phases=[[0], [1], [2], [3]]).wall_s == pytest.approx(40.0 + 20.0)

@@ -70,6 +70,26 @@ def test_tiles_run_as_projects_and_the_parent_skips_what_they_made(tiled):
         assert not sub["mvs"].skipped and not sub["classify"].skipped
 
 
+def test_the_second_phase_trains_with_its_neighbours_splats_frozen_in_the_overlap(tiled):
+    from core.io.gaussian_ply import read_gaussian_ply
+
+    _, project = tiled
+    layout = ProjectLayout(project)
+    plan = read_tile_plan(layout.tile_plan)
+    first, second = (ProjectLayout(layout.tile_project(n)) for n in ("r0c0", "r0c1"))  # (row + column) even, odd
+    assert not first.neighbour_splats.exists()
+    splats = read_gaussian_ply(first.cleaned_splats)
+    # what the stitch keeps of r0c0 and what lies in r0c1's overlap, in r0c0's order
+    keep = (plan.owner(splats.means) == 0) & plan.in_bounds(splats.means, 1)
+    given = read_gaussian_ply(second.neighbour_splats)
+    assert 0 < len(given) == int(keep.sum()) < len(splats)
+    np.testing.assert_array_equal(given.means, splats.means[keep])
+    np.testing.assert_array_equal(given.logit_opacities, splats.logit_opacities[keep])
+    trained = Manifest(second.manifest).stages["train"].counts
+    assert trained["neighbour_context"] == len(given)
+    assert Manifest(first.manifest).stages["train"].counts["neighbour_context"] == 0
+
+
 def test_stitched_clouds_keep_each_point_once_from_the_tile_that_owns_it(tiled):
     _, project = tiled
     layout = ProjectLayout(project)

@@ -97,9 +97,11 @@ def train_in_masks(
     seed: int,
     progress: Callable[[Any], None] | None = None,
     lpips: Any = None,
+    neighbours: GaussianSet | None = None,
 ) -> tuple[Any, Any, dict[str, Any]]:
     """Seed splats inside ``masks`` (training masks by image name, bool) and train them with the MVS Gaussians that
-    need no splats (``needs`` (N,) bool per MVS Gaussian) frozen as context.
+    need no splats (``needs`` (N,) bool per MVS Gaussian) frozen as context; ``neighbours`` (a tiled run's
+    neighbouring tiles' splats in this tile's overlap) are frozen beside them.
 
     sfm_points: SfM points (M, 3) in the cameras' local frame and their colours, or None. Returns the trainer's
     result (:class:`fusion.train.TrainResult`), the seeds (:class:`fusion.train.init.Seeds`) and
@@ -116,8 +118,12 @@ def train_in_masks(
     cap = min(training.strategy.cap, max(1000, round(options.splats_per_mask_pixel * mask_pixels)))
     train_opts = replace(training, downscale=downscale, seed=seed, snapshot_iterations=options.snapshot_iterations,
                          strategy=replace(training.strategy, cap=cap))  # fmt: skip
-    result = train_splats(cameras, images, masks, seeds.gaussians, mvs.subset(~needs), train_opts, progress,
-                          lpips=lpips)  # fmt: skip
+    context = mvs.subset(~needs)
+    if neighbours is not None and len(neighbours):
+        from core.gaussians import GaussianSet
+
+        context = GaussianSet.concatenate([context, neighbours])
+    result = train_splats(cameras, images, masks, seeds.gaussians, context, train_opts, progress, lpips=lpips)
     return result, seeds, {"downscale": downscale, "cap": cap}
 
 

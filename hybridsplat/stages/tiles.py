@@ -11,8 +11,10 @@ classify, train and clean stages are then skipped ("made per tile"); its masks a
 stitched cloud, and every later stage on the whole scene as untiled.
 
 Before the tiles run, the stage prints the cost model's prediction of wall time and peak memory for the workers
-given (:mod:`hybridsplat.tile_cost`) and records it beside what happened. Not done per tile yet: the background
-and appearance layers (whole scene, after the stitch) and the neighbouring tiles' Gaussians frozen in the overlap.
+given (:mod:`hybridsplat.tile_cost`) and records it beside what happened. The tiles train in two checkerboard
+phases, the second with the first's splats frozen in its overlap (:mod:`hybridsplat.tile_context`; ``--no-tile-context``
+trains every tile alone). Not done per tile yet: the background and appearance layers (whole scene, after the
+stitch).
 """
 
 from __future__ import annotations
@@ -34,10 +36,13 @@ class TilesOptions:
     least 5 sparse spacings). up: ``z`` (surveys, georeferenced blocks) or ``pca`` (façades, object orbits).
     photos_per_tile / points_per_tile: what ``auto`` aims a tile at.
     workers: tiles run at a time (≤ 1: one by one in this process, no Ray; N > 1: a local Ray instance of N CPUs);
-    ray_address: a running Ray cluster to join instead (``workers`` then only tells the cost model how many tiles
-    the cluster runs at once); cpus_per_tile: CPUs (threads) each tile's task declares.
+    ray_address: a running Ray cluster to join instead (``workers`` is then unused: the cluster runs its CPUs over
+    ``cpus_per_tile`` tiles at once, which the cost model assumes); cpus_per_tile: CPUs (threads) each tile's task
+    declares.
     These three decide how the tiles run, not what they make (a change reruns only the stitch: the tiles' own
-    stages stay up to date).
+    stages stay up to date). neighbour_context: the tiles train in two checkerboard phases, the second with the
+    first's splats in its overlap frozen as context (:mod:`hybridsplat.tile_context`); off: every tile trains alone
+    and at once.
     """
 
     grid: str = "off"
@@ -48,6 +53,7 @@ class TilesOptions:
     workers: int = 1
     ray_address: str = ""
     cpus_per_tile: int = 1
+    neighbour_context: bool = True
 
     def __post_init__(self) -> None:
         from recon.tiling import parse_tiles
@@ -71,7 +77,9 @@ class TilesStage(Stage):
         CliOption("overlap_m", "--tile-overlap", help="Metres each tile's core grows by (default: 10 % of a core)."),
         CliOption("workers", "--workers", help="Tiles at a time (N > 1: a local Ray instance of N CPUs)."),
         CliOption("ray_address", "--ray-address", help="Run the tiles on this Ray cluster (host:port)."),
-    )
+        CliOption("neighbour_context", "--tile-context/--no-tile-context",
+                  help="Train tiles in two phases, the second with its neighbours' splats frozen in the overlap."),
+    )  # fmt: skip
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         from classify.run import resolve_model_path

@@ -54,8 +54,9 @@ class TrainStage(Stage):
     def inputs(self, ctx: StageContext) -> list[Path]:
         ws = ctx.layout.dense_workspace
         layout = ctx.layout
+        context = [layout.neighbour_splats] if layout.neighbour_splats.is_file() else []  # a tile's, see tile_context
         return [layout.classified_points, layout.masks_dir, layout.record("masks"), layout.mvs_gaussians, ws.sparse,
-                ws.images]  # fmt: skip
+                ws.images, *context]  # fmt: skip
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.trained_splats, ctx.layout.snapshots_dir]
@@ -105,6 +106,9 @@ class TrainStage(Stage):
             return {"trained": 0, "reason": "masks are empty"}
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
         mvs = read_gaussian_ply(layout.mvs_gaussians).with_origin(cameras.origin)
+        neighbours = None  # a tile of a tiled run: its neighbours' splats in the overlap, frozen
+        if layout.neighbour_splats.is_file():
+            neighbours = read_gaussian_ply(layout.neighbour_splats).with_origin(cameras.origin)
         needs = project_io.needs_splats_per_gaussian(layout, mvs)
         sfm_points = (sfm.world_positions - cameras.origin, sfm.colors) if len(sfm) else None
         # torch from here on: the inputs above have been read and checked
@@ -121,12 +125,12 @@ class TrainStage(Stage):
                          info.step, info.iterations)  # fmt: skip
 
         result, seeds, used = train_in_masks(cameras, images, masks, mvs, needs, sfm_points, opts, ctx.config.seed,
-                                             progress, lpips=lpips)  # fmt: skip
+                                             progress, lpips=lpips, neighbours=neighbours)  # fmt: skip
         write_gaussian_ply(layout.trained_splats, result.splats)
         layout.snapshots_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
-        return _counts(result, seeds, used, lpips_file)
+        return {**_counts(result, seeds, used, lpips_file), "neighbour_context": len(neighbours or ())}
 
     def summary(self, counts: dict[str, Any]) -> str:
         if not counts.get("trained"):
