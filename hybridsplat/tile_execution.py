@@ -29,7 +29,8 @@ TileDone = Callable[[str, int, int], None]
 class ExecutionOptions:
     """How tiles run: ``workers`` tiles at a time on a local Ray instance (≤ 1: here, one by one, no Ray), or on the
     Ray cluster at ``ray_address``; ``cpus_per_tile`` CPUs declared per task; ``memory_mb_per_tile`` the memory
-    declared per task (0: none declared); ``max_retries`` of a task whose worker died."""
+    declared per task (0: each job's predicted peak, :attr:`TileJob.memory_mb`); ``max_retries`` of a task whose
+    worker died."""
 
     workers: int = 1
     ray_address: str = ""
@@ -120,15 +121,41 @@ def _start_ray(ray: Any, options: ExecutionOptions) -> bool:
     return True
 
 
+def task_resources(job: TileJob, options: ExecutionOptions, cluster: dict[str, float]) -> dict[str, Any]:
+    """What a tile's Ray task declares: ``cpus_per_tile`` CPUs; memory (bytes) ``memory_mb_per_tile`` or else the
+    job's predicted peak, at most 90 % of ``cluster["memory"]`` (the largest node's: a larger claim would never be
+    scheduled); on a cluster with GPUs an equal share of them per tile running at once, at most one (the tile's
+    torch stages use it)."""
+    resources: dict[str, Any] = {"num_cpus": options.cpus_per_tile, "max_retries": options.max_retries}
+    memory_mb = options.memory_mb_per_tile or job.memory_mb
+    if memory_mb > 0:
+        limit = 0.9 * cluster.get("memory", float("inf"))
+        resources["memory"] = int(min(memory_mb * 2**20, limit))
+    gpus = cluster.get("GPU", 0.0)
+    if gpus > 0:
+        at_once = max(1, int(cluster.get("CPU", 1) // options.cpus_per_tile))
+        resources["num_gpus"] = min(1.0, gpus / at_once)
+    return resources
+
+
+def run_tile_task(job: TileJob) -> dict:
+    """:func:`run_tile` as a Ray task: its record with the resources Ray assigned to the task."""
+    import ray
+
+    record = run_tile(job)
+    return {**record, "resources": dict(ray.get_runtime_context().get_assigned_resources())}
+
+
 def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None) -> list[dict]:
     ray = import_ray()
     started_here = _start_ray(ray, options)
     try:
-        resources: dict[str, Any] = {"num_cpus": options.cpus_per_tile, "max_retries": options.max_retries}
-        if options.memory_mb_per_tile:
-            resources["memory"] = options.memory_mb_per_tile * 2**20
-        task = ray.remote(**resources)(run_tile)
-        pending = {task.remote(job): k for k, job in enumerate(jobs)}
+        cluster = dict(ray.cluster_resources())
+        # a task's memory must fit on one node: the largest node's, not the cluster's sum
+        cluster["memory"] = max((n["Resources"].get("memory", 0.0) for n in ray.nodes() if n.get("Alive")),
+                                default=cluster.get("memory", 0.0))  # fmt: skip
+        task = ray.remote(run_tile_task)
+        pending = {task.options(**task_resources(job, options, cluster)).remote(job): k for k, job in enumerate(jobs)}
         results: list[dict | None] = [None] * len(jobs)
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

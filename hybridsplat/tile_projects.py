@@ -35,13 +35,15 @@ PER_TILE_IN_PARENT: frozenset[str] = frozenset({"mvs", "classify", "train", "cle
 
 @dataclass(frozen=True)
 class TileJob:
-    """What a worker needs to run one tile: its name, its project folder, its configuration and which of
-    :data:`TILE_STAGES` to run (in their order)."""
+    """What a worker needs to run one tile: its name, its project folder, its configuration, which of
+    :data:`TILE_STAGES` to run (in their order) and its predicted peak memory (MB; 0: unknown), which its Ray task
+    declares."""
 
     name: str
     root: str
     config: ProjectConfig
     stages: tuple[str, ...] = TILE_STAGES
+    memory_mb: float = 0.0
 
 
 def tile_config(config: ProjectConfig) -> ProjectConfig:

@@ -19,7 +19,7 @@ import numpy as np
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest, PeakMemory
 from hybridsplat.stages.base import StageContext
-from hybridsplat.tile_cost import CostPrediction, TileSize
+from hybridsplat.tile_cost import CostPrediction, TileSize, tile_peak_mb
 from hybridsplat.tile_projects import TILE_STAGES, TileJob
 from recon.tiling import TilePlan
 
@@ -70,6 +70,8 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
         start = time.perf_counter()
         with execution_session(execution) as workers:  # a cluster's size is known once joined
             prediction = predict_tiles(ctx, sizes, [job for _, job in jobs], workers, phases)
+            jobs = [(t, replace(job, memory_mb=tile_peak_mb(size, prediction.rates)))
+                    for (t, job), size in zip(jobs, sizes, strict=True)]  # fmt: skip
             ctx.say(
                 f"  tiles      {len(jobs)} tiles on {_where(execution, workers)}: predicted {prediction.wall_s:.0f} "
                 f"s, peak {prediction.peak_mb:.0f} MB ({prediction.rates.source} rates)"

@@ -183,6 +183,9 @@ def test_tiles_on_a_two_worker_ray_instance_make_the_same_clouds(tiled, tmp_path
     config = _config(scene, workers=2)
     manifest = run_pipeline(project, config, stages=[stage_named("sfm"), stage_named("tiles")])
     assert manifest.stages["tiles"].counts["workers"] == 2
+    for tile in json.loads(ProjectLayout(project).record("tiles").read_text())["per_tile"]:
+        # each task declared one CPU and its predicted peak memory (the cost model's, well above a megabyte)
+        assert tile["resources"]["CPU"] == 1 and tile["resources"]["memory"] > 100 * 2**20, tile["tile"]
     for product in ("fused_ply", "classified_points"):
         ours = _rows(getattr(ProjectLayout(project), product)).tobytes()
         assert ours == _rows(getattr(ProjectLayout(sequential), product)).tobytes(), product
