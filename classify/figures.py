@@ -55,12 +55,14 @@ def classified_cloud_png(
     classes: ClassSet,
     max_points: int = 200_000,
     seed: int = 0,
+    counts: dict[int, int] | None = None,
 ) -> bytes:
     """Top-down (x–y) and side (x–z) scatter plots of the cloud coloured by class, with a legend of the point counts.
 
     positions: (N, 3) float64 metres, local frame (z up). classification: (N,) uint8 class codes. At most
-    ``max_points`` points are drawn (a seeded sample); the collaborative class is drawn first and small so that
-    the rarer needs-splats classes stay visible on top.
+    ``max_points`` points are drawn (a seeded sample, :func:`plotted_points`); the collaborative class is drawn
+    first and small so that the rarer needs-splats classes stay visible on top. counts: class code → points of the
+    whole cloud, when ``positions`` and ``classification`` are already that sample (a streamed cloud's).
     """
     pts = np.asarray(positions, dtype=np.float64)
     codes = np.asarray(classification)
@@ -68,16 +70,18 @@ def classified_cloud_png(
         raise DataError(f"{len(codes)} classes for {len(pts)} points")
     if len(pts) == 0:
         raise DataError("cannot plot an empty cloud")
-    idx = np.arange(len(pts))
-    if len(idx) > max_points:
-        idx = np.sort(np.random.default_rng(seed).choice(len(pts), max_points, replace=False))
-    p, c = pts[idx], codes[idx]
+    if counts is None:
+        idx = plotted_points(len(pts), max_points, seed)
+        p, c = (pts, codes) if idx is None else (pts[idx], codes[idx])
+        counts = {int(code): int(np.count_nonzero(codes == code)) for code in np.unique(codes)}
+    else:
+        p, c = pts, codes
     fig = _figure(11.0, 5.2)
     top, side = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     size = float(np.clip(4e4 / len(p), 0.3, 6.0))
     for spec in sorted(classes.classes, key=lambda s: (s.needs_splats, s.code)):
         sel = c == spec.code
-        n_all = int(np.count_nonzero(codes == spec.code))
+        n_all = counts.get(spec.code, 0)
         if not sel.any():
             continue
         label = f"{spec.name} ({n_all:,})" + (" — splats" if spec.needs_splats else "")
@@ -96,6 +100,14 @@ def classified_cloud_png(
         fig.legend(handles, labels, loc="lower center", ncol=min(5, len(labels)), markerscale=4, frameon=False)
     fig.subplots_adjust(bottom=0.2)
     return _png(fig)
+
+
+def plotted_points(n: int, max_points: int = 200_000, seed: int = 0) -> np.ndarray | None:
+    """The rows (ascending int64) of a cloud of ``n`` points that :func:`classified_cloud_png` draws: a seeded
+    sample of ``max_points`` when there are more, else None (every point)."""
+    if n <= max_points:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, max_points, replace=False))
 
 
 def importances_png(names: Sequence[str], importances: Sequence[float], top: int = 20) -> bytes:

@@ -14,11 +14,19 @@ class ClassifyOptions:
     (``hybridsplat classify train``).
     threshold: a point needs splats when the summed probability of the needs-splats classes reaches this;
     None = the threshold stored with the model (chosen on its held-out data), else 0.5.
+    memory_limit_mb (MiB): None classifies the fused cloud in memory; a number classifies it in x-y cells with halos
+    within about that peak memory (:func:`classify.stream.classify_stream`, the same classify/points.ply; at least
+    :data:`classify.stream.BASE_MB` + :data:`classify.stream.MIN_WORK_MB`, else a :class:`ConfigError`).
     """
 
     model: str = "default"
     threshold: float | None = None
+    memory_limit_mb: float | None = None
 
     def __post_init__(self) -> None:
         if self.threshold is not None and not 0.0 < self.threshold < 1.0:
             raise ConfigError(f"threshold must lie strictly between 0 and 1, got {self.threshold}")
+        if self.memory_limit_mb is not None:
+            from classify.stream import plan_memory
+
+            plan_memory(self.memory_limit_mb)  # a ConfigError naming the value

@@ -74,18 +74,52 @@ def classify_cloud(
 
     dense_dir: the dense workspace with the photos and depth maps (needed for multi-view features).
     """
-    if model is None:
-        opts = FeatureOptions(names=FALLBACK_FEATURES)
-    else:
-        opts = replace(model.feature_options, names=tuple(model.feature_names))
-    selected = set(opts.selected())
-    needs_views = any(n in selected for n in FeatureOptions(groups=VIEW_GROUPS).selected())
-    views = views_from_workspace(dense_dir) if needs_views and dense_dir is not None else None
+    opts = feature_options_for(model)
+    views = views_from_workspace(dense_dir) if needs_views(opts) and dense_dir is not None else None
     table = compute_features(cloud, opts, views)
+    return predict_table(model, table, classes or load_classes(), threshold), table
+
+
+def feature_options_for(model: ClassifierModel | None) -> FeatureOptions:
+    """The features a model reads (its own options and names), or the fallback's (``model`` None)."""
     if model is None:
-        return fallback_predict(table, classes or load_classes()), table
+        return FeatureOptions(names=FALLBACK_FEATURES)
+    return replace(model.feature_options, names=tuple(model.feature_names))
+
+
+def needs_views(options: FeatureOptions) -> bool:
+    """Whether any selected feature needs the photos, cameras and depth maps (a view-based group)."""
+    selected = set(options.selected())
+    return any(n in selected for n in FeatureOptions(groups=VIEW_GROUPS).selected())
+
+
+def predict_table(
+    model: ClassifierModel | None, table: FeatureTable, classes: ClassSet, threshold: float | None = None
+) -> Prediction:
+    """The prediction of a feature table: the model's (``threshold`` None: the model's own, else 0.5), or the
+    fallback rules' (``model`` None)."""
+    if model is None:
+        return fallback_predict(table, classes)
     t = threshold if threshold is not None else float(model.info.get("threshold", 0.5))  # type: ignore[arg-type]
-    return predict(model, table.select(tuple(model.feature_names)), threshold=t), table
+    return predict(model, table.select(tuple(model.feature_names)), threshold=t)
+
+
+def load_classifier(model: str) -> tuple[ClassifierModel | None, ClassSet, str, dict[str, float] | None]:
+    """The model of a model option (:func:`resolve_model_path`; a missing shipped default → None, the fallback),
+    its classes, its name as the report records it (a path, or ``fallback``) and its feature importances."""
+    path = resolve_model_path(model)
+    loaded = None
+    if path is not None:
+        if not path.is_file() and model != "default":
+            raise InputFileError("classifier model does not exist", path)
+        loaded = load_model(path) if path.is_file() else None
+    classes = loaded.classes if loaded is not None else load_classes()
+    importances = None
+    if loaded is not None:
+        values = getattr(loaded.forest, "feature_importances_", None)
+        if values is not None:
+            importances = {n: float(v) for n, v in zip(loaded.feature_names, values, strict=True)}
+    return loaded, classes, (str(path) if loaded is not None else "fallback"), importances
 
 
 def classify_dense(dense_dir: str | PathLike[str], model: str = "default", threshold: float | None = None):
@@ -97,20 +131,8 @@ def classify_dense(dense_dir: str | PathLike[str], model: str = "default", thres
 
     t0 = time.perf_counter()
     cloud = read_fused(dense_dir)
-    path = resolve_model_path(model)
-    loaded = None
-    if path is not None:
-        if not path.is_file() and model != "default":
-            raise InputFileError("classifier model does not exist", path)
-        loaded = load_model(path) if path.is_file() else None
-    classes = loaded.classes if loaded is not None else load_classes()
+    loaded, classes, name, importances = load_classifier(model)
     pred, table = classify_cloud(cloud, loaded, dense_dir, classes, threshold)
-    name = str(path) if loaded is not None else "fallback"
-    importances = None
-    if loaded is not None:
-        values = getattr(loaded.forest, "feature_importances_", None)
-        if values is not None:
-            importances = {n: float(v) for n, v in zip(loaded.feature_names, values, strict=True)}
     seconds = time.perf_counter() - t0
     return ClassifiedCloud(cloud, pred, table.spacing, classes, name, seconds, table.names, importances)
 

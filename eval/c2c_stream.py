@@ -14,6 +14,13 @@ reverse distances too (their statistics count a clamped distance as an outlier),
 kept. No library does this: scipy's and open3d's trees are in memory, PDAL's ``filters.neighborclassifier`` is not
 a distance, and CloudCompare's octree C2C is a desktop tool.
 
+The eval stage's path (``run --memory-limit``, :mod:`eval.geometry_stream`) goes further, with the same cells:
+:func:`exact_nearest` searches the points with no neighbour within the halo in the whole other cloud, chunk by chunk,
+so that every distance both ways (and the index of the nearest reference point) equals the in-memory search's, and
+:func:`streamed_distance_stats` gives :func:`eval.c2c.distance_stats` of a memory-mapped array by chunks, its
+percentiles exact (:func:`order_statistics`, a radix selection), its mean / std / rmse within a few ulps.
+:func:`plan_c2c_memory` turns a limit in MiB into the cell and chunk sizes.
+
 Units: metres, positions in one local float64 frame chosen by the caller (:func:`las_chunks` takes the origin).
 """
 
@@ -38,7 +45,7 @@ ChunkSource = Callable[[], Iterable[np.ndarray]]
 DEFAULT_POINTS_PER_CELL = 2_000_000
 DEFAULT_CHUNK = 2_000_000
 _CORE = np.dtype([("p", "<f8", 3), ("i", "<i8")])  # a point of the cell's own and its index in its cloud
-_HALO = np.dtype([("p", "<f8", 3)])
+_HALO = np.dtype([("p", "<f8", 3), ("i", "<i8")])  # a neighbour's point within the halo and its index
 
 
 @dataclass(frozen=True)
@@ -69,7 +76,7 @@ def grid_for(lo: np.ndarray, hi: np.ndarray, count: int, halo: float, points_per
 
 class CellFiles:
     """Append-only files of one cloud's points per cell: ``core_K.bin`` (position and index) and ``halo_K.bin``
-    (positions of the neighbours' points within the halo of cell K), float64, in ``folder``."""
+    (positions and indices of the neighbours' points within the halo of cell K), float64 / int64, in ``folder``."""
 
     def __init__(self, folder: Path, grid: Grid, halo: float) -> None:
         self.folder, self.grid, self.halo = folder, grid, halo
@@ -111,7 +118,7 @@ class CellFiles:
                 near &= (jy >= 0) & (jy < g.ny)
                 if near.any():
                     halo = np.empty(int(near.sum()), _HALO)
-                    halo["p"] = p[near]
+                    halo["p"], halo["i"] = p[near], core["i"][near]
                     self._append("halo", jx[near] * g.ny + jy[near], halo)
 
     def core(self, key: int) -> tuple[np.ndarray, np.ndarray]:
@@ -122,9 +129,14 @@ class CellFiles:
 
     def near(self, key: int) -> np.ndarray:
         """(n, 3) positions of cell ``key``'s own points and of its halo."""
+        return self.near_indexed(key)[0]
+
+    def near_indexed(self, key: int) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (n, 3), indices (n,) in the cloud's order) of cell ``key``'s own points and of its halo."""
         halo_path = self.folder / f"halo_{key}.bin"
-        halo = np.fromfile(halo_path, _HALO)["p"] if halo_path.is_file() else np.empty((0, 3))
-        return np.concatenate([self.core(key)[0], halo])
+        halo = np.fromfile(halo_path, _HALO) if halo_path.is_file() else np.empty(0, _HALO)
+        points, index = self.core(key)
+        return np.concatenate([points, halo["p"]]), np.concatenate([index, halo["i"]])
 
 
 def las_chunks(path: str | PathLike[str], origin: np.ndarray, chunk: int = DEFAULT_CHUNK) -> ChunkSource:
@@ -283,3 +295,264 @@ def streamed_c2c(
         forward.flush()
         del forward, backward
     return StreamedC2C(stats, reverse, scores, grid, Path(distances_path) if distances_path else None)
+
+
+# -- exact distances both ways (the eval stage's streamed path) ---------------------------------------------------
+
+_FAR = np.dtype([("p", "<f8", 3), ("i", "<i8")])  # a query point with no target within the halo, and its index
+_SURE = 1.0 - 1e-9  # a distance found below halo·_SURE is exact; at or above it the whole other cloud is searched
+
+
+@dataclass(frozen=True)
+class ExactNearest:
+    """Nearest-neighbour distances both ways of a streamed comparison, exact (not bounded by the halo), in
+    memory-mapped ``.npy`` files under the caller's work folder (valid while it exists).
+
+    forward: (n_compared,) float64 metres, compared → reference, in the compared cloud's order.
+    nearest: (n_compared,) int64 index (reference order) of that nearest reference point (ties: either one).
+    reverse: (n_reference,) float64 metres, reference → compared, in the reference's order; ``inf`` for points with
+        no compared point within the halo when ``exact_reverse`` was off.
+    far: how many points of each direction were farther than the halo and searched in the whole other cloud.
+    """
+
+    forward: np.ndarray
+    nearest: np.ndarray
+    reverse: np.ndarray
+    grid: Grid
+    far: tuple[int, int]
+
+
+def _exact_cells(queries: CellFiles, targets: CellFiles, dist: np.ndarray, index: np.ndarray | None,
+                 far_path: Path, workers: int) -> int:  # fmt: skip
+    """Distances (and target indices) of every query point whose nearest target lies within the halo; the others
+    are appended to ``far_path`` (position, index) for :func:`_exact_far`. Returns how many went there."""
+    g, bound, far = queries.grid, queries.halo, 0
+    with open(far_path, "wb") as out:
+        for key in range(g.nx * g.ny):
+            points, mine = queries.core(key)
+            if not len(points):
+                continue
+            near, theirs = targets.near_indexed(key)
+            if len(near):
+                tree = cKDTree(near, balanced_tree=False, compact_nodes=False)
+                d, j = tree.query(points, k=1, distance_upper_bound=bound, workers=workers)
+            else:
+                d, j = np.full(len(points), np.inf), np.zeros(len(points), np.int64)
+            sure = d < bound * _SURE
+            dist[mine[sure]] = d[sure]
+            if index is not None:
+                index[mine[sure]] = theirs[j[sure]]
+            rec = np.empty(int((~sure).sum()), _FAR)
+            rec["p"], rec["i"] = points[~sure], mine[~sure]
+            out.write(rec.tobytes())
+            far += len(rec)
+    return far
+
+
+def _exact_far(far_path: Path, targets: ChunkSource, dist: np.ndarray, index: np.ndarray | None, block: int,
+               workers: int) -> None:  # fmt: skip
+    """The nearest target of each point in ``far_path``, over the whole target cloud: per block of far points,
+    one pass over the targets' chunks with a kd-tree per chunk (memory: a block and a chunk)."""
+    total = far_path.stat().st_size // _FAR.itemsize
+    for start in range(0, total, block):
+        rec = np.fromfile(far_path, _FAR, count=min(block, total - start), offset=start * _FAR.itemsize)
+        best, arg, offset = np.full(len(rec), np.inf), np.zeros(len(rec), np.int64), 0
+        for chunk in targets():
+            if len(chunk):
+                d, j = cKDTree(chunk, balanced_tree=False, compact_nodes=False).query(rec["p"], k=1, workers=workers)
+                better = d < best  # the first chunk's neighbour wins a tie, as a tree over the whole cloud may not
+                best[better], arg[better] = d[better], j[better] + offset
+            offset += len(chunk)
+        dist[rec["i"]] = best
+        if index is not None:
+            index[rec["i"]] = arg
+
+
+def exact_nearest(
+    compared: ChunkSource,
+    reference: ChunkSource,
+    halo: float,
+    work_dir: str | PathLike[str],
+    *,
+    points_per_cell: int = DEFAULT_POINTS_PER_CELL,
+    block: int = DEFAULT_CHUNK,
+    exact_reverse: bool = True,
+    workers: int = -1,
+) -> ExactNearest:
+    """Exact C2C distances both ways with bounded memory: the cell pass of :func:`streamed_c2c` (neighbours up to
+    ``halo`` metres), then, for the points with none that near, a search of the whole other cloud chunk by chunk
+    (:func:`_exact_far`; ``exact_reverse`` off leaves the reverse ones at ``inf``, enough for scores at τ ≤ halo).
+
+    The distances equal :func:`eval.c2c.nearest_distances` bit for bit when the sources yield the positions of the
+    in-memory arrays (the distance of one pair of points does not depend on the tree that finds it). Files (cells,
+    distances: 32 bytes a point and its halo copies, + 16 / 8 bytes a compared / reference point) go in
+    ``work_dir``, which must outlive the result's arrays; ``block``: far points searched at a time.
+    """
+    if not (halo > 0 and math.isfinite(halo)):
+        raise ConfigError(f"halo must be a positive finite distance in metres, got {halo}")
+    if points_per_cell < 1 or block < 1:
+        raise ConfigError(f"points_per_cell and block must be >= 1, got {points_per_cell}, {block}")
+    lo, hi, n_cmp, n_ref = _bounds((compared, reference))
+    if n_cmp == 0 or n_ref == 0:
+        raise DataError(f"C2C needs points in both clouds (compared {n_cmp}, reference {n_ref})")
+    grid = grid_for(lo, hi, max(n_cmp, n_ref), halo, points_per_cell)
+    work = Path(work_dir)
+    cells = {}
+    for name, source in (("compared", compared), ("reference", reference)):
+        cells[name] = CellFiles(work / name, grid, halo)
+        for chunk in source():
+            cells[name].add(chunk)
+    forward = np.lib.format.open_memmap(work / "forward.npy", mode="w+", dtype=np.float64, shape=(n_cmp,))
+    nearest = np.lib.format.open_memmap(work / "nearest.npy", mode="w+", dtype=np.int64, shape=(n_cmp,))
+    reverse = np.lib.format.open_memmap(work / "reverse.npy", mode="w+", dtype=np.float64, shape=(n_ref,))
+    far_fwd = _exact_cells(cells["compared"], cells["reference"], forward, nearest, work / "far_fwd.bin", workers)
+    far_rev = _exact_cells(cells["reference"], cells["compared"], reverse, None, work / "far_rev.bin", workers)
+    for name in ("compared", "reference"):  # the cell files are no longer needed
+        for path in (work / name).iterdir():
+            path.unlink()
+        (work / name).rmdir()
+    _exact_far(work / "far_fwd.bin", reference, forward, nearest, block, workers)
+    if exact_reverse:
+        _exact_far(work / "far_rev.bin", compared, reverse, None, block, workers)
+    else:
+        total = (work / "far_rev.bin").stat().st_size // _FAR.itemsize
+        for start in range(0, total, block):
+            rec = np.fromfile(work / "far_rev.bin", _FAR, count=min(block, total - start), offset=start * _FAR.itemsize)
+            reverse[rec["i"]] = np.inf
+    return ExactNearest(forward, nearest, reverse, grid, (far_fwd, far_rev))
+
+
+_PERCENTILES = (50, 90, 95, 99)  # as eval.c2c.distance_stats reports them
+
+
+def order_statistics(values: np.ndarray, ranks: Iterable[int], upper: float | None = None,
+                     chunk: int = DEFAULT_CHUNK) -> dict[int, float]:  # fmt: skip
+    """The exact ``k``-th smallest (0-based) of the values below ``upper`` (every one when None) of ``values``, a
+    (n,) float64 array ≥ 0 such as a memory map, read ``chunk`` at a time: radix selection on the IEEE-754 bit
+    patterns (ordered as the values for non-negative floats), 16 bits a pass, four passes; memory: a chunk and a
+    65 536-bin histogram a rank."""
+    wanted = sorted(set(int(r) for r in ranks))
+    prefix, left = dict.fromkeys(wanted, 0), {r: r for r in wanted}
+    for shift in (48, 32, 16, 0):
+        hist = {r: np.zeros(1 << 16, np.int64) for r in wanted}
+        for start in range(0, len(values), chunk):
+            v = np.asarray(values[start : start + chunk], dtype=np.float64)
+            bits = (v[v < upper] if upper is not None else v).view(np.uint64)
+            digit = ((bits >> np.uint64(shift)) & np.uint64(0xFFFF)).astype(np.int64)
+            high = bits >> np.uint64(shift + 16) if shift < 48 else None
+            for r in wanted:
+                hist[r] += np.bincount(
+                    digit if high is None else digit[high == np.uint64(prefix[r])], minlength=1 << 16
+                )
+        for r in wanted:
+            cum = np.cumsum(hist[r])
+            b = int(np.searchsorted(cum, left[r], side="right"))
+            left[r] -= int(cum[b - 1]) if b else 0
+            prefix[r] = (prefix[r] << 16) | b
+    return {r: float(np.array([prefix[r]], np.uint64).view(np.float64)[0]) for r in wanted}
+
+
+def percentiles_linear(
+    count: int, qs: Iterable[float], value_at: Callable[[Iterable[int]], dict[int, float]]
+) -> list[float]:
+    """``np.percentile(x, qs)`` (method ``linear``) of ``count`` values from their order statistics ``value_at``
+    (ranks → values), with numpy's own arithmetic (virtual index (n − 1)·q/100, its two-sided interpolation) so that
+    the figures equal numpy's bit for bit (tests/test_eval_stream.py holds them to it)."""
+    positions = []
+    for q in qs:
+        virtual = (count - 1) * np.true_divide(q, 100)
+        prev = min(int(np.floor(virtual)), count - 1)
+        positions.append((prev, min(prev + 1, count - 1), virtual - prev))
+    values = value_at([r for p in positions for r in p[:2]])
+    out = []
+    for prev, nxt, gamma in positions:
+        a, b = values[prev], values[nxt]
+        diff = b - a
+        out.append(float(b - diff * (1 - gamma)) if gamma >= 0.5 else float(a + diff * gamma))
+    return out
+
+
+def streamed_distance_stats(distances: np.ndarray, max_dist: float | None = None,
+                            chunk: int = DEFAULT_CHUNK) -> DistanceStats:  # fmt: skip
+    """:func:`eval.c2c.distance_stats` of (n,) float64 distances (metres; a memory map) read ``chunk`` at a time.
+
+    Counts, outliers, min, max and the percentiles are exact (:func:`order_statistics`); mean, std and rmse are
+    float64 sums by chunks, in another order than numpy's pairwise sums: they differ from the in-memory figures by
+    a few ulps (relative 1e-12 is far above it)."""
+    n = len(distances)
+    count, total, lo, hi = 0, 0.0, math.inf, -math.inf
+    for start in range(0, n, chunk):
+        d = np.asarray(distances[start : start + chunk], dtype=np.float64)
+        if not np.isfinite(d).all():
+            raise DataError("distances contain NaN or infinite values")
+        d = d[d < max_dist] if max_dist is not None else d
+        count, total = count + len(d), total + float(d.sum())
+        if len(d):
+            lo, hi = min(lo, float(d.min())), max(hi, float(d.max()))
+    outliers = n - count
+    share = outliers / n if n else 0.0
+    if count == 0:
+        return DistanceStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, max_dist, outliers, share)
+    mean, spread, squares = total / count, 0.0, 0.0
+    for start in range(0, n, chunk):
+        d = np.asarray(distances[start : start + chunk], dtype=np.float64)
+        d = d[d < max_dist] if max_dist is not None else d
+        spread, squares = spread + float(np.square(d - mean).sum()), squares + float(np.square(d).sum())
+    p50, p90, p95, p99 = percentiles_linear(
+        count, _PERCENTILES, lambda ranks: order_statistics(distances, ranks, max_dist, chunk)
+    )
+    return DistanceStats(
+        count=count,
+        mean=mean,
+        std=math.sqrt(max(spread / count, 0.0)),
+        median=p50,
+        rmse=math.sqrt(squares / count),
+        p90=p90,
+        p95=p95,
+        p99=p99,
+        min=lo,
+        max=hi,
+        max_dist=max_dist,
+        outlier_count=outliers,
+        outlier_share=share,
+    )
+
+
+# -- memory plan ------------------------------------------------------------------------------------------------
+
+BASE_MB = 512.0
+"""Memory (MiB) the eval stage holds besides the streamed C2C: interpreter, numpy/scipy/laspy, the product measured
+(its cloud and Gaussians, in memory for the renders and the distance clouds) on a small project."""
+MIN_WORK_MB = 64.0
+"""The least memory beyond :data:`BASE_MB` the streamed C2C works in (MiB)."""
+_CELL_POINT_BYTES = 200  # a point of a cell: record 32, positions for the tree 24 + tree ~40, results 16, halo share
+_CHUNK_POINT_BYTES = 160  # a point of a read chunk: positions 24, LAS record ~40, colours, normals, fields, copies
+
+
+@dataclass(frozen=True)
+class C2CPlan:
+    """Sizes of the streamed C2C for a memory limit: ``points_per_cell`` (of both clouds together, about) and
+    ``chunk`` (points read at a time, and far points searched at a time)."""
+
+    memory_limit_mb: float
+    points_per_cell: int
+    chunk: int
+
+
+def plan_c2c_memory(memory_limit_mb: float) -> C2CPlan:
+    """Cell and chunk sizes for a peak resident memory of about ``memory_limit_mb`` (MiB) in the eval stage: of
+    what is left above :data:`BASE_MB`, 50 % to a cell (both clouds' points there), 25 % to a chunk. Raises
+    :class:`ConfigError` naming the value when less than :data:`MIN_WORK_MB` would be left."""
+    if not (isinstance(memory_limit_mb, int | float) and math.isfinite(memory_limit_mb)):
+        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {memory_limit_mb!r}")
+    work = memory_limit_mb - BASE_MB
+    if work < MIN_WORK_MB:
+        raise ConfigError(
+            f"memory_limit_mb = {memory_limit_mb:g} is too small for the streamed C2C of the eval stage: it needs at "
+            f"least {BASE_MB + MIN_WORK_MB:g} MiB ({BASE_MB:g} for the interpreter, libraries and the product, "
+            f"{MIN_WORK_MB:g} for a cell and a chunk)"
+        )
+    work_bytes = work * 2**20
+    cell = max(1000, int(0.5 * work_bytes / _CELL_POINT_BYTES) // 2)  # the two clouds share a cell
+    chunk = max(1000, int(0.25 * work_bytes / _CHUNK_POINT_BYTES))
+    return C2CPlan(float(memory_limit_mb), cell, chunk)

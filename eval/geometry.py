@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from os import PathLike
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -32,6 +33,8 @@ class GeometryOptions:
     tau: threshold for completeness / precision / recall / F-score (C2C only).
     icp_max_correspondence: run point-to-plane ICP first with this correspondence distance (off when None).
     write_las: also write the LAS copy of the compared cloud with its ``c2c`` field.
+    memory_limit_mb: with a reference cloud given as a file, read it in chunks and measure within about this peak
+    memory (MiB; :mod:`eval.geometry_stream`, the same figures); None reads it whole. Not with ICP.
     """
 
     max_dist: float | None = None
@@ -39,6 +42,15 @@ class GeometryOptions:
     icp_max_correspondence: float | None = None
     write_las: bool = True
     class_field: str = "classification"
+    memory_limit_mb: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.memory_limit_mb is not None:
+            from eval.c2c_stream import plan_c2c_memory
+
+            plan_c2c_memory(self.memory_limit_mb)  # a ConfigError naming the value
+            if self.icp_max_correspondence is not None:
+                raise ConfigError("ICP registration needs the reference in memory: leave memory_limit_mb unset")
 
 
 def load_reference(path: str | PathLike[str]) -> PointCloud | Mesh:
@@ -85,6 +97,28 @@ def measure(
     return Measurement(result, compared, registration, method)
 
 
+def _measure_streamed(
+    compared: PointCloud, reference: Any, options: GeometryOptions, work_dir: str | PathLike[str] | None
+) -> Measurement:
+    """:func:`measure` (C2C) with the reference (a file, or a :class:`core.io.point_stream.PointSource`) read in
+    chunks within ``options.memory_limit_mb`` (:func:`eval.geometry_stream.compare_clouds_streamed`); temporary
+    files in ``work_dir``."""
+    from core.io.point_stream import PointSource
+    from eval.c2c_stream import plan_c2c_memory
+    from eval.geometry_stream import compare_clouds_streamed, reference_source
+
+    plan = plan_c2c_memory(options.memory_limit_mb)  # type: ignore[arg-type]
+    if work_dir is not None:
+        Path(work_dir).mkdir(parents=True, exist_ok=True)
+    source = reference if isinstance(reference, PointSource) else reference_source(reference, plan.chunk)
+    result = compare_clouds_streamed(
+        compared, source, plan, options.max_dist, options.tau, options.class_field, work_dir=work_dir
+    )
+    if len(result.per_class) == 1:  # a single class repeats the overall statistics, as measure() drops it
+        result = C2CResult(result.distances, result.stats, result.reverse, result.scores, {})
+    return Measurement(result, compared, None, "c2c")
+
+
 def with_distance_field(cloud: PointCloud, distances: np.ndarray, name: str = "c2c") -> PointCloud:
     """A copy of ``cloud`` with a float64 scalar field ``name`` (metres)."""
     fields = dict(cloud.fields)
@@ -94,20 +128,31 @@ def with_distance_field(cloud: PointCloud, distances: np.ndarray, name: str = "c
 
 def evaluate_geometry(
     compared: PointCloud | str | PathLike[str],
-    reference: PointCloud | Mesh | str | PathLike[str],
+    reference: PointCloud | Mesh | str | PathLike[str] | Any,
     out_dir: str | PathLike[str] | None,
     name: str,
     options: GeometryOptions = GeometryOptions(),
 ) -> C2CSummary:
     """Measure one product and write its outputs under ``out_dir`` (nothing written when None).
 
-    ``compared``/``reference`` are clouds or paths (a mesh path makes it C2M). File paths in the summary
+    ``compared``/``reference`` are clouds or paths (a mesh path makes it C2M); with ``options.memory_limit_mb`` the
+    reference may also be a :class:`core.io.point_stream.PointSource` (read in chunks). File paths in the summary
     are relative to ``out_dir``.
     """
+    from core.io.point_stream import PointSource
+
     ref_name = str(reference) if isinstance(reference, (str, PathLike)) else None
+    if isinstance(reference, PointSource):  # a reference read in chunks (the eval stage's, spooled once)
+        ref_name = str(reference.path) if reference.path is not None else None
     cloud = read_point_cloud(compared) if isinstance(compared, (str, PathLike)) else compared
-    ref = load_reference(reference) if isinstance(reference, (str, PathLike)) else reference
-    m = measure(cloud, ref, options)
+    streamed = isinstance(reference, PointSource) or (
+        isinstance(reference, (str, PathLike)) and not is_mesh_file(reference)
+    )
+    if options.memory_limit_mb is not None and streamed:
+        m = _measure_streamed(cloud, reference, options, out_dir)  # type: ignore[arg-type]
+    else:
+        ref = load_reference(reference) if isinstance(reference, (str, PathLike)) else reference
+        m = measure(cloud, ref, options)
     result, measured, registration, method = m.result, m.measured, m.registration, m.method
     files: dict[str, str] = {}
     if out_dir is not None:

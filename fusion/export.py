@@ -262,9 +262,16 @@ def gaussians_to_points(gaussians: GaussianSet) -> PointCloud:
 
 
 def export_points(
-    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None
+    path: str | PathLike[str], gaussians: GaussianSet, options: ExportOptions | None = None, chunk: int | None = None
 ) -> ExportReport:
-    """Write the Gaussians' centres as a point cloud (.ply with sidecar, or .las/.laz at 1 mm) with class and source."""
+    """Write the Gaussians' centres as a point cloud (.ply with sidecar, or .las/.laz at 1 mm) with class and source.
+
+    ``chunk``: write that many points at a time (:func:`fusion.export_stream.export_points_chunked`, the same bytes;
+    :func:`fusion.export_stream.export_chunk_points` gives it for a memory limit); None writes the cloud whole."""
+    if chunk is not None:
+        from fusion.export_stream import export_points_chunked
+
+        return export_points_chunked(path, gaussians, options, chunk=chunk)  # type: ignore[return-value]
     path = Path(path)
     if path.suffix.lower() not in (".ply", ".las", ".laz"):
         raise FormatError(f"point export needs .ply, .las or .laz, got {path.suffix!r}", path)

@@ -49,6 +49,10 @@ class MergeOptions:
         2, chosen on the demo preset at seed 12 (no figure is scored on it; docs/experiments/2026-11-27-splat-
         surface.md, "seed 12 choice, seed 0 score"): the largest support at which every material whose filtered-MVS
         accuracy mean is ≤ τ keeps its mean ≤ τ (no support keeps the overall mean ≤ the control's + 10 %).
+    memory_limit_mb (MiB; ``run --memory-limit``): None writes the survey points (merged_points.ply and .las) whole;
+    a number writes them in chunks sized for about that peak memory (:func:`fusion.export_stream.export_chunk_points`:
+    the same bytes; at least :data:`fusion.export_stream.BASE_MB` + :data:`fusion.export_stream.MIN_WORK_MB`, else
+    a :class:`ConfigError`). The Gaussian sets themselves are in memory either way.
     """
 
     keep_needs_splats: bool = False
@@ -62,8 +66,13 @@ class MergeOptions:
     splat_surface_keep_centres: bool = False
     splat_surface_support: float | None = 2.0
     splat_surface_points: SplatSurfaceOptions = field(default_factory=SplatSurfaceOptions)
+    memory_limit_mb: float | None = None
 
     def __post_init__(self) -> None:
+        if self.memory_limit_mb is not None:
+            from fusion.export_stream import export_chunk_points
+
+            export_chunk_points(self.memory_limit_mb)  # a ConfigError naming the value
         unknown = [f for f in self.viewer_formats if f not in VIEWER_FORMATS]
         if unknown:
             raise ConfigError(f"unknown viewer format(s) {unknown}; choose from {', '.join(VIEWER_FORMATS)}")

@@ -276,10 +276,11 @@ def read_fused(dense_dir: str | PathLike[str]) -> PointCloud:
     return cloud
 
 
-def fused_source(dense_dir: str | PathLike[str]) -> PointSource:
+def fused_source(dense_dir: str | PathLike[str], chunk: int = 2_000_000) -> PointSource:
     """The fused cloud of a dense workspace as a chunk stream, as :func:`recon.workspace.read_fused` reads it whole:
     ``fused.ply`` and, when present, ``fused.ply.vis`` with ``visibility`` as COLMAP image ids (the positions checked
-    against the sparse model's registered images chunk by chunk: the same :class:`FormatError`)."""
+    against the sparse model's registered images chunk by chunk: the same :class:`FormatError`); ``chunk`` points a
+    chunk at most."""
     from core.io.colmap_vis import positions_to_image_ids
     from core.io.point_stream import PointSource, ply_source  # noqa: F811 (the annotation's name, at run time)
 
@@ -287,10 +288,10 @@ def fused_source(dense_dir: str | PathLike[str]) -> PointSource:
     if not ws.fused_ply.is_file():
         raise InputFileError("dense workspace has no fused.ply", ws.root)
     if not ws.fused_vis.is_file():
-        return ply_source(ws.fused_ply)
+        return ply_source(ws.fused_ply, chunk=chunk)
     import pycolmap
 
-    base = ply_source(ws.fused_ply, ws.fused_vis)
+    base = ply_source(ws.fused_ply, ws.fused_vis, chunk=chunk)
     image_ids = pycolmap.Reconstruction(str(ws.sparse)).reg_image_ids()
 
     def chunks() -> Iterator[PointCloud]:

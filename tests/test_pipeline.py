@@ -475,3 +475,58 @@ def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp
     assert 'viewer_formats = ["spz", "sog", "3dtiles"]' in (copy / "config.toml").read_text()
     assert main_code(["run", str(scene), "--out", str(tmp_path / "q"), "--viewer-format", "jpeg"]) == 2
     assert "unknown viewer format(s) ['jpeg']" in capsys.readouterr().err
+
+
+def test_eval_with_a_memory_limit_gives_the_in_memory_figures(project, tmp_path, monkeypatch):
+    """``run --memory-limit`` on the eval stage: the reference read in chunks and compared cell by cell (several cells
+    forced by a small plan) gives every product's C2C figures and per-material scores of the in-memory run and the
+    same distance clouds; the reverse mean / std / rmse within rel 1e-12 (sums by chunks, tests/test_eval_stream.py)."""
+    from dataclasses import replace
+
+    import eval.c2c_stream as c2c_stream
+    import eval.geometry_stream as geometry_stream
+    from hybridsplat.stages.evaluate import EvalStage, EvalStageOptions
+
+    _, project = project
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy)
+    layout = ProjectLayout(copy)
+    memory, tables = json.loads(layout.metrics_json.read_text()), json.loads(layout.per_material_json.read_text())
+    clouds = {p.name: p.read_bytes() for p in layout.eval_dir.glob("c2c_*.*")}
+    monkeypatch.setattr(c2c_stream, "plan_c2c_memory", lambda limit: c2c_stream.C2CPlan(limit, 2_000, 3_001))
+    cells = []
+
+    def exact_nearest(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        near = c2c_stream.exact_nearest(*args, **kwargs)
+        cells.append(near.grid.nx * near.grid.ny)
+        return near
+
+    monkeypatch.setattr(geometry_stream, "exact_nearest", exact_nearest)
+    config = load_config(copy)
+    options = replace(config.options("eval", EvalStageOptions), cache=False, memory_limit_mb=1024.0)
+    record = run_pipeline(copy, config.with_stage_options("eval", options), force=["eval"]).stages["eval"]
+    assert record.counts["memory_limit_mb"] == 1024.0 and record.counts["peak_rss_mb"] > 0
+    assert "C2C streamed within 1024 MiB" in EvalStage().summary(record.counts)
+    assert max(cells) >= 4  # several cells, and the points beyond the halo searched in the whole cloud
+    assert "Evaluation with bounded memory" in (layout.report_dir / "report.md").read_text()
+    streamed = json.loads(layout.metrics_json.read_text())
+    measured = [n for n, p in memory["products"].items() if p.get("c2c")]
+    assert {"mvs", "merged", "splats"} <= set(measured)
+    for name in measured:
+        got, want = streamed["products"][name]["c2c"], memory["products"][name]["c2c"]
+        for key, value in want.items():
+            if key == "reverse" and value is not None:
+                for k, v in value.items():
+                    assert got[key][k] == (pytest.approx(v, rel=1e-12) if k in ("mean", "std", "rmse") else v), k
+            else:
+                assert got[key] == value, (name, key)
+    geometry = ("accuracy_mean_m", "accuracy_points", "completeness", "reference_points")
+    streamed_tables = json.loads(layout.per_material_json.read_text())
+    for name, rows in tables["products"].items():
+        for material, row in rows.items():
+            got = streamed_tables["products"][name][material]
+            assert {k: got[k] for k in row if k in geometry or "splat_surface" in k} == {
+                k: row[k] for k in row if k in geometry or "splat_surface" in k
+            }, (name, material)
+    assert {p.name: p.read_bytes() for p in layout.eval_dir.glob("c2c_*.*")} == clouds
+    assert not list(layout.eval_dir.glob("hybridsplat_*"))  # the work files are gone

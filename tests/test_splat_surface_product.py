@@ -6,6 +6,7 @@ option tables and command-line flags that turn it and the geometric losses on.""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -292,7 +293,7 @@ def test_eval_scores_the_splat_surface_points_per_material_and_the_report_shows_
     from core.units import Units
     from eval.per_material import as_table, geometry_per_material
     from eval.report import _per_material_tables
-    from hybridsplat.stages.evaluate import _splat_surface_group
+    from hybridsplat.stages.evaluate import _MaterialReference, _splat_surface_group
 
     # reference: material 1 on x < 0, material 2 on x > 0 (1 cm grid on z = 0)
     g = np.arange(-0.5, 0.5, 0.01) + 0.005
@@ -306,14 +307,14 @@ def test_eval_scores_the_splat_surface_points_per_material_and_the_report_shows_
     rows = as_table(geometry_per_material(cloud.world_positions, ref.world_positions, ref.fields["material"], 6e-3),
                     {}, names)  # fmt: skip
     plain = {k: dict(v) for k, v in rows.items()}
-    _splat_surface_group(rows, cloud, ref, 6e-3, names)
+    _splat_surface_group(rows, cloud, _MaterialReference(ref, None, Path(".")), 6e-3, names)
     assert rows["mirror"]["splat_surface_points"] == len(surface) and rows["wood"]["splat_surface_points"] == 0
     assert rows["mirror"]["splat_surface_completeness"] == 1.0 and rows["wood"]["splat_surface_completeness"] == 0
     assert abs(rows["mirror"]["splat_surface_accuracy_mean_m"] - 2e-3) < 1e-9
     assert rows["wood"]["splat_surface_accuracy_mean_m"] is None
     without = PointCloud(mvs, fields={"source": np.full(len(mvs), Source.MVS, np.uint8)})
     untouched = {k: dict(v) for k, v in plain.items()}
-    _splat_surface_group(untouched, without, ref, 6e-3, names)
+    _splat_surface_group(untouched, without, _MaterialReference(ref, None, Path(".")), 6e-3, names)
     assert untouched == plain  # no splat-surface points: the rows are as before
     kinds = {"wood": {"kind": "textured", "collaborative": True}, "mirror": {"kind": "mirror", "collaborative": False}}
     table = {"tau_m": 6e-3, "materials": kinds, "products": {"mvs": plain, "merged": rows, "merged_unrefined": rows}}

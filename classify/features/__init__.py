@@ -22,7 +22,7 @@ from classify.features.registry import (
     feature_specs,
     resolve_names,
 )
-from classify.features.reorder import gather_rows, renumber_neighbours, scatter_column
+from classify.features.reorder import cube_of, gather_rows, renumber_neighbours, scatter_column
 from classify.features.view_dependent import view_dependent_features
 from core.errors import ConfigError, DataError
 from core.pointcloud import PointCloud
@@ -35,6 +35,7 @@ __all__ = [
     "FeatureOptions",
     "FeatureSpec",
     "FeatureTable",
+    "WholeCloud",
     "GeometricOptions",
     "MultiViewOptions",
     "ViewData",
@@ -111,12 +112,28 @@ class FeatureTable:
         return FeatureTable(tuple(names), self.values[:, cols], self.spacing, self.neighbours)
 
 
+@dataclass(frozen=True)
+class WholeCloud:
+    """What :func:`compute_features` derives from the whole cloud, given when it computes a part of one (the x-y cells
+    of :mod:`classify.stream`): lo, hi (3,) float64 metres, the cloud's bounding box (the Morton cube of the spatial
+    order, the origin of the coarse levels' voxels and ground columns); spacing: its median point spacing (metres)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    spacing: float
+
+
 def compute_features(
     cloud: PointCloud,
     options: FeatureOptions = FeatureOptions(),
     views: ViewData | None = None,
+    whole: WholeCloud | None = None,
 ) -> FeatureTable:
     """The selected features of every point of ``cloud`` (local positions, colours, normals, visibility).
+
+    whole: when ``cloud`` is a part of a larger cloud, that cloud's box and spacing (:class:`WholeCloud`): every
+    point whose neighbourhoods lie inside the part then gets the features it has in the whole cloud, bit for bit
+    (:mod:`classify.stream` proves which do); None: ``cloud`` is the whole cloud.
 
     Radiometric features need colours; the view-based groups (:data:`VIEW_GROUPS`) need ``views`` (and use
     ``cloud.visibility``; view_dependent also ``cloud.normals``).
@@ -140,11 +157,13 @@ def compute_features(
         )
     # Geometric and radiometric features are computed on the points sorted along a space-filling curve (cache-
     # friendly neighbour gathers) and written back in the cloud's order; multi-view features in the cloud's order.
-    order = spatial_order(cloud.positions)
+    lo, span = cube_of(whole.lo, whole.hi) if whole is not None else (None, None)
+    order = spatial_order(cloud.positions, lo=lo, span=span)
     sorted_columns: dict[str, np.ndarray] = {}
     normals = gather_rows(cloud.normals, order) if cloud.normals is not None else None
     positions = gather_rows(cloud.positions, order)
-    geo = geometric_features(positions, normals, options.geometric)
+    spacing, origin = (whole.spacing, whole.lo) if whole is not None else (None, None)
+    geo = geometric_features(positions, normals, options.geometric, spacing, origin)
     spacing = geo.spacing
     if FeatureGroup.GEOMETRIC in groups:
         sorted_columns.update(geo.features)

@@ -77,11 +77,15 @@ class Eigen:
 
 
 # -- spacing, pyramid, neighbours ----------------------------------------------------------------------------
-def spatial_order(positions: np.ndarray, bits: int = 16) -> np.ndarray:
+def spatial_order(
+    positions: np.ndarray, bits: int = 16, lo: np.ndarray | None = None, span: float | None = None
+) -> np.ndarray:
     """A permutation (N,) int64 that sorts points (N, 3) float64 along a Morton (Z-order) curve of their bounding
-    box (``bits`` per axis): neighbours in space become neighbours in memory, so the k-NN gathers of the
-    features hit the cache (clouds are often stored in scan or random order)."""
-    return np.argsort(morton_codes(positions, bits), kind="stable")
+    box (``bits`` per axis; or of the cube at ``lo`` (3,) metres of side ``span`` metres, see
+    :func:`~classify.features.reorder.morton_codes`): neighbours in space become neighbours in memory, so the k-NN
+    gathers of the features hit the cache (clouds are often stored in scan or random order). Ties keep the points'
+    order (a stable sort)."""
+    return np.argsort(morton_codes(positions, bits, lo, span), kind="stable")
 
 
 def point_spacing(positions: np.ndarray, sample: int = 100_000, seed: int = 0, workers: int = -1) -> float:
@@ -345,10 +349,13 @@ def geometric_features(
     mvs_normals: np.ndarray | None = None,
     options: GeometricOptions = GeometricOptions(),
     spacing: float | None = None,
+    origin: np.ndarray | None = None,
 ) -> GeometricResult:
     """Every geometric feature at every scale for points (N, 3) float64 metres (local frame).
 
-    spacing: the median point spacing (metres); estimated from the points when None.
+    spacing: the median point spacing (metres); estimated from the points when None. origin: (3,) metres, where
+    the coarse levels' voxels and ground columns start (default the points' minimum; a part of a cloud passes the
+    whole cloud's, :mod:`classify.stream`).
     """
     pts = np.asarray(positions, dtype=np.float64)
     if len(pts) < 3:
@@ -357,7 +364,8 @@ def geometric_features(
         raise DataError("positions contain NaN or infinite values")
     feats: dict[str, np.ndarray] = {}
     finest: np.ndarray | None = None
-    lowest = pts.min(axis=0)  # the voxels' and ground columns' origin (one (N, 3) reduction, 30 ms at 1 M)
+    # the voxels' and ground columns' origin (one (N, 3) reduction, 30 ms at 1 M)
+    lowest = pts.min(axis=0) if origin is None else np.asarray(origin, dtype=np.float64)
     for s, factor in enumerate(options.voxel_factors):
         level, per_point = pts, None
         if factor > 1.0:

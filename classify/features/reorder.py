@@ -30,15 +30,26 @@ def _morton_kernel(pts, lo, span, bits):  # pragma: no cover - compiled
     return out
 
 
-def morton_codes(positions: np.ndarray, bits: int = 16) -> np.ndarray:
+def morton_codes(
+    positions: np.ndarray, bits: int = 16, lo: np.ndarray | None = None, span: float | None = None
+) -> np.ndarray:
     """(N,) uint64 Morton (Z-order) codes of points (N, 3) float64 in their bounding cube, ``bits`` per axis
-    (bit b of axis a at position 3b + a; coordinates quantised by truncation, clamped to 2^bits − 1)."""
+    (bit b of axis a at position 3b + a; coordinates quantised by truncation, clamped to 2^bits − 1).
+
+    lo (3,) metres and span (metres): the cube's lowest corner and side; default the points' own bounding cube (a
+    part of a cloud passes the whole cloud's, so that its codes are the whole cloud's)."""
     pts = np.ascontiguousarray(positions, dtype=np.float64)
     if len(pts) == 0:
         return np.zeros(0, np.uint64)
-    lo = pts.min(axis=0)
-    span = max(float((pts.max(axis=0) - lo).max()), 1e-300)
-    return _morton_kernel(pts, lo, span, bits)
+    if lo is None or span is None:
+        lo, span = cube_of(pts.min(axis=0), pts.max(axis=0))
+    return _morton_kernel(pts, np.asarray(lo, dtype=np.float64), float(span), bits)
+
+
+def cube_of(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, float]:
+    """The Morton cube of a bounding box: its lowest corner (3,) float64 and side (metres, > 0)."""
+    lo = np.asarray(lo, dtype=np.float64)
+    return lo, max(float((np.asarray(hi, dtype=np.float64) - lo).max()), 1e-300)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)

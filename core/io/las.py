@@ -261,6 +261,7 @@ class LasChunkWriter:
         self.path, self.target, self.scale, self.crs = path, target or path, scale, crs
         self.writer = None
         self.count = 0
+        self._first: laspy.ScaleAwarePointRecord | None = None  # the file's first record (extra-dim statistics)
 
     def _open(self, first: PointCloud) -> None:
         self.offset = np.round(first.origin / self.scale) * self.scale
@@ -278,11 +279,22 @@ class LasChunkWriter:
             raise DataError(f"coordinates span more than ±{limit * self.scale:.0f} m from the offset", self.target)
         rec = laspy.ScaleAwarePointRecord.zeros(len(ints), header=self.header)
         _fill_points(rec, cloud, ints, self.target)
+        if self._first is None and len(rec):
+            self._first = laspy.ScaleAwarePointRecord.zeros(1, header=self.header)
+            self._first.array[0] = rec.array[0]
         self.writer.write_points(rec)
         self.count += len(ints)
 
     def close(self) -> None:
+        """Complete the header and close the file. The extra dims' min and max in the header are those
+        :func:`write_las` writes: laspy takes both from the first point of each write (it reads a scalar dim with
+        ``[..., 0]``), so a whole-cloud write records the file's first point and a chunked one would record the
+        extremes over each chunk's first point; they are set back to the first point's."""
         if self.writer is not None:
+            stats = self.writer.header.vlrs.get("ExtraBytesVlr")
+            if stats and self._first is not None:
+                stats[0].partial_reset()
+                stats[0].grow(self._first)
             self.writer.close()
 
 

@@ -273,9 +273,30 @@ def write_ply(
     with their dtype (int64 → int32 when it fits, else float64; bool → uint8).
     """
     path = Path(path)
+    vertex = ply_vertex_rows(cloud, byte_order, position_dtype, coordinates, color_dtype)
+    element = plyfile.PlyElement.describe(vertex, "vertex")
+    ply = plyfile.PlyData([element], text=not binary, byte_order=byte_order if binary else "=")
+    with atomic_path(path) as tmp:
+        ply.write(str(tmp))
+    if coordinates == "local" and np.any(cloud.origin != 0):
+        write_origin(path, cloud.origin)
+    else:
+        remove_origin(path)
+    return path
+
+
+def ply_vertex_rows(
+    cloud: PointCloud,
+    byte_order: Literal["<", ">"] = "<",
+    position_dtype: Literal["f4", "f8"] = "f4",
+    coordinates: Literal["local", "world"] = "local",
+    color_dtype: Literal["u1", "f4"] = "u1",
+) -> np.ndarray:
+    """The vertex rows (N,) structured array that :func:`write_ply` writes for ``cloud`` (same options; ``world``
+    writes float64 whatever ``position_dtype`` says): a chunked writer appends these after
+    :func:`ply_vertex_header` to write the same file chunk by chunk."""
     if coordinates == "world":
-        xyz = cloud.world_positions
-        position_dtype = "f8"
+        xyz, position_dtype = cloud.world_positions, "f8"
     else:
         xyz = cloud.positions
     columns: list[tuple[str, np.ndarray]] = [(n, xyz[:, i].astype(position_dtype)) for i, n in enumerate("xyz")]
@@ -286,20 +307,19 @@ def write_ply(
         columns += [(n, c[:, i]) for i, n in enumerate(("red", "green", "blue"))]
     for name, values in cloud.fields.items():
         columns.append((name, _ply_compatible(values)))
-
     dtype = np.dtype([(name, byte_order + _PLY_TYPES[np.dtype(v.dtype)]) for name, v in columns])
     vertex = np.empty(len(cloud), dtype=dtype)
     for name, values in columns:
         vertex[name] = values
-    element = plyfile.PlyElement.describe(vertex, "vertex")
-    ply = plyfile.PlyData([element], text=not binary, byte_order=byte_order if binary else "=")
-    with atomic_path(path) as tmp:
-        ply.write(str(tmp))
-    if coordinates == "local" and np.any(cloud.origin != 0):
-        write_origin(path, cloud.origin)
-    else:
-        remove_origin(path)
-    return path
+    return vertex
+
+
+def ply_vertex_header(rows_dtype: np.dtype, count: int, byte_order: Literal["<", ">"] = "<") -> bytes:
+    """The binary PLY header :func:`write_ply` (through plyfile) writes for ``count`` vertex rows of ``rows_dtype``
+    (a :func:`ply_vertex_rows` dtype)."""
+    element = plyfile.PlyElement.describe(np.empty(0, dtype=rows_dtype), "vertex")
+    header = plyfile.PlyData([element], text=False, byte_order=byte_order).header
+    return (header.replace("element vertex 0\n", f"element vertex {count}\n", 1) + "\n").encode("ascii")
 
 
 def _ply_compatible(values: np.ndarray) -> np.ndarray:

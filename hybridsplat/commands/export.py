@@ -62,6 +62,12 @@ def export(
         help="tileset.json outputs only: add this mesh (a .glb such as export/mesh.glb, with its origin sidecar) as "
         "one tile (mesh/mesh.glb).",
     ),
+    memory_limit: float | None = typer.Option(
+        None,
+        "--memory-limit",
+        help="Point-cloud outputs (.las, .laz, .ply with --points): write them in chunks within about this memory "
+        "(MB), the same bytes (fusion/export_stream.py).",
+    ),
 ) -> None:
     """Export Gaussians to viewer formats (.ply, .compressed.ply, .spz, .sog, .splat, tileset.json) or point clouds
     with class/source fields (.ply, .las). A tileset.json output can carry the survey points and the mesh beside the
@@ -78,17 +84,30 @@ def export(
         crs = read_crs(gaussians)  # the input's CRS goes with every output
     options = export_options(crop_min, crop_max, min_opacity, sh_degree, extra_fields, crs, spz_version)
     options = replace(options, gltf_compression=gltf_compression.lower())
-    reports = []
+    chunk = _chunk(memory_limit)
     with output_transaction():  # every output (and sidecar) appears, or none does
-        for path in out:
-            if points and path.suffix.lower() == ".ply" and not is_compressed_ply_path(path):
-                reports.append(export_points(path, gs, options))
-            elif _is_tileset(path):
-                reports.append(export_tileset(path, gs, options, points=survey_points, mesh=mesh))
-            else:
-                reports.append(export_gaussians(path, gs, options))
+        reports = [_export_one(path, gs, options, points, chunk, survey_points, mesh) for path in out]
     for report in reports:
         print_export(report)
+
+
+def _chunk(memory_limit_mb: float | None) -> int | None:
+    """Points a chunk of the point-cloud outputs for ``--memory-limit`` (MB), None without one."""
+    from fusion.export_stream import export_chunk_points
+
+    return export_chunk_points(memory_limit_mb) if memory_limit_mb is not None else None
+
+
+def _export_one(path: Path, gs, options, points: bool, chunk: int | None, survey_points: Path | None,
+                mesh: Path | None):  # noqa: ANN001, ANN202  # fmt: skip
+    """One output of the command: survey points (.las/.laz, or .ply with ``points``; ``chunk`` points at a time when
+    given), a tileset, or a viewer format; its :class:`fusion.export.ExportReport`."""
+    suffix = path.suffix.lower()
+    if suffix in (".las", ".laz") or (points and suffix == ".ply" and not is_compressed_ply_path(path)):
+        return export_points(path, gs, options, chunk=chunk)
+    if _is_tileset(path):
+        return export_tileset(path, gs, options, points=survey_points, mesh=mesh)
+    return export_gaussians(path, gs, options)
 
 
 def _is_tileset(path: Path) -> bool:

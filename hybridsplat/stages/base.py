@@ -31,6 +31,13 @@ class NoOptions:
     """A stage without options."""
 
 
+MEMORY_LIMIT_HELP = (
+    "Bound the memory (MiB, at least 704) of the stages that stream: conversion, classification, the survey point "
+    "exports and the C2C evaluation work in chunks (the same files)."
+)
+"""The help of ``run --memory-limit``, one flag that sets ``memory_limit_mb`` of every stage that declares it."""
+
+
 @dataclass(frozen=True)
 class CliOption:
     """A stage option on the command line.

@@ -15,7 +15,7 @@ from typing import Any
 from classify.options import ClassifyOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
 
 _IMPORTANCE_BARS = 20  # classify.figures.importances_png draws the top 20 features
 
@@ -31,6 +31,7 @@ class ClassifyStage(Stage):
         CliOption("model", help="default | none (no-model fallback) | path of a .skops model."),
         CliOption("threshold", help="Needs-splats probability threshold (default: the model's)."),
     )
+    run_options = (CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         from classify.run import resolve_model_path
@@ -45,11 +46,16 @@ class ClassifyStage(Stage):
 
     def expected_bytes(self, ctx: StageContext) -> int:
         """Bytes of classify/: points.ply is fused.ply plus 8 bytes a point (classification, probability,
-        needs_splats: 6) and a header; report.json and the log 64 KiB each; the figures as RGBA PNGs of their
-        sizes at 100 dpi (classes 11 × 5.2 in; importances 6.5 × 6.6 in at most (20 bars), + 1 in a side for
-        feature names that reach past its edge)."""
+        needs_splats: 6) and a header (with a memory limit also the streamed classification's temporary cell
+        files, :func:`classify.stream.temp_bytes`); report.json and the log 64 KiB each; the
+        figures as RGBA PNGs of their sizes at 100 dpi (classes 11 × 5.2 in; importances 6.5 × 6.6 in at most
+        (20 bars), + 1 in a side for feature names that reach past its edge)."""
         points = sizes.ply_vertices(ctx.layout.fused_ply).count
         cloud = tree_bytes([ctx.layout.fused_ply]) + 8 * points + sizes.PLY_HEADER_BYTES + sizes.SIDECAR_BYTES
+        if ctx.options(self).memory_limit_mb is not None:
+            from classify.stream import temp_bytes
+
+            cloud += temp_bytes(points, tree_bytes([ctx.layout.fused_vis]))  # the streamed classification's cells
         figures = sizes.figure_png_bytes(11.0, 5.2)
         if self._has_model(ctx):
             figures += sizes.figure_png_bytes(6.5, 0.28 * _IMPORTANCE_BARS + 1.0, pad_in=1.0)  # long feature names
@@ -66,6 +72,8 @@ class ClassifyStage(Stage):
         from core.io.json_io import write_json_atomic
 
         opts: ClassifyOptions = ctx.options(self)
+        if opts.memory_limit_mb is not None:
+            return _run_streamed(ctx, opts, self._has_model(ctx))
         ctx.progress("features", 0, 1)
         result = classify_dense(ctx.layout.dense, opts.model, opts.threshold)
         ctx.progress("features", 1, 1)
@@ -80,7 +88,10 @@ class ClassifyStage(Stage):
 
     def summary(self, counts: dict[str, Any]) -> str:
         share = counts["needs_splats"] / max(counts["points"], 1)
-        return f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"
+        text = f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"
+        if counts.get("memory_limit_mb") is not None:
+            text += f", classified in {counts['cells']} cells (peak {counts['peak_rss_mb']:.0f} MiB)"
+        return text
 
     def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
         if not isinstance(counts.get("points"), int) or counts["points"] <= 0:
@@ -94,3 +105,66 @@ class ClassifyStage(Stage):
             (str(f), captions.get(Path(str(f)).stem, Path(str(f)).stem)) for f in counts.get("figures") or []
         )
         return ReportSection("Classification and region masks", (line,), figures)
+
+
+def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> dict[str, Any]:
+    """The fused cloud classified cell by cell (:func:`classify.stream.classify_stream`) into the same
+    classify/points.ply as the in-memory path, with the same report and figures; temporary cell files in
+    classify/."""
+    import time
+
+    from classify.features import views_from_workspace
+    from classify.figures import classified_cloud_png, importances_png
+    from classify.run import feature_options_for, load_classifier, needs_views
+    from classify.stream import ClassifyStreamOptions, classify_stream, photo_cache_size
+    from core.io.atomic import write_bytes_atomic
+    from core.io.json_io import write_json_atomic
+    from recon.workspace import fused_source
+
+    t0 = time.perf_counter()
+    model, classes, name, importances = load_classifier(opts.model)
+    stream = ClassifyStreamOptions(opts.memory_limit_mb, work_dir=ctx.layout.classified_points.parent)  # type: ignore[arg-type]
+    views = None
+    if needs_views(feature_options_for(model)):
+        views = views_from_workspace(ctx.layout.dense)
+        views = views_from_workspace(ctx.layout.dense, cache=photo_cache_size(views, stream.plan()))
+    ctx.layout.classified_points.parent.mkdir(parents=True, exist_ok=True)
+    ctx.progress("features", 0, 1)
+    result = classify_stream(
+        fused_source(ctx.layout.dense, stream.plan().chunk_size),
+        model,
+        views,
+        classes,
+        ctx.layout.classified_points,
+        stream,
+        opts.threshold,
+    )
+    ctx.progress("features", 1, 1)
+    per_class = {c.name: result.per_code[c.code] for c in classes.classes}
+    report = {
+        "points": result.points,
+        "needs_splats": result.needs_splats,
+        "per_class": per_class,
+        "model": name,
+        "spacing_m": result.spacing,
+        "seconds": time.perf_counter() - t0,
+        "features": list(result.feature_names),
+        "classes": classes.to_dict(),
+        "importances": importances,
+    }  # the keys of classify.run.ClassifiedCloud.report
+    write_json_atomic(ctx.layout.classify_report, report)
+    positions, codes = result.sample
+    write_bytes_atomic(
+        ctx.layout.classes_figure, classified_cloud_png(positions, codes, classes, counts=result.per_code)
+    )
+    figures = [ctx.layout.classes_figure]
+    if has_model and importances:
+        write_bytes_atomic(
+            ctx.layout.importances_figure, importances_png(list(importances), list(importances.values()))
+        )
+        figures.append(ctx.layout.importances_figure)
+    counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
+    counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
+    counts.update(memory_limit_mb=opts.memory_limit_mb, peak_rss_mb=result.peak_rss_mb, cells=result.cells,
+                  regrown=result.regrown)  # fmt: skip
+    return counts

@@ -10,7 +10,7 @@ from typing import Any
 
 from fusion.convert_options import DEFAULT_MODE, ConvertMode, ConvertOptions
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, Stage, StageContext
 
 STREAM_TEMP_BYTES = 56
 """Temporary bytes a point of the streamed conversion takes in export/ (cells and halos 32, results 24)."""
@@ -44,8 +44,7 @@ class ConvertStage(Stage):
         CliOption(
             "memory_limit_mb",
             "--memory-limit",
-            help="Bound the conversion's memory (MB): the fused cloud is converted in chunks "
-            "(fusion/convert_stream.py).",
+            help=MEMORY_LIMIT_HELP,
         ),
     )
 

@@ -17,7 +17,7 @@ import numpy as np
 from core.errors import ConfigError
 from hybridsplat.project_io import model_origin, read_model_at
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
 
 _PREVIEW_WIDTH = 800  # eval.plots.preview_image: 800 px wide, at most 4 times as high
 _HISTOGRAM_BINS = 50  # eval.c2c.histogram
@@ -34,6 +34,10 @@ class EvalStageOptions:
     lpips_weights: LPIPS v0.1 AlexNet weights (.npz); empty = $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips.
     cache: reuse the stored measurement of a product whose files, evaluation inputs and evaluation code are
     unchanged (``PROJECT/cache/eval/``, :mod:`eval.cache`): after a retraining only the new products are measured.
+    memory_limit_mb (MiB): None reads the reference cloud whole; a number reads it in chunks and measures the C2C and
+    the per-material scores cell by cell within about that peak memory (:mod:`eval.geometry_stream`, the same
+    figures; at least :data:`eval.c2c_stream.BASE_MB` + :data:`eval.c2c_stream.MIN_WORK_MB`, else a
+    :class:`ConfigError`). The products themselves stay in memory (they are rendered).
     """
 
     tau_gsd: float = 3.0
@@ -41,10 +45,15 @@ class EvalStageOptions:
     reference: str = ""
     lpips_weights: str = ""
     cache: bool = True
+    memory_limit_mb: float | None = None
 
     def __post_init__(self) -> None:
         if self.tau_gsd <= 0 or (self.tau_m is not None and not self.tau_m > 0):
             raise ConfigError(f"tau_gsd must be > 0 and tau_m > 0 (or none), got {self.tau_gsd}, {self.tau_m}")
+        if self.memory_limit_mb is not None:
+            from eval.c2c_stream import plan_c2c_memory
+
+            plan_c2c_memory(self.memory_limit_mb)  # a ConfigError naming the value
 
 
 @dataclass(frozen=True)
@@ -61,6 +70,27 @@ class HeldOutViews:
     origin: np.ndarray  # world coordinates of that model's local frame
     photos: Path
     names: tuple[str, ...] | None  # None: every view of the model
+
+
+STREAM_TEMP_BYTES = 80
+"""Temporary bytes a point of the streamed C2C takes in eval/ (cell record 32, halo copies up to 16, distances and
+nearest indices 16, far points 32 at most for the few beyond the halo, rounded up)."""
+
+
+SPOOL_BYTES = 32
+"""Bytes a reference point takes spooled in eval/ (:func:`eval.geometry_stream.spool_reference`: float64 positions
+and the int64 material)."""
+
+
+def _cloud_points(path: Path) -> int:
+    """Points of a reference cloud from its header (LAS/LAZ, PLY); 0 for other formats, which are read whole."""
+    suffix = path.suffix.lower()
+    if suffix in (".las", ".laz") and path.is_file():
+        import laspy
+
+        with laspy.open(path) as reader:
+            return int(reader.header.point_count)
+    return sizes.ply_vertices(path).count if suffix == ".ply" else 0
 
 
 FILTERED_MVS = "mvs_filtered"
@@ -120,6 +150,7 @@ class EvalStage(Stage):
         CliOption("reference", "--lidar", is_path=True,
                   help="Reference cloud (PLY/LAS/LAZ/E57, e.g. a LiDAR scan) for the C2C evaluation."),
         CliOption("lpips_weights", is_path=True, help="LPIPS v0.1 AlexNet weights (.npz)."),
+        CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),
     )  # fmt: skip
 
     def _reference(self, ctx: StageContext) -> Path | None:
@@ -155,12 +186,19 @@ class EvalStage(Stage):
         with a reference, its C2C cloud as PLY and LAS (the product's points with its extra fields, ``source``,
         ``classification``, ``opacity``, ``scale``, normals and ``c2c``), the histogram SVG and the 800 px wide
         preview PNG (one pixel a point); with held-out views, a render | photo | error panel PNG for each of the
-        first 4; plus the held-out views' truth masks (greyscale PNGs), 128 KiB of metrics and the log (64 KiB)."""
+        first 4; plus the held-out views' truth masks (greyscale PNGs), 128 KiB of metrics and the log (64 KiB).
+        With a memory limit, the streamed C2C's temporary files in eval/ too (:data:`STREAM_TEMP_BYTES` a point of
+        the reference and of the largest product, one product at a time) and the spooled reference
+        (:data:`SPOOL_BYTES` a point)."""
         opts: EvalStageOptions = ctx.options(self)
         views, size = self._view_bound(ctx)
-        geometry = self._reference(ctx) is not None
-        products = sum(_product_bytes(cloud, renders, geometry, views, size) for cloud, renders in _clouds(ctx))
+        reference = self._reference(ctx)
+        clouds = _clouds(ctx)
+        products = sum(_product_bytes(cloud, renders, reference is not None, views, size) for cloud, renders in clouds)
         fixed = self._masks_bytes(ctx, size) + 2 * sizes.JSON_BYTES + sizes.LOG_BYTES
+        if opts.memory_limit_mb is not None and reference is not None:
+            largest = max((cloud.count for cloud, _ in clouds), default=0)
+            fixed += STREAM_TEMP_BYTES * (_cloud_points(reference) + largest) + SPOOL_BYTES * _cloud_points(reference)
         return (2 if opts.cache else 1) * products + fixed
 
     def _view_bound(self, ctx: StageContext) -> tuple[int, tuple[int, int]]:
@@ -186,6 +224,27 @@ class EvalStage(Stage):
         return None
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
+        """Every product measured (:meth:`_measure`). With ``memory_limit_mb`` and a reference cloud, the reference
+        is read in chunks and spooled once into eval/ (:func:`eval.geometry_stream.spool_reference`, removed after)
+        for every product's streamed C2C and per-material scores, and the limit and peak memory are recorded."""
+        opts: EvalStageOptions = ctx.options(self)
+        reference = self._reference(ctx)
+        if opts.memory_limit_mb is None or reference is None:
+            return self._measure(ctx, None)
+        import tempfile
+
+        from eval.c2c_stream import plan_c2c_memory
+        from eval.geometry_stream import reference_source, spool_reference
+
+        plan = plan_c2c_memory(opts.memory_limit_mb)
+        ctx.layout.eval_dir.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(prefix="hybridsplat_eval_reference_", dir=ctx.layout.eval_dir) as tmp:
+            counts = self._measure(ctx, spool_reference(reference_source(reference, plan.chunk), tmp, plan.chunk))
+        return {**counts, "memory_limit_mb": opts.memory_limit_mb, "peak_rss_mb": _peak_rss_mb()}
+
+    def _measure(self, ctx: StageContext, spooled: Any) -> dict[str, Any]:
+        """The stage's work; ``spooled``: the reference as chunks (a :class:`core.io.point_stream.PointSource`) with
+        a memory limit, None without."""
         from core.io.json_io import write_json_atomic
         from eval.cache import files_in
         from eval.evaluate import ImageInputs, evaluate_product
@@ -231,10 +290,10 @@ class EvalStage(Stage):
                 layout.metrics_json,
                 name,
                 cloud=cloud if reference is not None else None,
-                reference=reference,
+                reference=spooled if spooled is not None else reference,
                 gaussians=gaussians,
                 images=images,
-                geometry=GeometryOptions(tau=tau),
+                geometry=GeometryOptions(tau=tau, memory_limit_mb=opts.memory_limit_mb),
                 lpips_model=lpips_model,
             )
             after = files_in(layout.eval_dir)
@@ -242,7 +301,9 @@ class EvalStage(Stage):
             measured[name] = (cloud, gaussians)
             _count(counts, name, result.as_dict())
         ctx.progress("products", len(products), len(products))
-        per_material = self._per_material(ctx, measured, stored_tables, reference, tau, images)
+        per_material = self._per_material(
+            ctx, measured, stored_tables, spooled if spooled is not None else reference, tau, images
+        )
         if per_material is not None:
             write_json_atomic(layout.per_material_json, per_material)
             counts["per_material"] = len(per_material["materials"])
@@ -338,14 +399,16 @@ class EvalStage(Stage):
 
         products: name → (cloud, Gaussians) measured now; stored: name → the table restored from the cache."""
         from core.io import read_point_cloud
-        from eval.per_material import as_table, geometry_per_material, psnr_per_material
+        from eval.per_material import as_table, psnr_per_material
 
         spec = ctx.source.spec
         if reference is None or spec.description is None or not spec.description.materials or tau is None:
             return None
-        ref = read_point_cloud(reference)
-        if "material" not in ref.fields:
+        opts: EvalStageOptions = ctx.options(self)
+        ref = _MaterialReference(reference, opts.memory_limit_mb, ctx.layout.eval_dir)
+        if not ref.has_materials():
             return None
+        geometry_per_material = ref.geometry
         names = {m.id: m.name for m in spec.description.materials}
         kinds = {m.name: {"kind": m.kind, "collaborative": m.collaborative} for m in spec.description.materials}
         labels_dir = spec.test_labels
@@ -353,7 +416,7 @@ class EvalStage(Stage):
         for name, (cloud, gaussians) in products.items():
             if not hasattr(cloud, "world_positions"):
                 cloud = read_point_cloud(cloud)
-            geometry = geometry_per_material(cloud.world_positions, ref.world_positions, ref.fields["material"], tau)
+            geometry = geometry_per_material(cloud.world_positions, tau)
             pixels = {}
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
@@ -364,7 +427,7 @@ class EvalStage(Stage):
                 result["products"][name] = table
         mesh_points = _mesh_points(ctx.layout.mesh_path("ply"), tau)
         if mesh_points is not None:  # the mesh stage's product: geometry only, from points sampled on its surface
-            geometry = geometry_per_material(mesh_points, ref.world_positions, ref.fields["material"], tau)
+            geometry = geometry_per_material(mesh_points, tau)
             result["products"]["mesh"] = as_table(geometry, {}, names)
         return result
 
@@ -382,8 +445,24 @@ class EvalStage(Stage):
             write_image(out / label_path.name, mask)
         return out
 
+    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+        """With ``memory_limit_mb``: how the geometry was measured, the limit and the peak memory; else None."""
+        if counts.get("memory_limit_mb") is None:
+            return None
+        line = (
+            f"The C2C distances and the per-material scores read the reference cloud in chunks and compared it cell "
+            f"by cell within --memory-limit {counts['memory_limit_mb']:g} MiB (peak resident memory of the run "
+            f"{counts['peak_rss_mb']:.0f} MiB; the products themselves are held in memory). The figures are those of "
+            "the in-memory evaluation; the reverse mean, std and RMSE agree to float rounding (sums by chunks)."
+        )
+        return ReportSection("Evaluation with bounded memory", (line,))
+
     def summary(self, counts: dict[str, Any]) -> str:
         parts = [f"{counts['reused']} unchanged product(s) reused"] if counts.get("reused") else []
+        if counts.get("memory_limit_mb") is not None:
+            parts.append(
+                f"C2C streamed within {counts['memory_limit_mb']:g} MiB (peak {counts['peak_rss_mb']:.0f} MiB)"
+            )
         for name in ("mvs", "baseline", "merged"):
             if f"{name}_c2c_mean_m" in counts:
                 parts.append(f"{name} C2C mean {counts[f'{name}_c2c_mean_m']:.3g} m")
@@ -394,11 +473,60 @@ class EvalStage(Stage):
         return ", ".join(parts)
 
 
+class _MaterialReference:
+    """The reference cloud of the per-material scores: read whole (no memory limit; ``reference`` a path or a
+    :class:`core.pointcloud.PointCloud`) or as
+    chunks (``reference`` a :class:`core.io.point_stream.PointSource`;
+    :func:`eval.geometry_stream.geometry_per_material_streamed`, temporary files in ``work_dir``)."""
+
+    def __init__(self, reference: Any, memory_limit_mb: float | None, work_dir: Path) -> None:
+        self.work_dir, self.cloud, self.source, self.plan = work_dir, None, None, None
+        if memory_limit_mb is None:
+            from core.io import read_point_cloud
+            from core.pointcloud import PointCloud
+
+            self.cloud = reference if isinstance(reference, PointCloud) else read_point_cloud(reference)
+        else:
+            from eval.c2c_stream import plan_c2c_memory
+            from eval.geometry_stream import reference_source
+
+            self.plan = plan_c2c_memory(memory_limit_mb)
+            is_path = isinstance(reference, (str, Path))
+            self.source = reference_source(reference, self.plan.chunk) if is_path else reference
+
+    def has_materials(self) -> bool:
+        """Whether the reference has a per-point ``material`` field (its first chunk, when streamed)."""
+        if self.cloud is not None:
+            return "material" in self.cloud.fields
+        chunks = iter(self.source.chunks())  # type: ignore[union-attr]
+        first = next(chunks, None)
+        getattr(chunks, "close", lambda: None)()
+        return first is not None and "material" in first.fields
+
+    def geometry(self, compared_world: np.ndarray, tau: float) -> dict[int, Any]:
+        """Accuracy and completeness at ``tau`` (metres) per material of (N, 3) float64 world points."""
+        from eval.per_material import geometry_per_material
+
+        if self.cloud is not None:
+            return geometry_per_material(compared_world, self.cloud.world_positions, self.cloud.fields["material"], tau)
+        from eval.geometry_stream import geometry_per_material_streamed
+
+        self.work_dir.mkdir(parents=True, exist_ok=True)
+        return geometry_per_material_streamed(compared_world, self.source, tau, self.plan, self.work_dir)  # type: ignore[arg-type]
+
+
+def _peak_rss_mb() -> float:
+    """The process's peak resident memory (MiB, ``ru_maxrss``), which includes what it held before the stage."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _splat_surface_group(rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]) -> None:
     """The product's splat-surface points (``source`` = 4; the merge's ``splat_surface`` option) scored alone per
     material into its rows (:func:`eval.per_material.add_point_group`, group ``splat_surface``); nothing when it
     has none, so the tables of a product without them are as before."""
-    from eval.per_material import add_point_group, geometry_per_material
+    from eval.per_material import add_point_group
     from fusion.convert_options import Source
 
     source = cloud.fields.get("source")
@@ -407,7 +535,7 @@ def _splat_surface_group(rows: dict[str, Any], cloud: Any, ref: Any, tau: float,
     mine = np.asarray(source) == Source.SPLAT_SURFACE
     if not mine.any():
         return
-    geometry = geometry_per_material(cloud.world_positions[mine], ref.world_positions, ref.fields["material"], tau)
+    geometry = ref.geometry(cloud.world_positions[mine], tau)
     add_point_group(rows, "splat_surface", geometry, names)
 
 

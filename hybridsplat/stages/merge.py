@@ -18,7 +18,32 @@ from typing import Any
 from fusion.merge_options import MergeOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
+
+
+def _survey_exports(ctx: StageContext, points: Any, crs: str | None) -> dict[str, Any]:
+    """export/merged_points.ply and .las of the survey points (a GaussianSet): with a CRS, the LAS of every point
+    with the CRS as WKT and the PLY's sidecar naming it; without, both through :func:`fusion.export.export_points`.
+    With ``memory_limit_mb``, written in chunks (the same bytes) and the limit recorded."""
+    from core.io.origin import write_origin
+    from fusion.export import export_points
+    from fusion.export_stream import export_chunk_points, point_chunks, write_las_points
+
+    layout, limit = ctx.layout, ctx.options(MergeStage).memory_limit_mb
+    chunk = export_chunk_points(limit) if limit is not None else None
+    export_points(layout.merged_points_ply, points, chunk=chunk)
+    if crs:  # the survey points' sidecar and the LAS's WKT carry the CRS too
+        if chunk is not None:
+            write_las_points(layout.merged_points_las, point_chunks(points, chunk), crs)
+        else:
+            from core.io.las import write_las
+            from fusion.export import gaussians_to_points
+
+            write_las(layout.merged_points_las, gaussians_to_points(points), crs=crs)
+        write_origin(layout.merged_points_ply, points.origin, crs)
+    else:
+        export_points(layout.merged_points_las, points, chunk=chunk)
+    return {} if chunk is None else {"memory_limit_mb": limit, "export_chunk_points": chunk}
 
 
 class MergeStage(Stage):
@@ -36,6 +61,7 @@ class MergeStage(Stage):
             "--splat-surface/--no-splat-surface",
             help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points.",
         ),
+        CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),
     )
     run_options = command_options
 
@@ -118,7 +144,7 @@ class MergeStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         from core.gaussians import GaussianSet
         from core.io.gaussian_ply import read_gaussian_ply
-        from fusion.export import ExportOptions, export_gaussian_ply, export_points
+        from fusion.export import ExportOptions, export_gaussian_ply
         from fusion.merge import merge_gaussians
 
         layout = ctx.layout
@@ -138,21 +164,13 @@ class MergeStage(Stage):
         if background is not None:  # the viewer product only: the survey points never hold it
             gaussians = GaussianSet.concatenate([gaussians, background])
         written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
-        export_points(layout.merged_points_ply, points)
         crs = ctx.config.input.crs
         from core.io.origin import write_origin
         from fusion.convert_options import LAYERS
 
         # the viewer product's sidecar names its layers (and the CRS the user gave)
         write_origin(layout.merged_ply, gaussians.origin, crs, layers={k: int(v) for k, v in LAYERS.items()})
-        if crs:  # the survey points' sidecar and the LAS's WKT carry the CRS too
-            from core.io.las import write_las
-            from fusion.export import gaussians_to_points
-
-            write_las(layout.merged_points_las, gaussians_to_points(points), crs=crs)
-            write_origin(layout.merged_points_ply, points.origin, crs)
-        else:
-            export_points(layout.merged_points_las, points)
+        extra.update(_survey_exports(ctx, points, crs))
         _viewer_exports(ctx, gaussians, points, crs)
         return {"merged": len(gaussians), "written": written.num_written, "mvs": stats.mvs_kept,
                 "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
