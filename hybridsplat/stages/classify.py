@@ -119,26 +119,29 @@ def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> 
     from classify.stream import ClassifyStreamOptions, classify_stream, photo_cache_size
     from core.io.atomic import write_bytes_atomic
     from core.io.json_io import write_json_atomic
+    from hybridsplat.manifest import PeakMemory
     from recon.workspace import fused_source
 
     t0 = time.perf_counter()
     model, classes, name, importances = load_classifier(opts.model)
     stream = ClassifyStreamOptions(opts.memory_limit_mb, work_dir=ctx.layout.classified_points.parent)  # type: ignore[arg-type]
     views = None
-    if needs_views(feature_options_for(model)):
+    if needs_views(feature_options_for(model)):  # photos load lazily: the first call only sizes the cache
         views = views_from_workspace(ctx.layout.dense)
         views = views_from_workspace(ctx.layout.dense, cache=photo_cache_size(views, stream.plan()))
     ctx.layout.classified_points.parent.mkdir(parents=True, exist_ok=True)
     ctx.progress("features", 0, 1)
-    result = classify_stream(
-        fused_source(ctx.layout.dense, stream.plan().chunk_size),
-        model,
-        views,
-        classes,
-        ctx.layout.classified_points,
-        stream,
-        opts.threshold,
-    )
+    # the stage's own peak (sampled resident memory), not ru_maxrss, which keeps the earlier stages' peaks
+    with PeakMemory() as memory:
+        result = classify_stream(
+            fused_source(ctx.layout.dense, stream.plan().chunk_size),
+            model,
+            views,
+            classes,
+            ctx.layout.classified_points,
+            stream,
+            opts.threshold,
+        )
     ctx.progress("features", 1, 1)
     per_class = {c.name: result.per_code[c.code] for c in classes.classes}
     report = {
@@ -165,6 +168,6 @@ def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> 
         figures.append(ctx.layout.importances_figure)
     counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
     counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
-    counts.update(memory_limit_mb=opts.memory_limit_mb, peak_rss_mb=result.peak_rss_mb, cells=result.cells,
+    counts.update(memory_limit_mb=opts.memory_limit_mb, peak_rss_mb=memory.peak_mb, cells=result.cells,
                   regrown=result.regrown)  # fmt: skip
     return counts

@@ -96,13 +96,15 @@ def _run_streamed(ctx: StageContext, opts: ConvertStageOptions) -> dict[str, Any
     """The fused cloud converted chunk by chunk (:func:`fusion.convert_stream.convert_stream`) into the same
     export/mvs_gaussians.ply as the in-memory path; temporary cell files in export/."""
     from fusion.convert_stream import StreamOptions, convert_stream
+    from hybridsplat.manifest import PeakMemory
     from recon.workspace import fused_source
 
     source = fused_source(ctx.layout.dense)
     ctx.layout.mvs_gaussians.parent.mkdir(parents=True, exist_ok=True)
     stream = StreamOptions(memory_limit_mb=opts.memory_limit_mb, work_dir=ctx.layout.mvs_gaussians.parent)
     ctx.progress("points", 0, 1)
-    with warnings.catch_warnings(record=True) as caught:
+    # the stage's own peak (sampled resident memory), not ru_maxrss, which keeps the earlier stages' peaks
+    with PeakMemory() as memory, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = convert_stream(
             source, opts.mode, opts.conversion, stream, ply_path=ctx.layout.mvs_gaussians, extra_fields=True
@@ -114,7 +116,7 @@ def _run_streamed(ctx: StageContext, opts: ConvertStageOptions) -> dict[str, Any
         "median_spacing_m": result.stats.median_spacing,
         "warnings": [" ".join(str(w.message).split()) for w in caught],
         "memory_limit_mb": opts.memory_limit_mb,
-        "peak_rss_mb": result.peak_rss_mb,
+        "peak_rss_mb": memory.peak_mb,
         "cells": result.cells,
         "fallback_points": result.fallback_points,
     }

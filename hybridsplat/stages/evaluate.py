@@ -235,12 +235,16 @@ class EvalStage(Stage):
 
         from eval.c2c_stream import plan_c2c_memory
         from eval.geometry_stream import reference_source, spool_reference
+        from hybridsplat.manifest import PeakMemory
 
         plan = plan_c2c_memory(opts.memory_limit_mb)
         ctx.layout.eval_dir.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(prefix="hybridsplat_eval_reference_", dir=ctx.layout.eval_dir) as tmp:
-            counts = self._measure(ctx, spool_reference(reference_source(reference, plan.chunk), tmp, plan.chunk))
-        return {**counts, "memory_limit_mb": opts.memory_limit_mb, "peak_rss_mb": _peak_rss_mb()}
+        # the stage's own peak (sampled resident memory), not ru_maxrss, which keeps the earlier stages' peaks
+        with PeakMemory() as memory:
+            with tempfile.TemporaryDirectory(prefix="hybridsplat_eval_reference_", dir=ctx.layout.eval_dir) as tmp:
+                source = reference_source(reference, plan.chunk)
+                counts = self._measure(ctx, spool_reference(source, tmp, plan.chunk))
+        return {**counts, "memory_limit_mb": opts.memory_limit_mb, "peak_rss_mb": memory.peak_mb}
 
     def _measure(self, ctx: StageContext, spooled: Any) -> dict[str, Any]:
         """The stage's work; ``spooled``: the reference as chunks (a :class:`core.io.point_stream.PointSource`) with
@@ -513,13 +517,6 @@ class _MaterialReference:
 
         self.work_dir.mkdir(parents=True, exist_ok=True)
         return geometry_per_material_streamed(compared_world, self.source, tau, self.plan, self.work_dir)  # type: ignore[arg-type]
-
-
-def _peak_rss_mb() -> float:
-    """The process's peak resident memory (MiB, ``ru_maxrss``), which includes what it held before the stage."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _splat_surface_group(rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]) -> None:
