@@ -60,7 +60,7 @@ from core.io.atomic import atomic_path
 from core.io.origin import remove_origin, write_origin
 from core.io.point_stream import PointSource, rechunk
 from core.pointcloud import PointCloud
-from eval.c2c_stream import CellFiles, Grid
+from eval.c2c_stream import CellFiles, Grid, chunk_results
 
 BASE_MB = 640.0
 """Memory taken before any point (MiB): the interpreter, numpy/numba/scipy/scikit-learn, the model, compiled kernels."""
@@ -524,25 +524,6 @@ def _feature_pass(cells: _Cells, job: _Job, work: Path) -> None:
 # -- pass 5: output -------------------------------------------------------------------------------------------------
 
 
-def _chunk_results(chunk: PointCloud, grid: Grid, work: Path, cursor: dict[int, int]) -> np.ndarray:
-    """The results of a chunk's points, in chunk order: each cell's next records (cells keep source order)."""
-    ix, iy = grid.cell_of(chunk.positions[:, :2])
-    keys = ix * grid.ny + iy
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    out = np.empty(len(chunk), _RESULT)
-    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], len(keys)], strict=True):
-        key = int(sorted_keys[a])
-        at = cursor.get(key, 0)
-        rec = np.fromfile(work / f"res_{key}.bin", _RESULT, count=b - a, offset=at * _RESULT.itemsize)
-        if len(rec) != b - a:
-            raise DataError(f"the source gave other points on this pass than before (cell {key})")
-        out[order[a:b]] = rec
-        cursor[key] = at + (b - a)
-    return out
-
-
 def _output_pass(job: _Job, work: Path, ply_path: Path) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """Pass 5: ``ply_path`` (atomically) as :func:`classify.run.write_classified` writes it; returns the points
     per class code and then the points that need splats (257,) int64, and the classes figure's sample (positions (S, 3)
@@ -555,7 +536,7 @@ def _output_pass(job: _Job, work: Path, ply_path: Path) -> tuple[np.ndarray, tup
     sample_p, sample_c = [], []
     with atomic_path(ply_path) as tmp, open(tmp, "wb") as f:
         for start, chunk in rechunk(job.source, job.chunk_size):
-            res = _chunk_results(chunk, job.grid, work, cursor)
+            res = chunk_results(chunk.positions, job.grid, work, cursor, _RESULT)
             fields = dict(chunk.fields)
             fields["classification"], fields["probability"] = res["cls"], res["prob"]
             fields["needs_splats"] = res["needs"]

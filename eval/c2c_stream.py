@@ -65,6 +65,28 @@ class Grid:
         return ix, iy
 
 
+def chunk_results(positions: np.ndarray, grid: Grid, work: Path, cursor: dict[int, int], dtype: np.dtype) -> np.ndarray:
+    """The per-point result records (``dtype``) of a chunk's (n, 3) positions, in chunk order, read from the cell
+    files ``work/res_{cell}.bin`` that a cell pass wrote in source order: each cell's next records (``cursor``: the
+    records of each cell read so far, updated). A :class:`DataError` when a cell has fewer records left than the
+    chunk has points in it (the source gave other points on this pass)."""
+    ix, iy = grid.cell_of(positions[:, :2])
+    keys = ix * grid.ny + iy
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    out = np.empty(len(positions), dtype)
+    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(keys)], strict=True):
+        key = int(sorted_keys[a])
+        at = cursor.get(key, 0)
+        rec = np.fromfile(work / f"res_{key}.bin", dtype, count=b - a, offset=at * dtype.itemsize)
+        if len(rec) != b - a:
+            raise DataError(f"the source gave other points on this pass than before (cell {key})")
+        out[order[a:b]] = rec
+        cursor[key] = at + (b - a)
+    return out
+
+
 def grid_for(lo: np.ndarray, hi: np.ndarray, count: int, halo: float, points_per_cell: int) -> Grid:
     """A grid over the x-y box [lo, hi] with about ``points_per_cell`` of ``count`` points a cell (uniform density
     assumed), and cells at least 4 halos wide so that halos stay a small share of a cell."""

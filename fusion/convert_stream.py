@@ -75,7 +75,7 @@ from core.io.origin import remove_origin, write_origin
 from core.io.point_stream import PointSource, rechunk
 from core.knn import knn_grid, median_nonzero, run_threads
 from core.pointcloud import PointCloud
-from eval.c2c_stream import CellFiles, Grid, grid_for
+from eval.c2c_stream import CellFiles, Grid, chunk_results, grid_for
 from fusion.convert import (
     ConvertStats,
     clamp_kernel,
@@ -470,25 +470,6 @@ def _chunk_gaussians(chunk: PointCloud, res: np.ndarray | None, glob: _Globals) 
     )
 
 
-def _chunk_results(chunk: PointCloud, grid: Grid, work: Path, cursor: dict[int, int]) -> np.ndarray:
-    """The result records of a chunk's points, in chunk order: each cell's next records (cells keep source order)."""
-    ix, iy = grid.cell_of(chunk.positions[:, :2])
-    keys = ix * grid.ny + iy
-    order = np.argsort(keys, kind="stable")
-    sorted_keys = keys[order]
-    out = np.empty(len(chunk), _RESULT)
-    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], len(keys)], strict=True):
-        key = int(sorted_keys[a])
-        at = cursor.get(key, 0)
-        rec = np.fromfile(work / f"res_{key}.bin", _RESULT, count=b - a, offset=at * _RESULT.itemsize)
-        if len(rec) != b - a:
-            raise DataError(f"the source gave other points on this pass than before (cell {key})")
-        out[order[a:b]] = rec
-        cursor[key] = at + (b - a)
-    return out
-
-
 def ply_header(count: int, names: list[str]) -> bytes:
     """The header :func:`core.io.gaussian_ply.write_gaussian_ply` writes (through plyfile) for ``count`` vertices
     with float32 properties ``names``, binary little-endian."""
@@ -544,7 +525,8 @@ def _output_pass(source: PointSource, n: int, grid: Grid, work: Path, glob: _Glo
             las = LasChunkWriter(stack.enter_context(atomic_path(out.las_path)), crs=out.crs, target=out.las_path)
             stack.callback(las.close)
         for start, piece in rechunk(source, chunk):
-            res = _chunk_results(piece, grid, work, cursor) if glob.mode is ConvertMode.ADAPTIVE and glob.k else None
+            adaptive = glob.mode is ConvertMode.ADAPTIVE and glob.k
+            res = chunk_results(piece.positions, grid, work, cursor, _RESULT) if adaptive else None
             gs = _chunk_gaussians(piece, res, glob)
             if ply_file is not None:
                 names, rows = gaussian_ply_rows(gs, out.extra_fields)  # core.io.gaussian_ply's layout
