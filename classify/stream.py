@@ -60,7 +60,7 @@ from core.io.atomic import atomic_path
 from core.io.origin import remove_origin, write_origin
 from core.io.point_stream import PointSource, rechunk
 from core.pointcloud import PointCloud
-from eval.c2c_stream import CellFiles, Grid, chunk_results
+from eval.c2c_stream import CellFiles, Grid, chunk_results, memory_work_mb
 
 BASE_MB = 640.0
 """Memory taken before any point (MiB): the interpreter, numpy/numba/scipy/scikit-learn, the model, compiled kernels."""
@@ -97,15 +97,14 @@ def plan_memory(memory_limit_mb: float) -> ClassifyPlan:
     Of what is left above :data:`BASE_MB`, 50 % goes to a cell with its halo, 15 % to an output chunk, 20 % to the
     cached photos and depth maps; the rest is slack for denser cells. Raises :class:`ConfigError` naming the value
     when less than :data:`MIN_WORK_MB` would be left."""
-    if not (isinstance(memory_limit_mb, int | float) and math.isfinite(memory_limit_mb)):
-        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {memory_limit_mb!r}")
-    work = memory_limit_mb - BASE_MB
-    if work < MIN_WORK_MB:
-        raise ConfigError(
-            f"memory_limit_mb = {memory_limit_mb:g} is too small for the streamed classification: it needs at least "
-            f"{BASE_MB + MIN_WORK_MB:g} MiB ({BASE_MB:g} for the interpreter, libraries and model, {MIN_WORK_MB:g} "
-            "for a cell and a chunk)"
-        )
+    work = memory_work_mb(
+        memory_limit_mb,
+        BASE_MB,
+        MIN_WORK_MB,
+        "the streamed classification",
+        "the interpreter, libraries and model",
+        "a cell and a chunk",
+    )
     work_bytes = work * 2**20
     cell = max(1000, int(0.5 * work_bytes / _LOADED_BYTES))
     chunk = max(1000, int(0.15 * work_bytes / _CHUNK_BYTES))

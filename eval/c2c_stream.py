@@ -65,6 +65,23 @@ class Grid:
         return ix, iy
 
 
+def memory_work_mb(
+    limit_mb: float, base_mb: float, min_work_mb: float, what: str, base_for: str, work_for: str
+) -> float:
+    """The MiB a streamed step may use above ``base_mb`` under ``limit_mb``; a :class:`ConfigError` naming the value
+    when it is not a finite number or leaves less than ``min_work_mb`` (``what``: the step; ``base_for`` and
+    ``work_for``: what the two parts hold, for the message)."""
+    if not (isinstance(limit_mb, int | float) and math.isfinite(limit_mb)):
+        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {limit_mb!r}")
+    work = limit_mb - base_mb
+    if work < min_work_mb:
+        raise ConfigError(
+            f"memory_limit_mb = {limit_mb:g} is too small for {what}: it needs at least {base_mb + min_work_mb:g} MiB "
+            f"({base_mb:g} for {base_for}, {min_work_mb:g} for {work_for})"
+        )
+    return work
+
+
 def chunk_results(positions: np.ndarray, grid: Grid, work: Path, cursor: dict[int, int], dtype: np.dtype) -> np.ndarray:
     """The per-point result records (``dtype``) of a chunk's (n, 3) positions, in chunk order, read from the cell
     files ``work/res_{cell}.bin`` that a cell pass wrote in source order: each cell's next records (``cursor``: the
@@ -565,15 +582,14 @@ def plan_c2c_memory(memory_limit_mb: float) -> C2CPlan:
     """Cell and chunk sizes for a peak resident memory of about ``memory_limit_mb`` (MiB) in the eval stage: of
     what is left above :data:`BASE_MB`, 50 % to a cell (both clouds' points there), 25 % to a chunk. Raises
     :class:`ConfigError` naming the value when less than :data:`MIN_WORK_MB` would be left."""
-    if not (isinstance(memory_limit_mb, int | float) and math.isfinite(memory_limit_mb)):
-        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {memory_limit_mb!r}")
-    work = memory_limit_mb - BASE_MB
-    if work < MIN_WORK_MB:
-        raise ConfigError(
-            f"memory_limit_mb = {memory_limit_mb:g} is too small for the streamed C2C of the eval stage: it needs at "
-            f"least {BASE_MB + MIN_WORK_MB:g} MiB ({BASE_MB:g} for the interpreter, libraries and the product, "
-            f"{MIN_WORK_MB:g} for a cell and a chunk)"
-        )
+    work = memory_work_mb(
+        memory_limit_mb,
+        BASE_MB,
+        MIN_WORK_MB,
+        "the streamed C2C of the eval stage",
+        "the interpreter, libraries and the product",
+        "a cell and a chunk",
+    )
     work_bytes = work * 2**20
     cell = max(1000, int(0.5 * work_bytes / _CELL_POINT_BYTES) // 2)  # the two clouds share a cell
     chunk = max(1000, int(0.25 * work_bytes / _CHUNK_POINT_BYTES))

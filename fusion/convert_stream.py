@@ -75,7 +75,7 @@ from core.io.origin import remove_origin, write_origin
 from core.io.point_stream import PointSource, rechunk
 from core.knn import knn_grid, median_nonzero, run_threads
 from core.pointcloud import PointCloud
-from eval.c2c_stream import CellFiles, Grid, chunk_results, grid_for
+from eval.c2c_stream import CellFiles, Grid, chunk_results, grid_for, memory_work_mb
 from fusion.convert import (
     ConvertStats,
     clamp_kernel,
@@ -120,15 +120,14 @@ def plan_memory(memory_limit_mb: float, k_neighbors: int = 8) -> StreamPlan:
     slack for denser-than-average cells. Raises :class:`ConfigError` naming the value when less than
     :data:`MIN_WORK_MB` would be left.
     """
-    if not (isinstance(memory_limit_mb, int | float) and math.isfinite(memory_limit_mb)):
-        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {memory_limit_mb!r}")
-    work = memory_limit_mb - BASE_MB
-    if work < MIN_WORK_MB:
-        raise ConfigError(
-            f"memory_limit_mb = {memory_limit_mb:g} is too small for the streamed conversion: it needs at least "
-            f"{BASE_MB + MIN_WORK_MB:g} MiB ({BASE_MB:g} for the interpreter and libraries, {MIN_WORK_MB:g} for "
-            "a cell and a chunk)"
-        )
+    work = memory_work_mb(
+        memory_limit_mb,
+        BASE_MB,
+        MIN_WORK_MB,
+        "the streamed conversion",
+        "the interpreter and libraries",
+        "a cell and a chunk",
+    )
     work_bytes = work * 2**20
     cell = max(1000, int(0.55 * work_bytes / _cell_bytes(k_neighbors)))
     chunk = max(1000, int(0.25 * work_bytes / _CHUNK_BYTES))

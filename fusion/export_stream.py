@@ -10,7 +10,6 @@ worth instead of the whole cloud's (about 200 bytes a point).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterator
 from os import PathLike
 from pathlib import Path
@@ -21,6 +20,7 @@ from core.errors import ConfigError, FormatError
 from core.gaussians import GaussianSet
 from core.io.atomic import atomic_path
 from core.pointcloud import PointCloud
+from eval.c2c_stream import memory_work_mb
 
 BASE_MB = 512.0
 """Memory (MiB) the export holds besides its chunks: interpreter, libraries and the Gaussian set of a small project."""
@@ -32,15 +32,14 @@ _POINT_BYTES = 200  # a point of a chunk: positions 24, colours 3, fields ~16, t
 def export_chunk_points(memory_limit_mb: float) -> int:
     """Points a chunk for a peak memory of about ``memory_limit_mb`` (MiB): a quarter of what is left above
     :data:`BASE_MB`. Raises :class:`ConfigError` naming the value when less than :data:`MIN_WORK_MB` is left."""
-    if not (isinstance(memory_limit_mb, int | float) and math.isfinite(memory_limit_mb)):
-        raise ConfigError(f"memory_limit_mb must be a finite number of MiB, got {memory_limit_mb!r}")
-    work = memory_limit_mb - BASE_MB
-    if work < MIN_WORK_MB:
-        raise ConfigError(
-            f"memory_limit_mb = {memory_limit_mb:g} is too small for the chunked point export: it needs at least "
-            f"{BASE_MB + MIN_WORK_MB:g} MiB ({BASE_MB:g} for the interpreter, libraries and the Gaussians, "
-            f"{MIN_WORK_MB:g} for a chunk)"
-        )
+    work = memory_work_mb(
+        memory_limit_mb,
+        BASE_MB,
+        MIN_WORK_MB,
+        "the chunked point export",
+        "the interpreter, libraries and the Gaussians",
+        "a chunk",
+    )
     return max(1000, int(0.25 * work * 2**20 / _POINT_BYTES))
 
 
