@@ -33,25 +33,20 @@ RULES = [(patience, gain) for patience in (1, 2, 3) for gain in (0.02, 0.05, 0.1
 
 
 def _project_inputs(root: Path):
-    """(training cameras, photos by name, survey Gaussians, frozen context, seed) as the appearance stage reads
-    them (:class:`hybridsplat.stages.appearance.AppearanceStage`)."""
-    from core.gaussians import GaussianSet
-    from core.io.gaussian_ply import read_gaussian_ply
+    """(training cameras, photos by name, survey Gaussians, frozen context or None, seed), read as the appearance
+    stage reads them (:func:`hybridsplat.stages.appearance.survey_layer_inputs`)."""
     from hybridsplat import project_io
     from hybridsplat.config import read_config
     from hybridsplat.layout import ProjectLayout
     from hybridsplat.source import resolve_source
     from hybridsplat.stages import stage_options_types
+    from hybridsplat.stages.appearance import survey_layer_inputs
 
     layout = ProjectLayout(root)
     config = read_config(layout.config, stage_options_types())
-    held_out = set(resolve_source(config.input).holdout_names)
-    cameras, images = project_io.read_training_photos(layout, held_out)
-    mvs = read_gaussian_ply(layout.mvs_gaussians)
-    survey = mvs.subset(np.flatnonzero(~project_io.needs_splats_per_gaussian(layout, mvs)))
-    layers = [read_gaussian_ply(p) for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
-    context = GaussianSet.concatenate([g.with_origin(cameras.origin) for g in layers if len(g)])
-    return cameras, images, survey, context, config.seed
+    cameras, images = project_io.read_training_photos(layout, set(resolve_source(config.input).holdout_names))
+    mvs, needs, context = survey_layer_inputs(layout, cameras.origin)
+    return cameras, images, mvs.subset(np.flatnonzero(~needs)), context, config.seed
 
 
 def _refine(cameras, images, survey, context, steps: int, seed: int):
@@ -65,6 +60,7 @@ def _refine(cameras, images, survey, context, steps: int, seed: int):
 
 def curve(root: Path, steps: int) -> None:
     """Print the held-back-pixel curve and where each early-stop rule ends it."""
+    from fusion.appearance import AppearanceOptions
     from fusion.train.early_stop import EarlyStop
 
     cameras, images, survey, context, seed = _project_inputs(root)
@@ -73,7 +69,7 @@ def curve(root: Path, steps: int) -> None:
     for c in history:
         print(f"  step {c.step:5d}  held-back PSNR {c.holdout_psnr:7.3f} dB  {c.seconds:7.1f} s")
     last = history[-1]
-    min_steps = _least_steps()
+    min_steps = AppearanceOptions().training.min_iterations  # no stop before it
     print(f"rule (no stop before step {min_steps}) | stop step | PSNR - last window | share of the time")
     for patience, gain in RULES:
         stop = EarlyStop(gain, patience, min_steps, last.step)
@@ -81,13 +77,6 @@ def curve(root: Path, steps: int) -> None:
         behind = end.holdout_psnr - last.holdout_psnr
         print(f"  patience {patience}, gain {gain:.2f} dB | {end.step:5d} | {behind:+.3f} dB | "
               f"{end.seconds / last.seconds:.2f}")  # fmt: skip
-
-
-def _least_steps() -> int:
-    """The stage's least number of steps before an early stop."""
-    from fusion.appearance import AppearanceOptions
-
-    return AppearanceOptions().training.min_iterations
 
 
 def held_back_view(root: Path, name: str, budgets: list[int]) -> None:
@@ -109,9 +98,9 @@ def held_back_view(root: Path, name: str, budgets: list[int]) -> None:
         t0 = time.perf_counter()
         refined = _refine(others, images, survey, context, steps, seed).gaussians if steps else survey
         seconds = time.perf_counter() - t0
-        degree = max(refined.sh_degree, context.sh_degree)
-        scene = GaussianSet.concatenate([refined.with_origin(cameras.origin).with_sh_degree(degree),
-                                         context.with_sh_degree(degree)])  # fmt: skip
+        layers = [refined.with_origin(cameras.origin)] + ([context] if context is not None else [])
+        degree = max(g.sh_degree for g in layers)
+        scene = GaussianSet.concatenate([g.with_sh_degree(degree) for g in layers])
         colour = render_gaussian_set(scene, camera, target, cameras_origin=cameras.origin).colour.numpy()
         score = psnr(np.clip(colour, 0, 1), reference)
         print(f"{name} held back, {steps:5d} steps ({seconds:5.0f} s): PSNR {score:.3f} dB at {camera.width} x "

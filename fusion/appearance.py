@@ -65,10 +65,8 @@ class AppearanceOptions:
     measurement); the conversion's 8 neighbours; SH degree 3 and the step budget by the PSNR on the trainer's
     held-back training pixels (demo scene, docs/experiments/2026-11-27-survey-appearance.md): degree 3 above degree 1,
     still rising at 1000 steps, so up to 2000 steps ended by the trainer's early stop on those pixels. That stop
-    waits 2 windows without a gain of 0.05 dB (the trainer's 3 let the fountain's 270 k Gaussians run 1 600 steps
-    for the last 0.1 dB on those pixels); chosen on the demo's and the fountain's held-back pixels and on held-back
-    *training views* refined without them, which scored the same at the earlier stop
-    (docs/experiments/2026-11-28-appearance-budget.md).
+    waits 2 windows without a gain of 0.05 dB (the trainer waits 3), chosen on the held-back pixels and on held-back
+    training views of the demo and the fountain (docs/experiments/2026-11-28-appearance-budget.md).
     """
 
     enabled: bool = True

@@ -11,11 +11,17 @@ the converted attributes.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fusion.appearance import AppearanceOptions
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import Stage, StageContext
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from core.gaussians import GaussianSet
+    from hybridsplat.layout import ProjectLayout
 
 
 class AppearanceStage(Stage):
@@ -49,22 +55,16 @@ class AppearanceStage(Stage):
     def run(self, ctx: StageContext) -> dict[str, Any]:
         import numpy as np
 
-        from core.gaussians import GaussianSet
-        from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
+        from core.io.gaussian_ply import write_gaussian_ply
         from hybridsplat import project_io
 
         layout = ctx.layout
         cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
-        mvs = read_gaussian_ply(layout.mvs_gaussians)
-        needs = (project_io.needs_splats_per_gaussian(layout, mvs) if layout.classified_points.is_file()
-                 else np.zeros(len(mvs), bool))  # fmt: skip
+        mvs, needs, context = survey_layer_inputs(layout, cameras.origin)
         survey = np.flatnonzero(~needs)
         if len(survey) == 0:
             write_gaussian_ply(layout.survey_splats, mvs)
             return {"gaussians": 0, "reason": "every MVS point needs splats: the survey layer is empty"}
-        layers = [read_gaussian_ply(p) for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
-        layers = [g for g in layers if len(g)]
-        context = GaussianSet.concatenate([g.with_origin(cameras.origin) for g in layers]) if layers else None
         from fusion.appearance import refine_survey_appearance  # torch: after the inputs are read
 
         def progress(info: Any) -> None:
@@ -91,3 +91,24 @@ class AppearanceStage(Stage):
             f"{counts['gaussians']} survey Gaussians refined (positions frozen), {counts['iterations']} steps, "
             f"SH {counts['sh_degree']}{psnr}"
         )
+
+
+def survey_layer_inputs(
+    layout: ProjectLayout, origin: np.ndarray
+) -> tuple[GaussianSet, np.ndarray, GaussianSet | None]:
+    """What the stage refines and beside what: the converted MVS Gaussians (export/mvs_gaussians.ply), which of them
+    need splats ((N,) bool; none without classified points) and the frozen context (the fill and background layers
+    that exist and are not empty, at ``origin``; None without any)."""
+    import numpy as np
+
+    from core.gaussians import GaussianSet
+    from core.io.gaussian_ply import read_gaussian_ply
+    from hybridsplat import project_io
+
+    mvs = read_gaussian_ply(layout.mvs_gaussians)
+    needs = (project_io.needs_splats_per_gaussian(layout, mvs) if layout.classified_points.is_file()
+             else np.zeros(len(mvs), bool))  # fmt: skip
+    layers = [read_gaussian_ply(p) for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
+    layers = [g for g in layers if len(g)]
+    context = GaussianSet.concatenate([g.with_origin(origin) for g in layers]) if layers else None
+    return mvs, needs, context
