@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from os import PathLike
+from pathlib import Path
+from typing import Any
 
 from core.errors import ConfigError
 from core.io.atomic import write_text_atomic
@@ -51,9 +53,44 @@ def run_pipeline(
     with ProjectLock(layout.root, stages=[s.name for s in stages]) as lock:
         if lock.took_over is not None:
             terminal.line(f"took over the project's lock from {lock.took_over.describe()}, which ended without it")
-        write_text_atomic(layout.config, _complete(config).to_toml())
+        text = _complete(config).to_toml()
+        changed = config_changes(layout.config, text)
+        if changed:
+            terminal.line(f"config.toml: {describe_changes(changed)}")
+        write_text_atomic(layout.config, text)
         ctx = StageContext(layout=layout, config=config, source=source)
         return run_stages(ctx, stages, terminal, force, on_stage=lock.note_stage)
+
+
+def config_changes(path: Path, text: str) -> list[tuple[str, Any, Any]]:
+    """The options (dotted TOML keys) whose value in the TOML ``text`` differs from that in the file at ``path``, as
+    (key, old, new); old or new is None where a key is missing on that side. Nothing when the file does not exist
+    or is not TOML (the run replaces it either way)."""
+    import tomllib
+
+    try:
+        old = _flatten(tomllib.loads(path.read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return []
+    new = _flatten(tomllib.loads(text))
+    return [(k, old.get(k), new.get(k)) for k in sorted(old.keys() | new.keys()) if old.get(k) != new.get(k)]
+
+
+def describe_changes(changes: list[tuple[str, Any, Any]], most: int = 4) -> str:
+    """One line: how many options a run replaced in config.toml, the first ``most`` of them with old → new."""
+    shown = ", ".join(f"{key} {old!r} -> {new!r}" for key, old, new in changes[:most])
+    more = f" and {len(changes) - most} more" if len(changes) > most else ""
+    return f"{len(changes)} option(s) replaced by this command's ({shown}{more}); the stages that use them rerun"
+
+
+def _flatten(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def _complete(config: ProjectConfig) -> ProjectConfig:
