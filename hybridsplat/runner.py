@@ -115,8 +115,12 @@ def run_stage(
 
 
 def stage_config(stage: Stage, ctx: StageContext) -> dict:
-    """What the manifest records and compares of a stage besides its inputs: its options and fingerprint."""
-    return {"options": options_digest(ctx.options(stage)), "fingerprint": to_jsonable(stage.fingerprint(ctx))}
+    """What the manifest records and compares of a stage besides its inputs: its options and fingerprint (with the
+    project's seed for a stage that ``uses_seed``)."""
+    fingerprint = stage.fingerprint(ctx)
+    if stage.uses_seed:
+        fingerprint = {**fingerprint, "seed": ctx.config.seed}
+    return {"options": options_digest(ctx.options(stage)), "fingerprint": to_jsonable(fingerprint)}
 
 
 def record_is_current(previous: StageRecord, stage: Stage, inputs: dict[str, str], config: dict, project: Path) -> bool:

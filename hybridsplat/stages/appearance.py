@@ -28,6 +28,7 @@ class AppearanceStage(Stage):
     name = "appearance"
     Options = AppearanceOptions
     title = "survey-layer appearance"
+    uses_seed = True
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout, ws = ctx.layout, ctx.layout.dense_workspace

@@ -20,6 +20,7 @@ class BackgroundStage(Stage):
     name = "background"
     Options = BackgroundOptions
     title = "background layer"
+    uses_seed = True
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout, ws = ctx.layout, ctx.layout.dense_workspace

@@ -115,6 +115,7 @@ class Stage:
     command_help: ClassVar[str] = ""  # that command's help (default: the title)
     command_options: ClassVar[tuple[CliOption, ...]] = ()  # its options
     run_options: ClassVar[tuple[CliOption, ...]] = ()  # options of ``hybridsplat run`` that set this stage's
+    uses_seed: ClassVar[bool] = False  # its outputs depend on the project's seed (it reruns when the seed changes)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         """Files and folders whose content decides the outputs (hashed by the runner)."""

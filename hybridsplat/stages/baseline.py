@@ -21,6 +21,7 @@ class BaselineStage(Stage):
     name = "baseline"
     Options = WholeSceneOptions
     title = "whole-scene 3DGS baseline"
+    uses_seed = True
     run_options = (
         CliOption("enabled", "--baseline", value=True,
                   help="Also train the whole-scene 3DGS baseline and compare with it in the report."),

@@ -23,6 +23,7 @@ class SfmStage(Stage):
     name = "sfm"
     Options = SfmOptions
     title = "camera poses and sparse model"
+    uses_seed = True
     command_options = (
         CliOption("camera_model", help="COLMAP camera model for SfM."),
         CliOption(

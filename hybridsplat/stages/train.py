@@ -33,6 +33,7 @@ class TrainStage(Stage):
     name = "train"
     Options = MaskedTrainingOptions
     title = "masked splat training"
+    uses_seed = True
     command = "train"
     command_help = ("Train new splats inside the masks with the trusted MVS Gaussians frozen as context (a progress "
                     "bar shows masked loss, masked PSNR and the splat count).")  # fmt: skip
