@@ -168,10 +168,13 @@ class SnapshotOptions:
 
 
 class MeshSource(str, Enum):
-    """Which Gaussians of the merged set are meshed: all (hybrid) or only those converted from MVS."""
+    """What is meshed: all Gaussians of the merged set (hybrid, their ellipses sampled), only those converted from
+    MVS, or the survey point product (MVS points, trustworthy splat centres and splat-surface points; see
+    :mod:`fusion.mesh.survey_points`)."""
 
     ALL = "all"
     MVS = "mvs"
+    SURVEY = "survey"
 
 
 @dataclass(frozen=True)

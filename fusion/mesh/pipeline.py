@@ -3,7 +3,8 @@
 1. oriented points from the merged Gaussians (:mod:`fusion.mesh.oriented_points`), optionally only the MVS ones,
    and only those whose ``surface`` field (written by the merge stage: splats whose centres pass a geometric test,
    :func:`fusion.clean.surface_splat_options`) is 1 when the set has one — the other splats are floaters, virtual
-   images and colour corrections that render well but lie off every surface;
+   images and colour corrections that render well but lie off every surface; or (``MeshSource.SURVEY``) one
+   oriented point per point of the survey product (:mod:`fusion.mesh.survey_points`);
 2. plus, for transparent / reflective regions, the points of the union of training snapshots with opacity 1
    (:mod:`fusion.mesh.transparent`);
 3. screened Poisson, closed at its reconstruction cube (:mod:`fusion.mesh.closing`), cap removal, support and
@@ -19,12 +20,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from core.errors import DataError
 from core.gaussians import GaussianSet
+from core.pointcloud import PointCloud
 from fusion.convert import Source
 from fusion.mesh.closing import ClosingStats
 from fusion.mesh.colors import vertex_colors_from_gaussians
@@ -33,6 +35,7 @@ from fusion.mesh.options import MeshOptions, MeshSource  # noqa: F401 (re-export
 from fusion.mesh.oriented_points import OrientedPointStats, oriented_points_from_gaussians
 from fusion.mesh.poisson import TrimStats, poisson_reconstruct, trim_mesh
 from fusion.mesh.quality import MeshQuality, mesh_quality
+from fusion.mesh.survey_points import oriented_points_from_survey
 from fusion.mesh.transparent import SnapshotStats, snapshot_union
 from fusion.mesh.types import OrientedPoints, TriangleMesh
 
@@ -61,7 +64,7 @@ class MeshResult:
     untrimmed_is_cap: np.ndarray  # (T,) bool: the untrimmed mesh's caps on the Poisson cube (fusion.mesh.closing)
     trimmed: TriangleMesh
     points: OrientedPoints
-    point_stats: OrientedPointStats
+    point_stats: OrientedPointStats | None  # None for a mesh of the survey product's points
     snapshot_stats: SnapshotStats | None
     snapshot_points: int
     splat_points_dropped_near_mvs: int
@@ -127,22 +130,24 @@ def mesh_from_gaussians(
     options: MeshOptions | None = None,
     snapshots: Sequence[GaussianSet] = (),
     viewpoints: np.ndarray | None = None,
+    survey_points: PointCloud | None = None,
 ) -> MeshResult:
     """A coloured triangle mesh of ``merged`` (see the module docstring), in ``merged``'s local frame and origin.
 
     merged: the merged Gaussians with a ``source`` field (1 MVS, 2 splat; needed for MeshSource.MVS and snapshots).
     snapshots: early training snapshots (3DGS sets of the same run); only their parts in splat regions are used.
     viewpoints: (M, 3) float64 camera centres relative to ``merged.origin`` (orient splat normals), or None.
+    survey_points: the survey point product (``MeshSource.SURVEY`` meshes it instead of the Gaussians; the
+    Gaussians still colour the mesh).
     """
     options = options or MeshOptions()
     timings = MeshTimings()
     t = time.perf_counter()
-    gs, off_surface = _gaussians_to_mesh(merged, options)
-    points, point_stats = oriented_points_from_gaussians(gs, options.points, viewpoints)
+    points, point_stats, off_surface, regions = _oriented_points(merged, options, viewpoints, survey_points)
     snap_stats = None
     n_snap = 0
-    if snapshots and options.use_snapshots and options.source is MeshSource.ALL:
-        points, snap_stats, n_snap = _add_snapshot_points(points, snapshots, gs, options, viewpoints)
+    if snapshots and options.use_snapshots and options.source is not MeshSource.MVS:
+        points, snap_stats, n_snap = _add_snapshot_points(points, snapshots, regions, options, viewpoints)
     dropped_near_mvs = 0
     if options.mvs_priority > 0:
         points, dropped_near_mvs = drop_splat_points_near_mvs(points, options.mvs_priority)
@@ -186,6 +191,25 @@ def mesh_from_gaussians(
         quality=mesh_quality(final),
         timings=timings,
     )
+
+
+def _oriented_points(
+    merged: GaussianSet, options: MeshOptions, viewpoints: np.ndarray | None, survey_points: PointCloud | None
+) -> tuple[OrientedPoints, OrientedPointStats | None, int, GaussianSet]:
+    """The oriented points the mesh is made of, their stats (None for survey points), how many Gaussians were off
+    every surface, and the Gaussians whose splats (``source`` 2) mark the regions training snapshots may fill."""
+    if options.source is MeshSource.SURVEY:
+        if survey_points is None:
+            raise DataError("a mesh from the survey product needs its points (export/merged_points.ply)")
+        cloud = survey_points
+        if not np.array_equal(cloud.origin, merged.origin):
+            cloud = PointCloud(cloud.positions + (cloud.origin - merged.origin), merged.origin, cloud.colors,
+                               cloud.normals, dict(cloud.fields))  # fmt: skip
+        regions, off_surface = _gaussians_to_mesh(merged, replace(options, source=MeshSource.ALL))
+        return oriented_points_from_survey(cloud, options.points, viewpoints), None, off_surface, regions
+    gs, off_surface = _gaussians_to_mesh(merged, options)
+    points, stats = oriented_points_from_gaussians(gs, options.points, viewpoints)
+    return points, stats, off_surface, gs
 
 
 def _gaussians_to_mesh(merged: GaussianSet, options: MeshOptions) -> tuple[GaussianSet, int]:

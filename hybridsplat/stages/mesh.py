@@ -71,7 +71,11 @@ class MeshStage(Stage):
         CliOption("budget", help="Triangles of the mesh (within 1 %)."),
         CliOption("formats", "--format", help="ply | obj | glb (repeatable; default: all three)."),
         CliOption("method", help="poisson (default) | tsdf (fusion of rendered depth)."),
-        CliOption("mesh.source", help="all (hybrid, default) | mvs (MVS Gaussians only)."),
+        CliOption(
+            "mesh.source",
+            help="all (hybrid Gaussians, default) | mvs (MVS Gaussians only) | survey (the survey "
+            "points: MVS, trustworthy splats, splat surface).",
+        ),
         CliOption(
             "mesh.use_snapshots", "--snapshots/--no-snapshots", help="Use training snapshots for transparent regions."
         ),
@@ -138,7 +142,13 @@ class MeshStage(Stage):
                 if cameras is not None and len(cameras):
                     viewpoints = np.array([v.center for v in cameras]) + cameras.origin - merged.origin
                 options = replace(opts.mesh, budget=opts.budget)
-                result = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=viewpoints)
+                survey = None
+                if options.source is MeshSource.SURVEY:
+                    from core.io.ply import read_ply
+
+                    survey = read_ply(layout.merged_points_ply)
+                result = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=viewpoints,
+                                             survey_points=survey)  # fmt: skip
                 mesh, counts = result.mesh, result.summary()
         for fmt in opts.formats:
             write_mesh(layout.mesh_path(fmt), mesh)
