@@ -11,6 +11,7 @@ from core.errors import ConfigError
 from core.io.gaussian_ply import write_gaussian_ply
 from core.io.images import write_image
 from core.io.origin import read_origin
+from core.io.ply import read_ply
 from fusion.export import export_gaussian_ply, export_points
 from fusion.mesh import read_mesh
 from hybridsplat.cli import run_cli
@@ -142,3 +143,18 @@ def test_eval_scores_the_mesh_from_points_sampled_on_it(project):
     for m in (1, 2):
         assert abs(scores[m].accuracy_mean - ideal[m].accuracy_mean) < 0.001
     assert _mesh_points(layout.root / "no_mesh.ply", tau) is None
+
+
+def test_the_command_meshes_the_survey_points(project):
+    photos, layout = project
+    assert run_cli(["mesh", str(layout.root), "--budget", "2000", "--format", "ply", "--source", "survey"]) == 0
+    record = json.loads(layout.manifest.read_text())["stages"]["mesh"]
+    counts = record["counts"]
+    survey = len(read_ply(layout.merged_points_ply).positions)
+    # one oriented point per survey point (not the Gaussians' sampled ellipses), plus the snapshots' points
+    assert counts["oriented_points"] == survey + counts["snapshot_points"] - counts["splat_points_dropped_near_mvs"]
+    mesh = read_mesh(layout.mesh_path("ply"))
+    local = mesh.world_vertices - UTM
+    assert abs(mesh.num_triangles - 2000) <= 20
+    assert np.median(np.abs(np.linalg.norm(local, axis=1) - R)) < 0.003
+    assert (local[:, 2] > CAP_Z + 0.05).any()  # the glass cap: its splat points and the snapshots
