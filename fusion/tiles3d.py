@@ -263,7 +263,7 @@ def _fmt(values: Any, digits: int) -> str:
 
 
 @dataclass
-class _Frame:
+class TileFrame:
     """The tile frame: how local offsets map into it, and how it is placed (``transform``, row-major 4×4)."""
 
     transform: np.ndarray
@@ -303,7 +303,7 @@ class _Frame:
         return out
 
 
-def _resolve_frame(origin: np.ndarray, crs: str | None, placement: Placement, out: Path) -> _Frame:
+def _resolve_frame(origin: np.ndarray, crs: str | None, placement: Placement, out: Path) -> TileFrame:
     if crs is None:
         t = np.eye(4)
         t[:3, 3] = origin
@@ -311,7 +311,7 @@ def _resolve_frame(origin: np.ndarray, crs: str | None, placement: Placement, ou
             "not georeferenced (no CRS): the tileset frame is the set's world frame (origin + local), not ECEF; "
             "a globe viewer puts it near the earth's centre unless placed (CesiumJS: Cesium3DTileset.modelMatrix)"
         )
-        return _Frame(transform=t, placement="none", origin=origin, notes=[note])
+        return TileFrame(transform=t, placement="none", origin=origin, notes=[note])
     import pyproj
     from pyproj.transformer import TransformerGroup
 
@@ -342,7 +342,7 @@ def _resolve_frame(origin: np.ndarray, crs: str | None, placement: Placement, ou
             "a CRS with ellipsoidal heights",
             out,
         )
-    frame = _Frame(
+    frame = TileFrame(
         transform=np.eye(4), placement=placement.value, crs_name=crs, to_ecef=to_ecef, origin=origin.copy(), path=out
     )
     frame.info["datum_transformation"] = description
@@ -359,7 +359,7 @@ def _resolve_frame(origin: np.ndarray, crs: str | None, placement: Placement, ou
     return frame
 
 
-def _place(frame: _Frame, src: Any, out: Path) -> None:
+def _place(frame: TileFrame, src: Any, out: Path) -> None:
     """Fill the ECEF origin, ENU axes, Jacobian, projection factors and the root transform of ``frame``."""
     import pyproj
 
@@ -423,7 +423,7 @@ def enu_axes(lon_deg: float, lat_deg: float) -> np.ndarray:
     return np.array([east, north, up]).T
 
 
-def _jacobian(frame: _Frame) -> np.ndarray:
+def _jacobian(frame: TileFrame) -> np.ndarray:
     """∂ECEF/∂local (3, 3) at the origin: central differences of pyproj with a step of 1 CRS unit (pyproj is float64:
     ECEF ~6e6 m rounds at 1e-9 m; the truncation error is of order step² / R² — negligible)."""
     jac = np.empty((3, 3))
@@ -448,7 +448,7 @@ def _projection_factors(src: Any, origin: np.ndarray) -> dict[str, float]:
     return {"convergence_deg": float(factors.meridian_convergence), "scale_factor": float(factors.meridional_scale)}
 
 
-def _to_frame(gaussians: GaussianSet, frame: _Frame) -> GaussianSet:
+def _to_frame(gaussians: GaussianSet, frame: TileFrame) -> GaussianSet:
     """A new set in the tile frame (means float64, origin zero): the same offsets, or the exact conversion. The
     input is not modified (``GaussianSet.subset`` with a slice shares memory, so arrays are copied here)."""
     if frame.jacobian is None:
@@ -498,7 +498,7 @@ def _chunks(n: int, size: int) -> Iterator[slice]:
         yield slice(start, min(n, start + size))
 
 
-def _placement_error(gaussians: GaussianSet, frame: _Frame) -> float | None:
+def _placement_error(gaussians: GaussianSet, frame: TileFrame) -> float | None:
     """Largest |our ECEF − pyproj ECEF| (metres) over ≤ 256 splats and the 8 corners of the local bounds."""
     if frame.to_ecef is None:
         return None
@@ -516,12 +516,12 @@ def _placement_error(gaussians: GaussianSet, frame: _Frame) -> float | None:
 
 
 @dataclass
-class _Node:
+class TileNode:
     path: str
     lo: np.ndarray
     hi: np.ndarray
     index: np.ndarray | None = None  # leaf: splat indices (ascending)
-    children: list[_Node] = field(default_factory=list)
+    children: list[TileNode] = field(default_factory=list)
 
 
 def _extents(gs: GaussianSet) -> np.ndarray:
@@ -536,27 +536,30 @@ def _extents(gs: GaussianSet) -> np.ndarray:
     return out
 
 
-def _build(pos: np.ndarray, ext: np.ndarray, index: np.ndarray, max_n: int, path: str = "r") -> _Node:
+def build_tree(pos: np.ndarray, ext: np.ndarray, index: np.ndarray, max_n: int, path: str = "r") -> TileNode:
     lo = (pos[index] - ext[index]).min(axis=0)
     hi = (pos[index] + ext[index]).max(axis=0)
     if len(index) <= max_n:
-        return _Node(path, lo, hi, index=np.sort(index))
+        return TileNode(path, lo, hi, index=np.sort(index))
     centres = pos[index]
     axis = int(np.argmax(centres.max(axis=0) - centres.min(axis=0)))
     order = index[np.argsort(centres[:, axis], kind="stable")]
     half = len(order) // 2
-    kids = [_build(pos, ext, order[:half], max_n, path + "0"), _build(pos, ext, order[half:], max_n, path + "1")]
-    return _Node(path, lo, hi, children=kids)
+    kids = [
+        build_tree(pos, ext, order[:half], max_n, path + "0"),
+        build_tree(pos, ext, order[half:], max_n, path + "1"),
+    ]
+    return TileNode(path, lo, hi, children=kids)
 
 
-def _leaves(node: _Node) -> Iterator[_Node]:
+def leaf_nodes(node: TileNode) -> Iterator[TileNode]:
     if node.index is not None:
         yield node
     for child in node.children:
-        yield from _leaves(child)
+        yield from leaf_nodes(child)
 
 
-def _box(lo: np.ndarray, hi: np.ndarray) -> list[float]:
+def tile_box(lo: np.ndarray, hi: np.ndarray) -> list[float]:
     centre = (lo + hi) / 2.0
     half = np.maximum((hi - lo) / 2.0, MIN_HALF_SIZE)
     return [float(v) for v in centre] + [float(half[0]), 0.0, 0.0, 0.0, float(half[1]), 0.0, 0.0, 0.0, float(half[2])]
@@ -566,15 +569,15 @@ def _diagonal(box: list[float]) -> float:
     return 2.0 * math.sqrt(box[3] ** 2 + box[7] ** 2 + box[11] ** 2)
 
 
-def _tile_json(node: _Node, prefix: str, group: int) -> dict[str, Any]:
-    box = _box(node.lo, node.hi)
+def tile_json(node: TileNode, prefix: str, group: int) -> dict[str, Any]:
+    box = tile_box(node.lo, node.hi)
     tile: dict[str, Any] = {"boundingVolume": {"box": box}}
     if node.index is not None:
         tile["geometricError"] = 0.0
         tile["content"] = {"uri": f"{prefix}{node.path}.glb", "group": group}
     else:
         tile["geometricError"] = _diagonal(box)
-        tile["children"] = [_tile_json(c, prefix, group) for c in node.children]
+        tile["children"] = [tile_json(c, prefix, group) for c in node.children]
     return tile
 
 
@@ -642,7 +645,7 @@ def _group(name: str, code: int | None) -> dict[str, Any]:
 
 def _tileset_json(
     layers: list[tuple[str, int | None, dict[str, Any]]],
-    frame: _Frame,
+    frame: TileFrame,
     extras: dict[str, Any],
     gltf: dict[str, list[str]],
 ) -> dict[str, Any]:
@@ -650,7 +653,7 @@ def _tileset_json(
     boxes = np.array([t["boundingVolume"]["box"] for _, _, t in layers])
     lo = (boxes[:, :3] - boxes[:, [3, 7, 11]]).min(axis=0)
     hi = (boxes[:, :3] + boxes[:, [3, 7, 11]]).max(axis=0)
-    root_box = _box(lo, hi)
+    root_box = tile_box(lo, hi)
     error = _diagonal(root_box)
     return {
         "asset": {"version": "1.1", "extras": extras},
@@ -755,7 +758,7 @@ def _write_files(
     layers: list[tuple[str, int, np.ndarray]],
     pos: np.ndarray,
     ext: np.ndarray,
-    frame: _Frame,
+    frame: TileFrame,
     out: Path,
     options: TilesetOptions,
     extras: dict[str, Any],
@@ -770,9 +773,9 @@ def _write_files(
     records: list[LayerRecord] = []
     subtrees: list[tuple[str, int | None, dict[str, Any]]] = []
     for group, (name, code, index) in enumerate(layers):
-        tree = _build(pos, ext, index, int(options.max_splats_per_tile))
+        tree = build_tree(pos, ext, index, int(options.max_splats_per_tile))
         written: dict[str, int] = {}
-        for leaf in _leaves(tree):
+        for leaf in leaf_nodes(tree):
             data = encode_splat_glb(
                 in_frame.subset(leaf.index),  # type: ignore[arg-type]
                 options.color_space,
@@ -782,23 +785,23 @@ def _write_files(
             )
             write_bytes_atomic(folder / name / f"{leaf.path}.glb", data)
             written[f"{leaf.path}.glb"] = len(data)
-            box = tuple(_box(leaf.lo, leaf.hi))
+            box = tuple(tile_box(leaf.lo, leaf.hi))
             count = len(leaf.index)  # type: ignore[arg-type]
             tiles.append(TileRecord(f"{name}/{leaf.path}.glb", name, count, len(data), box))
-        subtrees.append((name, code, _tile_json(tree, f"{name}/", group)))
+        subtrees.append((name, code, tile_json(tree, f"{name}/", group)))
         layer_tileset = None
         if options.layer_tilesets:
             layer_tileset = f"{name}/tileset.json"
             write_json_atomic(
                 folder / layer_tileset,
                 _tileset_json(
-                    [(name, code, _tile_json(tree, "", 0))], frame, extras, gltf_extensions(options.compression)
+                    [(name, code, tile_json(tree, "", 0))], frame, extras, gltf_extensions(options.compression)
                 ),
             )
-        _remove_stale(folder / name, set(written), keep_tileset=options.layer_tilesets)
+        remove_stale_tiles(folder / name, set(written), keep_tileset=options.layer_tilesets)
         records.append(LayerRecord(name, code, len(index), len(written), sum(written.values()), layer_tileset))
     for stale in {layer_name(int(c)) for c in Source} - {r.name for r in records}:
-        _remove_stale(folder / stale, set(), keep_tileset=False)
+        remove_stale_tiles(folder / stale, set(), keep_tileset=False)
 
     def own_tileset(ls: list[Any], gltf: dict[str, list[str]], note: str) -> dict[str, Any]:
         return _tileset_json(ls, frame, {**extras, "glTF": note}, gltf)
@@ -811,7 +814,7 @@ def _write_files(
 
 
 def _other_layers(
-    points: Any, mesh: Any, origin: np.ndarray, crs: str | None, frame: _Frame, max_n: int, out: Path
+    points: Any, mesh: Any, origin: np.ndarray, crs: str | None, frame: TileFrame, max_n: int, out: Path
 ) -> list[Any]:
     """The survey points' and the mesh's layers (:class:`fusion.tiles3d_points.ExtraLayer`), checked and encoded
     before anything is written."""
@@ -826,7 +829,7 @@ def _other_layers(
 
 
 def _asset_extras(
-    gaussians: GaussianSet, crs: str | None, frame: _Frame, compression: GltfCompression
+    gaussians: GaussianSet, crs: str | None, frame: TileFrame, compression: GltfCompression
 ) -> dict[str, Any]:
     extras: dict[str, Any] = {
         "generator": generator(),
@@ -848,7 +851,7 @@ def _asset_extras(
     return extras
 
 
-def _remove_stale(layer_dir: Path, written: set[str], keep_tileset: bool) -> None:
+def remove_stale_tiles(layer_dir: Path, written: set[str], keep_tileset: bool) -> None:
     """Queue removal of our own tile files (``r[01]*.glb``) in ``layer_dir`` not written now, and of its
     ``tileset.json`` when no layer tileset is written there."""
     if not layer_dir.is_dir():

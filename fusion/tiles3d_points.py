@@ -10,7 +10,7 @@ its ``mesh.origin.json`` sidecar). Each becomes one more subtree of the root, be
     mesh/mesh.glb                                   one TRIANGLES primitive (POSITION, COLOR_0 RGBA8, uint32 indices)
     mesh/tileset.json                               the mesh alone (when ``layer_tilesets``), same transform
 
-Frame: positions are converted exactly as the splat means are (:meth:`fusion.tiles3d._Frame.positions`: ``exact``
+Frame: positions are converted exactly as the splat means are (:meth:`fusion.tiles3d.TileFrame.positions`: ``exact``
 placement through pyproj per point and per vertex, ``grid`` and no CRS as local offsets), after re-expressing them in
 float64 about the splats' origin (a different origin of the points or of the mesh is therefore exact). The GLB node
 matrix is the same z-up → y-up turn as the splat tiles' (:data:`fusion.gltf_splats.Z_UP_TO_Y_UP`), so POSITION values
@@ -46,7 +46,17 @@ from core.io.atomic import remove_output, write_bytes_atomic
 from core.io.json_io import write_json_atomic
 from core.pointcloud import PointCloud
 from fusion.gltf_splats import Z_UP_TO_Y_UP, generator
-from fusion.tiles3d import LayerRecord, TileRecord, _box, _build, _Frame, _leaves, _Node, _remove_stale, _tile_json
+from fusion.tiles3d import (
+    LayerRecord,
+    TileFrame,
+    TileNode,
+    TileRecord,
+    build_tree,
+    leaf_nodes,
+    remove_stale_tiles,
+    tile_box,
+    tile_json,
+)
 
 POINTS_LAYER, POINTS_FOLDER = "survey points", "survey_points"
 MESH_LAYER, MESH_FOLDER, MESH_TILE = "mesh", "mesh", "mesh"
@@ -70,7 +80,7 @@ class ExtraLayer:
 
     name: str
     folder: str
-    tree: _Node
+    tree: TileNode
     files: dict[str, bytes]
     count: int
 
@@ -115,7 +125,12 @@ def _local(world_offsets: np.ndarray, own_origin: np.ndarray, origin: np.ndarray
 
 
 def points_layer(
-    points: PointCloud | str | PathLike[str], origin: np.ndarray, crs: str | None, frame: _Frame, max_n: int, out: Path
+    points: PointCloud | str | PathLike[str],
+    origin: np.ndarray,
+    crs: str | None,
+    frame: TileFrame,
+    max_n: int,
+    out: Path,
 ) -> ExtraLayer:
     """The survey points as k-d tiled POINTS GLBs in the tile frame (``origin``: the splats' world origin)."""
     path = _source_path(points)
@@ -134,9 +149,9 @@ def points_layer(
     local = _local(points.positions, points.origin, origin, name)
     pos = frame.positions(local).astype(np.float32)
     colors = None if points.colors is None else np.c_[points.colors, np.full(len(points), 255, np.uint8)]
-    tree = _build(pos.astype(np.float64), np.zeros_like(pos, np.float64), np.arange(len(pos)), max_n)
+    tree = build_tree(pos.astype(np.float64), np.zeros_like(pos, np.float64), np.arange(len(pos)), max_n)
     files = {}
-    for leaf in _leaves(tree):
+    for leaf in leaf_nodes(tree):
         index = leaf.index if leaf.index is not None else np.zeros(0, np.int64)
         files[leaf.path] = encode_glb(
             pos[index],
@@ -148,7 +163,7 @@ def points_layer(
     return ExtraLayer(POINTS_LAYER, POINTS_FOLDER, tree, files, len(points))
 
 
-def mesh_layer(mesh: str | PathLike[str], origin: np.ndarray, crs: str | None, frame: _Frame) -> ExtraLayer:
+def mesh_layer(mesh: str | PathLike[str], origin: np.ndarray, crs: str | None, frame: TileFrame) -> ExtraLayer:
     """The mesh (a GLB with its origin sidecar) as one TRIANGLES GLB in the tile frame."""
     from fusion.mesh.export import read_mesh
 
@@ -178,7 +193,7 @@ def mesh_layer(mesh: str | PathLike[str], origin: np.ndarray, crs: str | None, f
     faces = np.asarray(triangle_mesh.triangles, np.uint32)
     data = encode_glb(pos, colors, faces, MESH_FOLDER, {"layer": MESH_LAYER, "source_file": path.name})
     f64 = pos.astype(np.float64)
-    tree = _Node(MESH_TILE, f64.min(axis=0), f64.max(axis=0), index=np.arange(len(pos)))
+    tree = TileNode(MESH_TILE, f64.min(axis=0), f64.max(axis=0), index=np.arange(len(pos)))
     return ExtraLayer(MESH_LAYER, MESH_FOLDER, tree, {MESH_TILE: data}, len(pos))
 
 
@@ -254,24 +269,24 @@ def write_extra_layers(
     subtrees: list[tuple[str, int | None, dict[str, Any]]] = []
     for group, layer in enumerate(layers, start=first_group):
         written: dict[str, int] = {}
-        for leaf in _leaves(layer.tree):
+        for leaf in leaf_nodes(layer.tree):
             data = layer.files[leaf.path]
             write_bytes_atomic(folder / layer.folder / f"{leaf.path}.glb", data)
             written[f"{leaf.path}.glb"] = len(data)
             count = len(leaf.index)  # type: ignore[arg-type]
             uri = f"{layer.folder}/{leaf.path}.glb"
-            tiles.append(TileRecord(uri, layer.name, count, len(data), tuple(_box(leaf.lo, leaf.hi))))
-        subtrees.append((layer.name, None, _tile_json(layer.tree, f"{layer.folder}/", group)))
-        own = layer_tileset(layer.name, _tile_json(layer.tree, "", 0))
+            tiles.append(TileRecord(uri, layer.name, count, len(data), tuple(tile_box(leaf.lo, leaf.hi))))
+        subtrees.append((layer.name, None, tile_json(layer.tree, f"{layer.folder}/", group)))
+        own = layer_tileset(layer.name, tile_json(layer.tree, "", 0))
         if layer.folder == POINTS_FOLDER:
-            _remove_stale(folder / layer.folder, set(written), keep_tileset=own is not None)
+            remove_stale_tiles(folder / layer.folder, set(written), keep_tileset=own is not None)
         elif own is None and (folder / layer.folder / "tileset.json").is_file():
             remove_output(folder / layer.folder / "tileset.json")
         kind = KINDS[layer.name]
         records.append(LayerRecord(layer.name, None, layer.count, len(written), sum(written.values()), own, kind))
     present = {layer.folder for layer in layers}
     if POINTS_FOLDER not in present:
-        _remove_stale(folder / POINTS_FOLDER, set(), keep_tileset=False)
+        remove_stale_tiles(folder / POINTS_FOLDER, set(), keep_tileset=False)
     if MESH_FOLDER not in present:
         for stale in (folder / MESH_FOLDER / f"{MESH_TILE}.glb", folder / MESH_FOLDER / "tileset.json"):
             if stale.is_file():
