@@ -121,7 +121,8 @@ class SeenInView:
         return ok
 
 
-def _disk(radius: int) -> np.ndarray:
+def disk_kernel(radius: int) -> np.ndarray:
+    """OpenCV's elliptic structuring element of ``radius`` pixels ((2r + 1) × (2r + 1), uint8)."""
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
@@ -142,7 +143,7 @@ def splat_footprints(
         layer = np.zeros((h, w), dtype=np.uint8)
         layer[r[sel], c[sel]] = 1
         if value > 0:
-            layer = cv2.dilate(layer, _disk(int(value)))
+            layer = cv2.dilate(layer, disk_kernel(int(value)))
         out |= layer
     return out.astype(bool)
 
@@ -485,7 +486,7 @@ def _close_and_dilate(
     """The closed and dilated mask (H, W) bool of ``union`` (H, W) uint8, and the training margin in pixels (both
     radii from the point spacing at the view's median depth, capped at 4 × ``max_radius_px``)."""
     if options.close_px > 0:
-        union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, _disk(options.close_px))
+        union = cv2.morphologyEx(union, cv2.MORPH_CLOSE, disk_kernel(options.close_px))
     dilate = options.dilate_px
     margin = 0
     if len(pr.idx):
@@ -494,7 +495,7 @@ def _close_and_dilate(
             dilate = max(dilate, min(int(round(options.dilate_spacings * spacing_px)), 4 * options.max_radius_px))
         margin = min(int(round(options.train_margin_spacings * spacing_px)), 4 * options.max_radius_px)
     if dilate > 0:
-        union = cv2.dilate(union, _disk(dilate))
+        union = cv2.dilate(union, disk_kernel(dilate))
     return union.astype(bool), margin
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from classify.masks import _disk
+from classify.masks import disk_kernel
 from core.cameras import Cameras, View
 
 
@@ -36,7 +36,7 @@ def depth_buffer(
         if r > 0:
             finite_max = np.nanmax(np.where(np.isfinite(layer), layer, np.nan)) if np.isfinite(layer).any() else 1.0
             filled = np.where(np.isfinite(layer), layer, 2 * finite_max + 1).astype(np.float32)
-            eroded = cv2.erode(filled, _disk(int(r)))
+            eroded = cv2.erode(filled, disk_kernel(int(r)))
             layer = np.where(eroded <= finite_max * (1 + 1e-6), eroded.astype(np.float64), np.inf)
         out = np.minimum(out, layer)
     return out

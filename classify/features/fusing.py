@@ -5,7 +5,7 @@
 fused it. This module walks the points in chunks (outer) and the views of the dense reconstruction (inner, the
 same photos :class:`~classify.features.multiview.ViewData` exposes: held-out photos never take part) and hands each
 group, per view, the chunk's points that view fused with their pixels, depths and viewing rays. Pixels follow
-COLMAP's convention (the centre of pixel (c, r) is at (c + 0.5, r + 0.5)); ``_sample_nearest`` reads pixel
+COLMAP's convention (the centre of pixel (c, r) is at (c + 0.5, r + 0.5)); ``sample_nearest`` reads pixel
 ``floor(col), floor(row)`` like the multi-view group.
 """
 
@@ -16,13 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from classify.features.multiview import ViewData, _fused_by_view, _sample_nearest
+from classify.features.multiview import ViewData, fused_by_view, sample_nearest
 from core.cameras import Camera, View
 from core.errors import DataError
 
 __all__ = ["FusingSamples", "fusing_chunks", "sample_nearest", "segment_bounds", "to_camera"]
 
-sample_nearest = _sample_nearest
+sample_nearest = sample_nearest
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def fusing_chunks(
         flat_pts = np.repeat(np.arange(n), counts)
     for start in range(0, n, max(1, chunk_size)):
         stop = min(n, start + max(1, chunk_size))
-        fused_of = None if visibility is None else _fused_by_view(flat_ids, flat_pts, start, stop, view_list)
+        fused_of = None if visibility is None else fused_by_view(flat_ids, flat_pts, start, stop, view_list)
         yield slice(start, stop), _view_samples(pts[start:stop], views, view_list, fused_of, tolerance)
 
 

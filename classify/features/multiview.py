@@ -104,7 +104,8 @@ def views_from_workspace(dense_dir: str | Path, cache: int = 64) -> ViewData:
     return ViewData(cameras, image, depth)
 
 
-def _sample_nearest(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+def sample_nearest(img: np.ndarray, col: np.ndarray, row: np.ndarray) -> np.ndarray:
+    """Values of ``img`` at the nearest pixel of each (``col``, ``row``) (pixel units, clamped to the image)."""
     h, w = img.shape[:2]
     c = np.clip(col.astype(np.int64), 0, w - 1)
     r = np.clip(row.astype(np.int64), 0, h - 1)
@@ -152,7 +153,7 @@ def multiview_features(
     for start in range(0, n, options.chunk_size):
         stop = min(n, start + options.chunk_size)
         p = pts[start:stop]
-        fused_of = None if visibility is None else _fused_by_view(flat_ids, flat_pts, start, stop, view_list)
+        fused_of = None if visibility is None else fused_by_view(flat_ids, flat_pts, start, stop, view_list)
         acc = _ChunkSums.zeros(stop - start)
         for v in view_list:
             _accumulate_view(acc, views, v, p, fused_of, options.depth_tolerance)
@@ -160,7 +161,7 @@ def multiview_features(
     return out
 
 
-def _fused_by_view(
+def fused_by_view(
     flat_ids: np.ndarray, flat_pts: np.ndarray, start: int, stop: int, view_list: list[View]
 ) -> dict[int, np.ndarray]:
     """Per image id, the chunk-local indices (int64, ascending) of the points of [start, stop) that the view fused.
@@ -268,7 +269,7 @@ def _compare_depth(
     """Count agree / free-space / invalid for the frustum points ``idx``; returns their relative depth difference
     (d_map − z) / z and the depth-map value d_map (metres, ≤ 0 invalid), both aligned with ``idx``."""
     sx, sy = depth.shape[1] / cam.width, depth.shape[0] / cam.height
-    d = _sample_nearest(depth, col[idx] * sx, row[idx] * sy).astype(np.float64)
+    d = sample_nearest(depth, col[idx] * sx, row[idx] * sy).astype(np.float64)
     zi = z[idx]
     rel = (d - zi) / zi
     valid = d > 0
@@ -284,7 +285,7 @@ def _accumulate_photo(
     """Add the colour and the normalised grey patch at pixels (col, row) (camera pixels) to the points ``fused``."""
     sx, sy = photo.shape[1] / cam.width, photo.shape[0] / cam.height
     fc, fr = col * sx, row * sy
-    rgb = _sample_nearest(photo, fc, fr).astype(np.float64) / 255.0
+    rgb = sample_nearest(photo, fc, fr).astype(np.float64) / 255.0
     acc.col_sum[fused] += rgb
     acc.col_sq[fused] += rgb**2
     grey = photo.astype(np.float32).mean(axis=2) / 255.0 if photo.ndim == 3 else photo / 255.0
