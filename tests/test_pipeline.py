@@ -286,6 +286,11 @@ def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(pr
 
     assert main(["mvs", str(project)]) is None  # up to date: nothing runs
     layout = ProjectLayout(project)
+    assert main(["eval", "project", str(project)]) is None  # the eval stage with the project's config: up to date
+    assert json.loads(layout.manifest.read_text())["stages"]["eval"]["cached"]
+    main(["eval", "project", str(project), "--force"])  # measured again (from the eval cache), then the report
+    stages = json.loads(layout.manifest.read_text())["stages"]
+    assert not stages["eval"]["cached"] and not stages["report"]["cached"]
     assert json.loads(layout.manifest.read_text())["stages"]["mvs"]["cached"]
     before = layout.fused_ply.read_bytes()
     main(["mvs", str(project), "--min-num-pixels", "2"])  # an option changed: mvs reruns, and says so

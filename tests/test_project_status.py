@@ -99,3 +99,7 @@ def test_an_input_that_changed_or_went_missing_is_named(finished, tmp_path):
 def test_a_folder_that_is_not_a_project(tmp_path, capsys):
     assert run_cli(["status", str(tmp_path)]) == 2
     assert "not a hybridsplat project (no config.toml)" in capsys.readouterr().err
+    assert run_cli(["eval", "project", str(tmp_path)]) == 2  # one line naming the missing file, nothing written
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "config.toml" in err[0] and "not a hybridsplat project" in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -1,4 +1,5 @@
-"""``hybridsplat eval c2c`` and ``hybridsplat eval images``: measure clouds and renders against references."""
+"""``hybridsplat eval c2c``, ``eval images`` and ``eval render``: measure clouds and renders against references;
+``eval project``: score a project's products again (its eval and report stages)."""
 
 from __future__ import annotations
 
@@ -273,6 +274,19 @@ def render(
         if json_path is not None:
             _write_json(json_path, result.as_dict())
     _print_image_table(result, f"{gaussians.name} at {len(chosen)} held-out views")
+
+
+@eval_app.command("project")
+def eval_project(
+    project: Path = typer.Argument(..., help="Project folder (after 'hybridsplat run')."),
+    force: bool = typer.Option(False, "--force", help="Measure again even when up to date."),
+) -> None:
+    """Score a project's products again with the options in PROJECT/config.toml: the eval stage, then the report
+    (after 'hybridsplat mesh PROJECT --source survey', say; 'run' would rebuild config.toml from its own options)."""
+    from hybridsplat.commands.common import run_project_stage
+
+    run_project_stage(project, "eval", {}, force)
+    run_project_stage(project, "report", {})
 
 
 def register(app: typer.Typer) -> None:
