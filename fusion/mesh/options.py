@@ -180,7 +180,8 @@ class MeshSource(str, Enum):
 @dataclass(frozen=True)
 class MeshOptions:
     """budget: triangles of the result (None: no decimation). source: see :class:`MeshSource` (default all).
-    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; source all only).
+    use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; not for
+    source mvs).
     mvs_priority: splat points (trained or snapshot) closer to an MVS point than this many median MVS point
     spacings are left out (default 2; 0 keeps all): where MVS measured the surface, its metric points alone shape
     it, and splats fill only where MVS has none (splats float around surfaces by a fraction of their σ).

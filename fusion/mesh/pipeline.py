@@ -201,10 +201,7 @@ def _oriented_points(
     if options.source is MeshSource.SURVEY:
         if survey_points is None:
             raise DataError("a mesh from the survey product needs its points (export/merged_points.ply)")
-        cloud = survey_points
-        if not np.array_equal(cloud.origin, merged.origin):
-            cloud = PointCloud(cloud.positions + (cloud.origin - merged.origin), merged.origin, cloud.colors,
-                               cloud.normals, dict(cloud.fields))  # fmt: skip
+        cloud = survey_points.with_origin(merged.origin)
         regions, off_surface = _gaussians_to_mesh(merged, replace(options, source=MeshSource.ALL))
         return oriented_points_from_survey(cloud, options.points, viewpoints), None, off_surface, regions
     gs, off_surface = _gaussians_to_mesh(merged, options)

@@ -45,26 +45,15 @@ def oriented_points_from_survey(
         normals[trusted] /= length[trusted, None]
     else:
         normals = np.zeros((n, 3))
-    if (~trusted).any():
+    scale = np.asarray(cloud.fields.get("scale", np.zeros(n)), dtype=np.float64)
+    footprint = options.footprint_sigmas * np.where(np.isfinite(scale), scale, 0.0)
+    unscaled = footprint <= 0
+    if (~trusted).any() or unscaled.any():  # one neighbour query serves the PCA normals and the missing footprints
+        distances, neighbours = cKDTree(positions).query(positions, k=min(options.normal_neighbors, n - 1) + 1)
         rows = np.flatnonzero(~trusted)
-        _, neighbours = cKDTree(positions).query(positions[rows], k=min(options.normal_neighbors, n - 1) + 1)
-        normals[rows] = pca_normals(positions, rows, neighbours[:, 1:])
+        normals[rows] = pca_normals(positions, rows, neighbours[rows, 1:])
+        footprint[unscaled] = distances[unscaled, 1:].mean(axis=1)
     normals = orient_normals(positions, normals, trusted, viewpoints, options.normal_neighbors)
     colors = np.full((n, 3), 0.5, np.float32) if cloud.colors is None else cloud.colors.astype(np.float32) / 255.0
     source = np.asarray(cloud.fields.get("source", np.zeros(n)), dtype=np.uint8)
-    return OrientedPoints(positions, normals, colors, source, np.full(n, -1, np.int64), cloud.origin.copy(),
-                          _footprints(cloud, options))  # fmt: skip
-
-
-def _footprints(cloud: PointCloud, options: OrientedPointOptions) -> np.ndarray:
-    """Per point, metres: ``footprint_sigmas`` × its ``scale`` field where that is positive, else the mean distance to
-    its nearest survey points."""
-    n = len(cloud.positions)
-    scale = np.asarray(cloud.fields.get("scale", np.zeros(n)), dtype=np.float64)
-    footprint = options.footprint_sigmas * np.where(np.isfinite(scale), scale, 0.0)
-    missing = footprint <= 0
-    if missing.any():
-        k = min(options.normal_neighbors, n - 1)
-        d, _ = cKDTree(cloud.positions).query(cloud.positions[missing], k=k + 1)
-        footprint[missing] = d[:, 1:].mean(axis=1)
-    return footprint
+    return OrientedPoints(positions, normals, colors, source, np.full(n, -1, np.int64), cloud.origin.copy(), footprint)
