@@ -13,7 +13,7 @@ from hybridsplat.layout import ProjectLayout
 from hybridsplat.runner import stage_config
 from hybridsplat.stages import StageContext, registered_stages
 
-SEEDED = {"sfm", "train", "background", "appearance", "baseline"}  # their run() passes ctx.config.seed on
+SEEDED = {"sfm", "train", "background", "appearance", "baseline", "tiles"}  # they use ctx.config.seed
 
 
 def _ctx(tmp_path: Path, seed: int) -> StageContext:
@@ -36,5 +36,5 @@ def test_the_seeded_stages_read_the_seed(tmp_path: Path):
 
     for stage in registered_stages():
         reads_seed = "ctx.config.seed" in inspect.getsource(type(stage).run)
-        if stage.name != "tiles":  # the tile stage keeps the seed in its own fingerprint (its sub-projects' seed)
+        if stage.name != "tiles":  # the tile stage passes the seed on in its sub-projects' config
             assert reads_seed == stage.uses_seed, stage.name

@@ -72,6 +72,7 @@ class TilesStage(Stage):
     name = "tiles"
     Options = TilesOptions
     title = "tiles"
+    uses_seed = True  # through its tile sub-projects' config
     run_options = (
         CliOption("grid", "--tiles", help="Split the survey into tiles: off | auto | NxM (docs/tiling.md)."),
         CliOption("overlap_m", "--tile-overlap", help="Metres each tile's core grows by (default: 10 % of a core)."),
@@ -115,7 +116,7 @@ class TilesStage(Stage):
         from hybridsplat.tile_projects import TILE_STAGES
 
         digests = {n: options_digest(ctx.config.options(n, _options_type(n))) for n in TILE_STAGES}
-        return {"held_out": sorted(ctx.source.holdout_names), "tile_stages": digests, "seed": ctx.config.seed}
+        return {"held_out": sorted(ctx.source.holdout_names), "tile_stages": digests}
 
     def needs(self, ctx: StageContext) -> str | None:
         return None if tiling_on(ctx) else "off (run --tiles auto|NxM to split a large survey into tiles)"
