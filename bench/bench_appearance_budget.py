@@ -33,20 +33,21 @@ RULES = [(patience, gain) for patience in (1, 2, 3) for gain in (0.02, 0.05, 0.1
 
 
 def _project_inputs(root: Path):
-    """(training cameras, photos by name, survey Gaussians, frozen context or None, seed), read as the appearance
+    """(training cameras, photos by name, survey Gaussians, context or None, seed), read as the appearance
     stage reads them (:func:`hybridsplat.stages.appearance.survey_layer_inputs`)."""
     from hybridsplat import project_io
     from hybridsplat.config import read_config
     from hybridsplat.layout import ProjectLayout
     from hybridsplat.source import resolve_source
     from hybridsplat.stages import stage_options_types
-    from hybridsplat.stages.appearance import survey_layer_inputs
+    from hybridsplat.stages.appearance import context_of, survey_layer_inputs
 
     layout = ProjectLayout(root)
     config = read_config(layout.config, stage_options_types())
     cameras, images = project_io.read_training_photos(layout, set(resolve_source(config.input).holdout_names))
-    mvs, needs, context = survey_layer_inputs(layout, cameras.origin)
-    return cameras, images, mvs.subset(np.flatnonzero(~needs)), context, config.seed
+    files = [p for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
+    mvs, needs, layers = survey_layer_inputs(layout, files)
+    return cameras, images, mvs.subset(np.flatnonzero(~needs)), context_of(layers, cameras.origin), config.seed
 
 
 def _refine(cameras, images, survey, context, steps: int, seed: int):

@@ -183,16 +183,16 @@ def summarise(method: str, points: list[MeasuredPoint | None], truths: list[Trut
 
 def render_views(project: Path, sfm: Cameras, names: set[str], product: str = "merged") -> dict[str, np.ndarray]:
     """Grey renders (H, W) float32 0–255 of the merged product at the SfM cameras (pinhole part); ``product``
-    "merged_unrefined": the control with the survey layer as converted (export/mvs_gaussians.ply's attributes)."""
+    "merged_unrefined": the control with every layer as before the appearance stage."""
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.render import render_gaussian_set
 
     layout = ProjectLayout(project)
     gs = read_gaussian_ply(layout.merged_ply)
     if product == "merged_unrefined":
-        from fusion.appearance import with_converted_survey
+        from hybridsplat.project_io import unrefined_layers
 
-        gs = with_converted_survey(gs, read_gaussian_ply(layout.mvs_gaussians), layout.merged_ply)
+        gs = unrefined_layers(layout, gs)
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -341,7 +341,7 @@ def _parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--product",
         choices=("merged", "merged_unrefined"),
         default="merged",
-        help="what (b) matches in: the merged product, or the control with its survey layer as converted",
+        help="what (b) matches in: the merged product, or the control with every layer as before the appearance stage",
     )
     ap.add_argument("--screenshot", type=Path, default=None, help="PNG of the viewer with a measurement")
     ap.add_argument("--exaggeration", type=float, default=20.0, help="ellipsoid scale in the screenshot")

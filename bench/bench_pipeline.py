@@ -68,7 +68,7 @@ PRODUCT_LABELS = {
     "merged": "hybrid",
     "mvs_filtered": "MVS as merged (no splats)",
     "merged_no_background": "hybrid without background",
-    "merged_unrefined": "hybrid, survey layer as converted",
+    "merged_unrefined": "hybrid, layers as before the appearance stage",
 }
 
 

@@ -286,7 +286,7 @@ def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
         "mvs": "no training",
         "mvs_filtered": "control: the MVS part of merged alone (no splats)",
         "merged_no_background": "control: merged without its background layer",
-        "merged_unrefined": "control: merged with its survey layer as converted (no appearance refinement)",
+        "merged_unrefined": "control: merged with every layer as before the appearance stage (no refinement)",
     }
     notes["baseline"] = _training_note(baseline, "whole scene")
     notes["merged"] = notes["splats"] = _training_note(train, "splats in the masks")

@@ -15,6 +15,10 @@ stays the MVS geometry:
 - no survey Gaussian is made invisible: α is kept at least :data:`MIN_OPACITY` (above the 1/255 under which the
   exporters drop a Gaussian), so the viewer product keeps one Gaussian per survey point.
 
+With ``refine_context`` the fill and background layers are refined in the same fit: positions frozen as well (row
+*i* of a refined layer is row *i* of the layer as trained), σ unbounded, and α never below the lesser of
+:data:`MIN_OPACITY` and its α as trained, so the refinement drops no fill splat the survey points and the mesh read.
+
 The survey products (points, LAS, C2C, the mesh, measurement) keep the converted attributes: only the viewer product
 (``export/merged.ply``) takes the refined ones. ``.splat`` files hold DC colour only: they get the refined DC colour,
 opacity, scales and rotations, not the higher SH bands.
@@ -54,7 +58,9 @@ def _appearance_training() -> TrainOptions:
 class AppearanceOptions:
     """Options of :func:`refine_survey_appearance` (the ``appearance`` stage's options).
 
-    enabled: refine the survey layer's appearance for the viewer product. max_image_size: longer side of the
+    enabled: refine the survey layer's appearance for the viewer product. refine_context: refine the fill and
+    background layers beside it in the same fit (colour, opacity, scales and rotations; their positions frozen too,
+    their σ unbounded), instead of keeping them frozen as trained. max_image_size: longer side of the
     training photos (px; 0 = full size). max_scale_spacings: the largest σ of a survey Gaussian, in multiples of
     its point's local spacing (never below its converted σ). spacing_neighbours: neighbours of that spacing.
     training: the trainer's options (positions frozen: ``lr_means`` must be 0; the strategy must not refine; its
@@ -66,10 +72,13 @@ class AppearanceOptions:
     held-back training pixels (demo scene, docs/experiments/2026-11-27-survey-appearance.md): degree 3 above degree 1,
     still rising at 1000 steps, so up to 2000 steps ended by the trainer's early stop on those pixels. That stop
     waits 2 windows without a gain of 0.05 dB (the trainer waits 3), chosen on the held-back pixels and on held-back
-    training views of the demo and the fountain (docs/experiments/2026-11-28-appearance-budget.md).
+    training views of the demo and the fountain (docs/experiments/2026-11-28-appearance-budget.md). ``refine_context``
+    on by the held-out views of four tuning layouts (random-object 0, random-aerial 0–2; seeds no figure is scored
+    on): whole-image PSNR and LPIPS better on all four (docs/experiments/2026-11-28-joint-refinement.md).
     """
 
     enabled: bool = True
+    refine_context: bool = True
     max_image_size: int = 640
     max_scale_spacings: float = 1.0
     spacing_neighbours: int = 8
@@ -105,11 +114,13 @@ def scale_bounds(means: np.ndarray, log_scales: np.ndarray, multiple: float, nei
 @dataclass
 class AppearanceResult:
     """The survey Gaussians with refined appearance (same rows, origin and float64 means as the input; SH at the
-    training degree), the trainer's result and counts."""
+    training degree), the context refined beside them (``refine_context``; same rows, origin, float64 means and
+    fields as the input context; None when it stayed frozen or there was none), the trainer's result and counts."""
 
     gaussians: GaussianSet
     training: Any
     counts: dict[str, Any]
+    context: GaussianSet | None = None
 
 
 def refine_survey_appearance(
@@ -122,24 +133,39 @@ def refine_survey_appearance(
     progress: Callable[[Any], None] | None = None,
 ) -> AppearanceResult:
     """Fit the appearance of ``survey`` (the MVS Gaussians of the survey layer, any origin) to ``images`` (name →
-    (H, W, 3) photo at its camera's size; the training photos only) with ``context`` (the fill and background
-    layers) frozen beside it, on every pixel. Positions are returned bit for bit."""
+    (H, W, 3) photo at its camera's size; the training photos only) beside ``context`` (the fill and background
+    layers), on every pixel: the context frozen, or with ``options.refine_context`` refined in the same fit (its
+    positions frozen as well, its σ unbounded, its α free). Positions are returned bit for bit."""
     from fusion.train.masked import training_downscale
     from fusion.train.trainer import train_splats
 
     if len(survey) == 0:
         raise ConfigError("no survey Gaussians: nothing to refine")
+    joint = options.refine_context and context is not None and len(context) > 0
     bounds = scale_bounds(survey.means, survey.log_scales, options.max_scale_spacings, options.spacing_neighbours)
+    init, frozen = survey, context
+    if joint:
+        assert context is not None
+        init, frozen = GaussianSet.concatenate([survey, context]), None
+        bounds = np.r_[bounds, np.full(len(context), np.inf)]
     downscale = training_downscale(cameras, options.training.downscale, options.max_image_size)
-    strategy = replace(options.training.strategy, cap=max(options.training.strategy.cap, len(survey)))
+    strategy = replace(options.training.strategy, cap=max(options.training.strategy.cap, len(init)))
     train_opts = replace(options.training, downscale=downscale, seed=seed, strategy=strategy)
-    result = train_splats(cameras, images, None, survey, context, train_opts, progress, max_scales=bounds)
+    result = train_splats(cameras, images, None, init, frozen, train_opts, progress, max_scales=bounds)
     trained = result.splats.with_origin(survey.origin)
+    n = len(survey)
     least = np.float32(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
-    opacities = np.maximum(trained.logit_opacities, least)
-    refined = GaussianSet(survey.means.copy(), trained.log_scales, trained.quats, opacities, trained.sh_dc,
-                          trained.sh_rest, survey.origin.copy(), fields=dict(survey.fields))  # fmt: skip
-    at_bound = np.exp(refined.log_scales.astype(np.float64).max(axis=1)) >= bounds * (1 - 1e-5)
+    opacities = np.maximum(trained.logit_opacities[:n], least)
+    refined = GaussianSet(survey.means.copy(), trained.log_scales[:n], trained.quats[:n], opacities,
+                          trained.sh_dc[:n], trained.sh_rest[:n], survey.origin.copy(),
+                          fields=dict(survey.fields))  # fmt: skip
+    refined_context = None
+    if joint:
+        assert context is not None  # no Gaussian is made invisible that was not: the survey points know it
+        refined_context = with_attributes(context, trained.subset(np.arange(n, len(trained))))
+        floor = np.minimum(context.logit_opacities.astype(np.float32), least)
+        refined_context.logit_opacities = np.maximum(refined_context.logit_opacities, floor)
+    at_bound = np.exp(refined.log_scales.astype(np.float64).max(axis=1)) >= bounds[:n] * (1 - 1e-5)
     history = result.history
     counts = {
         "gaussians": len(refined),
@@ -148,50 +174,78 @@ def refine_survey_appearance(
         "resolution": list(result.resolution),
         "sh_degree": train_opts.sh_degree,
         "at_scale_bound": int(at_bound.sum()),
-        "at_least_opacity": int((trained.logit_opacities < least).sum()),
+        "at_least_opacity": int((trained.logit_opacities[:n] < least).sum()),
         "holdout_psnr_db_first": history[0].holdout_psnr if history else None,
         "holdout_psnr_db": history[-1].holdout_psnr if history else None,
-        "context_gaussians": result.context_total,
+        "context_gaussians": len(context) if context is not None else 0,
+        "context_refined": len(refined_context) if refined_context is not None else 0,
         "seconds_training": result.seconds,
     }
-    return AppearanceResult(refined, result, counts)
+    return AppearanceResult(refined, result, counts, refined_context)
 
 
-def with_converted_survey(merged: GaussianSet, converted: GaussianSet, source_path: Any = None) -> GaussianSet:
+def with_attributes(base: GaussianSet, trained: GaussianSet) -> GaussianSet:
+    """``base`` (positions, origin and fields kept bit for bit) with the scales, rotations, opacities and SH of
+    ``trained`` (the same rows, any origin)."""
+    return GaussianSet(base.means.copy(), trained.log_scales, trained.quats, trained.logit_opacities, trained.sh_dc,
+                       trained.sh_rest, base.origin.copy(), fields=dict(base.fields))  # fmt: skip
+
+
+def with_converted_survey(
+    merged: GaussianSet,
+    converted: GaussianSet,
+    source_path: Any = None,
+    *,
+    fill: GaussianSet | None = None,
+    background: GaussianSet | None = None,
+) -> GaussianSet:
     """``merged`` (a set with a ``source`` field, e.g. export/merged.ply) with its survey rows (``Source.MVS``) given
-    back the attributes of the converted MVS Gaussian at the same position (``converted``: export/mvs_gaussians.ply,
-    the same origin). The survey layer's positions are the conversion's bit for bit, so positions identify the rows;
-    of several converted Gaussians at one position, the first is taken. What the survey products (the mesh, the
-    controls that measure MVS) read instead of the refined appearance. Raises :class:`DataError` (naming
-    ``source_path``) when a survey row matches no converted Gaussian."""
+    back the attributes of the converted MVS Gaussian at the same position (``converted``: export/mvs_gaussians.ply),
+    and, when given, its fill rows (``Source.SPLAT``) those of ``fill`` (splats/cleaned.ply) and its background rows
+    (``Source.BACKGROUND``) those of ``background`` (splats/background.ply): the layers as before the appearance
+    stage. The refinement never moves a Gaussian, so positions identify the rows (each reference is brought to
+    ``merged``'s origin as the merge brings it); of several Gaussians at one position, the first is taken. What the
+    survey products (the mesh, the controls that measure MVS) read instead of the refined appearance. Raises
+    :class:`DataError` (naming ``source_path``) when a row matches no Gaussian of its reference."""
     from core.errors import DataError
     from fusion.convert_options import Source
 
     if "source" not in merged.fields:
         raise DataError("the merged Gaussians have no 'source' field: the survey layer cannot be told apart",
                         source_path)  # fmt: skip
-    rows = np.flatnonzero(np.asarray(merged.fields["source"]) == Source.MVS)
-    if len(rows) == 0:
-        return merged
-    if not np.array_equal(merged.origin, converted.origin):
-        raise DataError("the merged Gaussians and the converted MVS Gaussians have different origins", source_path)
-    keys = _position_keys(converted.means)
-    order = np.argsort(keys, kind="stable")
-    wanted = _position_keys(merged.means[rows])
-    at = np.minimum(np.searchsorted(keys[order], wanted), len(order) - 1)
-    found = keys[order][at] == wanted
-    if not found.all():
-        raise DataError(f"{int((~found).sum())} survey Gaussians of the merged product lie where no converted MVS "
-                        f"Gaussian does: the conversion changed since the merge", source_path)  # fmt: skip
-    index = order[at]
-    source = converted.with_sh_degree(merged.sh_degree)
     out = merged.subset(np.arange(len(merged)))
+    references = {Source.MVS: ("converted MVS Gaussian", converted), Source.SPLAT: ("fill splat", fill),
+                  Source.BACKGROUND: ("background Gaussian", background)}  # fmt: skip
+    for source, (what, reference) in references.items():
+        rows = np.flatnonzero(np.asarray(merged.fields["source"]) == source)
+        if reference is None or len(rows) == 0:
+            continue
+        if source == Source.MVS and not np.array_equal(merged.origin, converted.origin):
+            raise DataError("the merged Gaussians and the converted MVS Gaussians have different origins",
+                            source_path)  # fmt: skip
+        _restore_rows(out, rows, reference.with_origin(merged.origin), what, source_path)
+    return out
+
+
+def _restore_rows(out: GaussianSet, rows: np.ndarray, reference: GaussianSet, what: str, source_path: Any) -> None:
+    """Gives ``out``'s ``rows`` (in place) the attributes of the ``reference`` Gaussian at the same position."""
+    from core.errors import DataError
+
+    keys = _position_keys(reference.means)
+    order = np.argsort(keys, kind="stable")
+    wanted = _position_keys(out.means[rows])
+    at = np.minimum(np.searchsorted(keys[order], wanted), len(order) - 1)
+    found = keys[order][at] == wanted if len(order) else np.zeros(len(rows), bool)
+    if not found.all():
+        raise DataError(f"{int((~found).sum())} Gaussians of the merged product lie where no {what} does: the "
+                        f"layer changed since the merge", source_path)  # fmt: skip
+    index = order[at]
+    source = reference.with_sh_degree(out.sh_degree)
     out.log_scales[rows] = source.log_scales[index]
     out.quats[rows] = source.quats[index]
     out.logit_opacities[rows] = source.logit_opacities[index]
     out.sh_dc[rows] = source.sh_dc[index]
     out.sh_rest[rows] = source.sh_rest[index]  # type: ignore[index]
-    return out
 
 
 def _position_keys(means: np.ndarray) -> np.ndarray:

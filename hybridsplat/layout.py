@@ -159,6 +159,18 @@ class ProjectLayout:
         return self.splats_dir / "survey.ply"
 
     @property
+    def refined_fill_splats(self) -> Path:
+        """The fill layer (splats/cleaned.ply) with its appearance refined for viewers beside the survey layer, row
+        for row, positions bit for bit (``fusion.appearance``, ``refine_context``)."""
+        return self.splats_dir / "fill_refined.ply"
+
+    @property
+    def refined_background_splats(self) -> Path:
+        """The background layer (splats/background.ply) with its appearance refined for viewers beside the survey
+        layer, row for row, positions bit for bit (``fusion.appearance``, ``refine_context``)."""
+        return self.splats_dir / "background_refined.ply"
+
+    @property
     def snapshots_dir(self) -> Path:
         return self.splats_dir / "snapshots"
 
@@ -317,6 +329,8 @@ class ProjectLayout:
             "splats/snapshots/": self.snapshots_dir,
             "splats/background.ply": self.background_splats,
             "splats/survey.ply": self.survey_splats,
+            "splats/fill_refined.ply": self.refined_fill_splats,
+            "splats/background_refined.ply": self.refined_background_splats,
             "splats/baseline.ply": self.baseline_splats,
             "splats/baseline_checkpoints/": self.baseline_checkpoints_dir,
             "export/mvs_gaussians.ply": self.mvs_gaussians,

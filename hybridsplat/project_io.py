@@ -192,3 +192,20 @@ def read_needs_splats_class_codes(layout: ProjectLayout) -> dict[str, int]:
     if not stored:
         return {}
     return {c.name: c.code for c in ClassSet.from_dict(stored, report).classes if c.needs_splats}
+
+
+# ------------------------------------------------------------------------------------- merge: the unrefined product
+
+
+def unrefined_layers(layout: ProjectLayout, merged: Any) -> Any:
+    """``merged`` (export/merged.ply as read, a GaussianSet) with every layer as before the appearance stage: the
+    survey rows with export/mvs_gaussians.ply's attributes, the fill rows with splats/cleaned.ply's and the
+    background rows with splats/background.ply's, where those files exist (:func:`fusion.appearance.
+    with_converted_survey`). What the survey products and the ``merged_unrefined`` control read."""
+    from core.io.gaussian_ply import read_gaussian_ply
+    from fusion.appearance import with_converted_survey
+
+    fill, background = (read_gaussian_ply(p) if p.is_file() else None
+                        for p in (layout.cleaned_splats, layout.background_splats))  # fmt: skip
+    converted = read_gaussian_ply(layout.mvs_gaussians)
+    return with_converted_survey(merged, converted, layout.merged_ply, fill=fill, background=background)

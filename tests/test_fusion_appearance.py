@@ -101,7 +101,7 @@ def test_the_trainer_refuses_a_scale_bound_on_a_set_that_may_grow():
     images = {v.name: np.full((36, 48, 3), 0.5) for v in cameras}
     with pytest.raises(ConfigError, match="fixed set"):
         train_splats(cameras, images, None, gs, None, TrainOptions(iterations=400), max_scales=np.full(50, 0.02))
-    with pytest.raises(ConfigError, match="one finite"):
+    with pytest.raises(ConfigError, match="one σ > 0"):
         train_splats(cameras, images, None, gs, None, TrainOptions(iterations=5), max_scales=np.full(49, 0.02))
 
 
@@ -127,7 +127,7 @@ def test_survey_rows_get_the_converted_attributes_back():
         np.testing.assert_array_equal(getattr(restored, name)[len(keep) :], getattr(fill, name))
     moved = merged.subset(np.arange(len(merged)))
     moved.means[0, 0] += 1e-9
-    with pytest.raises(DataError, match="no converted MVS"):
+    with pytest.raises(DataError, match="no converted MVS Gaussian does"):
         with_converted_survey(moved, converted, "merged.ply")
 
 
@@ -139,6 +139,83 @@ def test_no_survey_gaussian_is_made_invisible():
     converted = _set(points, np.full((200, 3), 0.5), 0.02, 2.0)
     training = TrainOptions(iterations=100, lr_means=0.0, sh_degree=0, min_iterations=100, lr_opacities=0.2,
                             strategy=DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0))  # fmt: skip
-    result = refine_survey_appearance(cameras, images, converted, None, AppearanceOptions(training=training), 0)
+    context = _set(1.5 * _ball(n=100, seed=2), np.full((100, 3), 0.5), 0.05, 2.0)
+    context.logit_opacities[:10] = -8.0  # α 3e-4: invisible as trained, and stays so
+    result = refine_survey_appearance(cameras, images, converted, context, AppearanceOptions(training=training), 0)
     alpha = 1 / (1 + np.exp(-result.gaussians.logit_opacities.astype(np.float64)))
     assert result.counts["at_least_opacity"] > 0 and alpha.min() >= MIN_OPACITY * (1 - 1e-5)
+    assert result.context is not None
+    context_alpha = 1 / (1 + np.exp(-result.context.logit_opacities.astype(np.float64)))
+    assert context_alpha[10:].min() >= MIN_OPACITY * (1 - 1e-5)  # the fit wants them at 0: none made invisible
+    assert context_alpha[:10].max() < 1e-3
+
+
+def _two_layers(cameras: Cameras) -> tuple[GaussianSet, GaussianSet, dict[str, np.ndarray]]:
+    """The truth: a red/blue survey ball inside a green shell of context Gaussians; returns (survey truth, context
+    truth, photos)."""
+    from fusion.render.scene import render_gaussian_set
+
+    points, shell = _ball(), 2.0 * _ball(n=300, seed=1)
+    rgb = np.where(points[:, 2:3] > 0, [0.9, 0.2, 0.1], [0.1, 0.3, 0.9])
+    survey, context = _set(points, rgb, 0.03, 4.0), _set(shell, np.tile([0.1, 0.8, 0.2], (300, 1)), 0.06, 4.0)
+    both = GaussianSet.concatenate([survey, context])
+    images = {v.name: render_gaussian_set(both, cameras.camera_of(v), v).colour.detach().numpy() for v in cameras}
+    return survey, context, images
+
+
+def test_the_context_is_refined_beside_the_survey_layer_positions_bit_for_bit():
+    cameras = _ring(distance=3.0)
+    survey_truth, context_truth, images = _two_layers(cameras)
+    grey = np.full((len(survey_truth), 3), 0.5)
+    survey = _set(survey_truth.means, grey, 0.012, 0.0)
+    context = _set(context_truth.means, np.full((len(context_truth), 3), 0.5), 0.06, 0.0)
+    context.fields["classification"] = np.arange(len(context), dtype=np.uint8)
+    training = TrainOptions(iterations=150, lr_means=0.0, sh_degree=0, min_iterations=150, lr_sh_dc=0.02,
+                            strategy=DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0))  # fmt: skip
+    frozen = refine_survey_appearance(cameras, images, survey, context,
+                                      AppearanceOptions(refine_context=False, training=training), 0)  # fmt: skip
+    joint = refine_survey_appearance(cameras, images, survey, context, AppearanceOptions(training=training), 0)
+    assert frozen.context is None and frozen.counts["context_refined"] == 0
+    refined = joint.context
+    assert refined is not None and joint.counts["context_refined"] == len(context)
+    assert np.array_equal(refined.means, context.means) and np.array_equal(refined.origin, context.origin)
+    assert np.array_equal(refined.fields["classification"], context.fields["classification"])
+    assert np.array_equal(joint.gaussians.means, survey.means)
+
+    def colour_error(gs: GaussianSet, truth: GaussianSet) -> float:
+        return float(np.abs(gs.sh_dc - truth.sh_dc).mean())
+
+    assert colour_error(refined, context_truth) < 0.5 * colour_error(context, context_truth)
+    from fusion.render.scene import render_gaussian_set
+
+    def image_error(survey_layer: GaussianSet, context_layer: GaussianSet) -> float:
+        both = GaussianSet.concatenate([survey_layer, context_layer])
+        return float(np.mean([np.abs(render_gaussian_set(both, cameras.camera_of(v), v).colour.detach().numpy()
+                                     - images[v.name]).mean() for v in cameras]))  # fmt: skip
+
+    assert image_error(joint.gaussians, refined) < 0.5 * image_error(frozen.gaussians, context)
+
+
+def test_every_layer_gets_its_attributes_back_by_position():
+    rng = np.random.default_rng(5)
+    converted = _set(rng.normal(size=(30, 3)), rng.uniform(size=(30, 3)), 0.01, 1.0)
+    fill = _set(rng.normal(size=(12, 3)), rng.uniform(size=(12, 3)), 0.02, 0.5)
+    background = _set(50 + rng.normal(size=(9, 3)), rng.uniform(size=(9, 3)), 0.5, 0.5)
+    fill.origin = np.array([0.25, -1.0, 3.0])  # another origin: rows are matched where the merge brings them
+    refined = [g.with_sh_degree(1) for g in (converted, fill, background)]
+    for g in refined:
+        g.sh_dc += 0.3
+        g.logit_opacities -= 2.0
+        g.log_scales += 0.1
+    merged = GaussianSet.concatenate([refined[0], refined[1].subset(np.arange(12)[::-2]), refined[2]])
+    sources = [Source.MVS] * 30 + [Source.SPLAT] * 6 + [Source.BACKGROUND] * 9
+    merged.fields["source"] = np.array(sources, np.uint8)
+    survey_only = with_converted_survey(merged, converted)
+    np.testing.assert_array_equal(survey_only.sh_dc[30:], merged.sh_dc[30:])  # without references: refined
+    restored = with_converted_survey(merged, converted, fill=fill, background=background)
+    np.testing.assert_array_equal(restored.sh_dc[:30], converted.sh_dc)
+    np.testing.assert_array_equal(restored.logit_opacities[30:36], fill.logit_opacities[::-2])
+    np.testing.assert_array_equal(restored.log_scales[36:], background.log_scales)
+    np.testing.assert_array_equal(restored.means, merged.means)
+    with pytest.raises(DataError, match="no fill splat does"):
+        with_converted_survey(merged, converted, fill=fill.subset(np.arange(11)))  # row 11 is merged

@@ -203,6 +203,40 @@ def test_the_survey_layer_is_refined_for_viewers_only(project):
     assert record["gaussians"] == len(converted) - record["unrefined_needs_splats"]
 
 
+def test_the_fill_and_background_are_refined_for_viewers_only(project):
+    """splats/fill_refined.ply and background_refined.ply: splats/cleaned.ply and background.ply row for row,
+    positions bit for bit, appearance refined; the viewer product takes them, the survey points keep the fill as
+    trained, and the merged_unrefined control gives every layer back its attributes as trained."""
+    from core.io import read_point_cloud
+    from fusion.convert_options import Source
+    from hybridsplat.project_io import unrefined_layers
+
+    _, project = project
+    layout = ProjectLayout(project)
+    merged = read_gaussian_ply(layout.merged_ply)
+    sources = np.asarray(merged.fields["source"])
+    for base_path, refined_path, source in ((layout.cleaned_splats, layout.refined_fill_splats, Source.SPLAT),
+                                            (layout.background_splats, layout.refined_background_splats,
+                                             Source.BACKGROUND)):  # fmt: skip
+        base, refined = read_gaussian_ply(base_path), read_gaussian_ply(refined_path)
+        assert len(base) == len(refined) and np.array_equal(base.means, refined.means), refined_path
+        assert np.array_equal(base.origin, refined.origin) and not np.array_equal(base.sh_dc, refined.sh_dc)
+        rows = np.flatnonzero(sources == source)
+        assert len(rows) > 0, source
+        row_of = {m.tobytes(): i for i, m in enumerate(refined.with_origin(merged.origin).means)}
+        match = np.array([row_of[m.tobytes()] for m in merged.means[rows]])
+        np.testing.assert_array_equal(merged.sh_dc[rows], refined.sh_dc[match])  # the viewer product: refined
+        unrefined = unrefined_layers(layout, merged)
+        np.testing.assert_array_equal(unrefined.sh_dc[rows], base.sh_dc[match])  # the control: as trained
+    splats = read_gaussian_ply(layout.cleaned_splats).with_origin(merged.origin)
+    points = read_point_cloud(layout.merged_points_ply)
+    fill_points = points.subset(np.asarray(points.fields["source"]) == Source.SPLAT)
+    row_of = {m.tobytes(): i for i, m in enumerate(splats.means)}
+    rows = np.array([row_of[m.tobytes()] for m in fill_points.with_origin(merged.origin).positions])
+    alpha = 1 / (1 + np.exp(-splats.logit_opacities[rows].astype(np.float64)))
+    np.testing.assert_allclose(fill_points.fields["opacity"], alpha, rtol=1e-6)  # the survey points: as trained
+
+
 def test_layers_are_chosen_on_export_render_and_view_and_named_in_the_sidecar(project, tmp_path, capsys):
     from fusion.convert_options import Source
     from hybridsplat.viewer.scene import load_project

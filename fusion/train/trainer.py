@@ -136,8 +136,8 @@ def _log_scale_bounds(max_scales: np.ndarray | None, init: GaussianSet, schedule
     if max_scales is None:
         return None
     bounds = np.asarray(max_scales, np.float64).reshape(-1)
-    if len(bounds) != len(init) or not (np.isfinite(bounds).all() and (bounds > 0).all()):
-        raise ConfigError(f"max_scales needs one finite σ > 0 (metres) per initial Gaussian ({len(init)}), "
+    if len(bounds) != len(init) or np.isnan(bounds).any() or not (bounds > 0).all():
+        raise ConfigError(f"max_scales needs one σ > 0 (metres; inf: unbounded) per initial Gaussian ({len(init)}), "
                           f"got {len(bounds)} values")  # fmt: skip
     if len(init) > schedule.strategy.cap or schedule.densifying_until > 0:
         raise ConfigError("max_scales needs a fixed set: the strategy must not densify (refine_start >= the end of "
@@ -168,9 +168,9 @@ def train_splats(
     :class:`TrainResult`; deterministic for a given seed on the CPU.
     lpips: the frozen LPIPS network (an :class:`eval.lpips.LPIPS`), needed when ``options.lpips_weight`` > 0 and
     never called otherwise.
-    max_scales: (N,) per Gaussian of ``init``, metres: after every step each σ is clamped to at most it (a projection
-    onto the bound, as the appearance refinement of the survey layer needs); the set must keep its count and order,
-    so the strategy must not densify and ``init`` must fit its cap.
+    max_scales: (N,) per Gaussian of ``init``, metres (inf: no bound): after every step each σ is clamped to at
+    most it (a projection onto the bound, as the appearance refinement of the survey layer needs); the set must keep
+    its count and order, so the strategy must not densify and ``init`` must fit its cap.
     """
     opts = options or TrainOptions()
     t0 = time.perf_counter()

@@ -5,7 +5,10 @@ The MVS Gaussians of the survey layer (export/mvs_gaussians.ply less the points 
 background (splats/background.ply) layers frozen beside them, positions frozen bit for bit
 (:mod:`fusion.appearance`). splats/survey.ply holds one Gaussian per converted MVS Gaussian, in the same order (the
 points that need splats unrefined); ``merge`` builds the viewer product from it, while the survey products keep
-the converted attributes.
+the converted attributes. With ``refine_context`` (the default) the fill and background layers are refined in the
+same fit, positions frozen too: splats/fill_refined.ply and splats/background_refined.ply, row for row with
+splats/cleaned.ply and splats/background.ply, for the viewer product only (the survey points and the mesh read the
+layers as trained).
 """
 
 from __future__ import annotations
@@ -32,11 +35,21 @@ class AppearanceStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout, ws = ctx.layout, ctx.layout.dense_workspace
-        optional = [layout.cleaned_splats, layout.background_splats, layout.classified_points]
+        optional = [*layer_files(ctx), layout.classified_points]
         return [layout.mvs_gaussians, *(p for p in optional if p.is_file()), ws.sparse, ws.images]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.survey_splats]
+        return [ctx.layout.survey_splats, *(refined for _, refined in self._refined_layers(ctx))]
+
+    def _refined_layers(self, ctx: StageContext) -> list[tuple[Path, Path]]:
+        """(layer as trained, its refined copy) for the fill and background layers that exist, with
+        ``refine_context``; none without."""
+        layout = ctx.layout
+        if not ctx.options(self).refine_context:
+            return []
+        refined = {layout.cleaned_splats: layout.refined_fill_splats,
+                   layout.background_splats: layout.refined_background_splats}  # fmt: skip
+        return [(base, refined[base]) for base in layer_files(ctx)]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         return {"held_out": sorted(ctx.source.holdout_names)}
@@ -49,9 +62,12 @@ class AppearanceStage(Stage):
         """Bytes of splats/survey.ply: the converted MVS Gaussians (export/mvs_gaussians.ply's count and fields) at
         the training SH degree, an origin sidecar and the log (64 KiB)."""
         opts: AppearanceOptions = ctx.options(self)
-        mvs = sizes.ply_vertices(ctx.layout.mvs_gaussians)
-        degree = max(mvs.sh_degree, opts.training.sh_degree)
-        return sizes.gaussian_ply_bytes(mvs.count, degree, len(mvs.extras)) + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
+        total = sizes.SIDECAR_BYTES + sizes.LOG_BYTES
+        for path in [ctx.layout.mvs_gaussians, *(base for base, _ in self._refined_layers(ctx))]:
+            layer = sizes.ply_vertices(path)
+            degree = max(layer.sh_degree, opts.training.sh_degree)
+            total += sizes.gaussian_ply_bytes(layer.count, degree, len(layer.extras)) + sizes.SIDECAR_BYTES
+        return total
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
         import numpy as np
@@ -61,10 +77,12 @@ class AppearanceStage(Stage):
 
         layout = ctx.layout
         cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
-        mvs, needs, context = survey_layer_inputs(layout, cameras.origin)
+        mvs, needs, layers = survey_layer_inputs(layout, layer_files(ctx))
         survey = np.flatnonzero(~needs)
         if len(survey) == 0:
             write_gaussian_ply(layout.survey_splats, mvs)
+            for base, refined in self._refined_layers(ctx):
+                write_gaussian_ply(refined, layers[base])
             return {"gaussians": 0, "reason": "every MVS point needs splats: the survey layer is empty"}
         from fusion.appearance import refine_survey_appearance  # torch: after the inputs are read
 
@@ -73,6 +91,7 @@ class AppearanceStage(Stage):
                          info.iterations)  # fmt: skip
 
         opts: AppearanceOptions = ctx.options(self)
+        context = context_of(layers, cameras.origin)
         result = refine_survey_appearance(cameras, images, mvs.subset(survey), context, opts, ctx.config.seed,
                                           progress)  # fmt: skip
         out = mvs.with_sh_degree(result.gaussians.sh_degree)
@@ -81,6 +100,7 @@ class AppearanceStage(Stage):
         out.logit_opacities[survey], out.sh_dc[survey] = refined.logit_opacities, refined.sh_dc
         out.sh_rest[survey] = refined.sh_rest
         write_gaussian_ply(layout.survey_splats, out)
+        _write_refined_layers(self._refined_layers(ctx), layers, result.context)
         return {**result.counts, "unrefined_needs_splats": int(needs.sum())}
 
     def summary(self, counts: dict[str, Any]) -> str:
@@ -88,28 +108,64 @@ class AppearanceStage(Stage):
             return f"survey layer not refined: {counts.get('reason', 'nothing to refine')}"
         first, last = counts.get("holdout_psnr_db_first"), counts.get("holdout_psnr_db")
         psnr = f", held-back PSNR {first:.2f} -> {last:.2f} dB" if first is not None and last is not None else ""
+        context = counts.get("context_refined", 0)
+        beside = f" with {context} fill and background Gaussians" if context else ""
         return (
-            f"{counts['gaussians']} survey Gaussians refined (positions frozen), {counts['iterations']} steps, "
-            f"SH {counts['sh_degree']}{psnr}"
+            f"{counts['gaussians']} survey Gaussians refined{beside} (positions frozen), {counts['iterations']} "
+            f"steps, SH {counts['sh_degree']}{psnr}"
         )
 
 
+def layer_files(ctx: StageContext) -> list[Path]:
+    """The layers the survey layer is refined beside: splats/cleaned.ply when it exists and splats/background.ply
+    when it exists and the background stage is on (a stage turned off leaves its file behind, unread)."""
+    from fusion.background import BackgroundOptions
+
+    layout = ctx.layout
+    background = ctx.config.options("background", BackgroundOptions).enabled and layout.background_splats.is_file()
+    return [layout.cleaned_splats] * layout.cleaned_splats.is_file() + [layout.background_splats] * background
+
+
 def survey_layer_inputs(
-    layout: ProjectLayout, origin: np.ndarray
-) -> tuple[GaussianSet, np.ndarray, GaussianSet | None]:
+    layout: ProjectLayout, layers: list[Path]
+) -> tuple[GaussianSet, np.ndarray, dict[Path, GaussianSet]]:
     """What the stage refines and beside what: the converted MVS Gaussians (export/mvs_gaussians.ply), which of them
-    need splats ((N,) bool; none without classified points) and the frozen context (the fill and background layers
-    that exist and are not empty, at ``origin``; None without any)."""
+    need splats ((N,) bool; none without classified points) and the ``layers`` (file → set as read, in order)."""
     import numpy as np
 
-    from core.gaussians import GaussianSet
     from core.io.gaussian_ply import read_gaussian_ply
     from hybridsplat import project_io
 
     mvs = read_gaussian_ply(layout.mvs_gaussians)
     needs = (project_io.needs_splats_per_gaussian(layout, mvs) if layout.classified_points.is_file()
              else np.zeros(len(mvs), bool))  # fmt: skip
-    layers = [read_gaussian_ply(p) for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
-    layers = [g for g in layers if len(g)]
-    context = GaussianSet.concatenate([g.with_origin(origin) for g in layers]) if layers else None
-    return mvs, needs, context
+    return mvs, needs, {p: read_gaussian_ply(p) for p in layers}
+
+
+def context_of(layers: dict[Path, GaussianSet], origin: np.ndarray) -> GaussianSet | None:
+    """The non-empty ``layers`` concatenated in order at ``origin`` (the context the survey layer is refined
+    beside); None without any."""
+    from core.gaussians import GaussianSet
+
+    visible = [g for g in layers.values() if len(g)]
+    return GaussianSet.concatenate([g.with_origin(origin) for g in visible]) if visible else None
+
+
+def _write_refined_layers(
+    pairs: list[tuple[Path, Path]], layers: dict[Path, GaussianSet], refined: GaussianSet | None
+) -> None:
+    """Writes each refined copy of ``pairs`` (layer file → its refined file): the layer's rows of ``refined`` (the
+    non-empty ``layers`` concatenated in order, as refined beside the survey layer) on the layer's own positions,
+    origin and fields; an empty layer as it is."""
+    import numpy as np
+
+    from core.io.gaussian_ply import write_gaussian_ply
+    from fusion.appearance import with_attributes
+
+    start = 0
+    for base, path in pairs:
+        layer = layers[base]
+        if len(layer) and refined is not None:
+            rows = refined.subset(np.arange(start, start + len(layer)))
+            layer, start = with_attributes(layer, rows), start + len(layer)
+        write_gaussian_ply(path, layer)

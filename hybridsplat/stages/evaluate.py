@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from core.errors import ConfigError
-from hybridsplat.project_io import model_origin, read_model_at
+from hybridsplat.project_io import model_origin, read_model_at, unrefined_layers
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
 
@@ -104,8 +104,9 @@ what the background adds to the whole image is told apart from what the survey a
 
 
 UNREFINED = "merged_unrefined"
-"""The control beside ``merged``: the same product with its survey layer as converted (the appearance stage's
-refinement undone), so that what the refinement adds is told apart from what the fill and background do."""
+"""The control beside ``merged``: the same product with every layer as before the appearance stage (the survey layer
+as converted, the fill and background as trained), so that what the refinement adds is told apart from what the
+layers themselves do."""
 
 
 def _converted_survey(gaussians: Any, converted_path: Path, gaussians_path: Path) -> Any:
@@ -387,11 +388,11 @@ class EvalStage(Stage):
             (layout.merged_points_ply, layout.merged_ply),
             lambda: (layout.merged_points_ply, _without_background(layout.merged_ply)),
         )
+        layers = [p for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]
         products[UNREFINED] = ProductSource(
-            (layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),
-            lambda: (layout.merged_points_ply, _converted_survey(read_gaussian_ply(layout.merged_ply),
-                                                                 layout.mvs_gaussians, layout.merged_ply)),
-        )  # fmt: skip
+            (layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians, *layers),
+            lambda: (layout.merged_points_ply, unrefined_layers(layout, read_gaussian_ply(layout.merged_ply))),
+        )
         products[FILTERED_MVS] = ProductSource(
             (layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),
             lambda: _filtered_mvs(layout.merged_points_ply, layout.merged_ply, layout.mvs_gaussians),

@@ -71,18 +71,34 @@ class MergeStage(Stage):
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
         extra = [layout.cleaned_splats, layout.classified_points, layout.masks_dir, layout.dense_workspace.sparse]
-        layers = [p for p in (self._background_file(ctx), self._survey_file(ctx)) if p is not None and p.is_file()]
-        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else []), *layers]
+        layers = [self._background_file(ctx), self._survey_file(ctx), *self._refined_files(ctx).values()]
+        return [layout.mvs_gaussians, *(extra if self._hybrid(ctx) else []), *(p for p in layers if p and p.is_file())]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:
         """Which optional layer files the merge reads (a stage turned off leaves its file behind, unread)."""
-        return {"background": self._background_file(ctx) is not None, "survey": self._survey_file(ctx) is not None}
+        refined = self._refined_files(ctx)
+        return {"background": self._background_file(ctx) is not None, "survey": self._survey_file(ctx) is not None,
+                **({"refined_layers": sorted(p.name for p in refined.values())} if refined else {})}  # fmt: skip
 
     def _survey_file(self, ctx: StageContext) -> Path | None:
         """splats/survey.ply (the survey layer's refined appearance) when the appearance stage is on."""
         from fusion.appearance import AppearanceOptions
 
         return ctx.layout.survey_splats if ctx.config.options("appearance", AppearanceOptions).enabled else None
+
+    def _refined_files(self, ctx: StageContext) -> dict[Path, Path]:
+        """Layer file → its refined copy for the viewer product (splats/fill_refined.ply,
+        splats/background_refined.ply), for the layers the appearance stage refines (``refine_context``)."""
+        from fusion.appearance import AppearanceOptions
+
+        layout = ctx.layout
+        opts = ctx.config.options("appearance", AppearanceOptions)
+        if not (opts.enabled and opts.refine_context):
+            return {}
+        refined = {layout.cleaned_splats: layout.refined_fill_splats} if self._hybrid(ctx) else {}
+        if self._background_file(ctx) is not None:
+            refined[layout.background_splats] = layout.refined_background_splats
+        return refined
 
     def _background_file(self, ctx: StageContext) -> Path | None:
         """splats/background.ply when the background stage is on."""
@@ -149,20 +165,24 @@ class MergeStage(Stage):
 
         layout = ctx.layout
         mvs = read_gaussian_ply(layout.mvs_gaussians)
-        refined = _refined_survey(self._survey_file(ctx), mvs)
+        refined = _refined_rows(self._survey_file(ctx), mvs, "the converted MVS Gaussians'")
         extra: dict[str, Any] = {"survey_refined": refined is not None}
         if self._hybrid(ctx):
             products = self._hybrid_products(ctx, mvs, refined)
-            gaussians, points, stats = products.gaussians, products.points, products.stats
+            gaussians, points = products.gaussians, products.points
             extra.update(products.counts)
         else:
             result = merge_gaussians(None, mvs)
-            gaussians, points, stats = result.gaussians, result.gaussians, result.stats
+            gaussians, points = result.gaussians, result.gaussians
             if refined is not None:  # the viewer set only: the survey points keep the converted attributes
                 gaussians = _same_rows(merge_gaussians(None, refined).gaussians, gaussians)
-        background = _background_layer(self._background_file(ctx), gaussians)
+        background_file = self._background_file(ctx)
+        background_file = self._refined_files(ctx).get(background_file, background_file)  # type: ignore[arg-type]
+        background = _background_layer(background_file, gaussians)
+        extra["background_refined"] = background_file == ctx.layout.refined_background_splats
         if background is not None:  # the viewer product only: the survey points never hold it
             gaussians = GaussianSet.concatenate([gaussians, background])
+        gaussians, layers = _visible_layers(gaussians)
         written = export_gaussian_ply(layout.merged_ply, gaussians, ExportOptions(extra_fields=True))
         crs = ctx.config.input.crs
         from core.io.origin import write_origin
@@ -172,9 +192,8 @@ class MergeStage(Stage):
         write_origin(layout.merged_ply, gaussians.origin, crs, layers={k: int(v) for k, v in LAYERS.items()})
         extra.update(_survey_exports(ctx, points, crs))
         _viewer_exports(ctx, gaussians, points, crs)
-        return {"merged": len(gaussians), "written": written.num_written, "mvs": stats.mvs_kept,
-                "splats": stats.splats_kept, "background": len(background) if background is not None else 0,
-                "points": len(points), **extra}  # fmt: skip
+        return {"merged": len(gaussians), "written": written.num_written, **layers, "points": len(points),
+                **extra}  # fmt: skip
 
     def _hybrid_products(self, ctx: StageContext, mvs: Any, refined: Any) -> Any:
         """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply; with ``refined`` (the
@@ -188,6 +207,8 @@ class MergeStage(Stage):
         layout = ctx.layout
         opts: MergeOptions = ctx.options(self)
         splats = read_gaussian_ply(layout.cleaned_splats)
+        fill_file = self._refined_files(ctx).get(layout.cleaned_splats)
+        refined_fill = _refined_rows(fill_file, splats, "splats/cleaned.ply's")
         needs = project_io.needs_splats_per_gaussian(layout, mvs)
         export_gaussian_ply(layout.splats_export, splats)
         cameras, _ = project_io.read_project_model(layout, layout.dense_workspace.sparse)
@@ -200,9 +221,11 @@ class MergeStage(Stage):
         products = hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
         if opts.splat_surface:
             _add_splat_surface(ctx, products, splats, views, (mvs, needs))
-        if refined is not None:
-            viewer = merge_hybrid(refined, splats, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
+        if refined is not None or refined_fill is not None:
+            survey, fill = mvs if refined is None else refined, splats if refined_fill is None else refined_fill
+            viewer = merge_hybrid(survey, fill, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
             products.gaussians = _same_rows(viewer, products.gaussians)
+        products.counts["fill_refined"] = refined_fill is not None
         return products
 
     def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
@@ -309,9 +332,10 @@ def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any
     }  # fmt: skip
 
 
-def _refined_survey(path: Path | None, mvs: Any) -> Any:
-    """The survey layer with refined appearance (splats/survey.ply), checked row for row against the converted
-    MVS Gaussians; None without the file."""
+def _refined_rows(path: Path | None, base: Any, what: str) -> Any:
+    """A layer with its appearance refined (splats/survey.ply, fill_refined.ply, background_refined.ply), checked row
+    for row against the layer as converted or trained (``base``, named ``what`` in the error); None without the
+    file."""
     import numpy as np
 
     from core.errors import DataError
@@ -320,9 +344,9 @@ def _refined_survey(path: Path | None, mvs: Any) -> Any:
     if path is None or not path.is_file():
         return None
     refined = read_gaussian_ply(path)
-    if len(refined) != len(mvs) or not np.array_equal(refined.means, mvs.means):
-        raise DataError("does not hold the converted MVS Gaussians' positions row for row: run the appearance stage "
-                        "again", path)  # fmt: skip
+    same = np.array_equal(refined.origin, base.origin) and np.array_equal(refined.means, base.means)
+    if len(refined) != len(base) or not same:
+        raise DataError(f"does not hold {what} positions row for row: run the appearance stage again", path)
     return refined
 
 
@@ -335,6 +359,23 @@ def _same_rows(viewer: Any, survey: Any) -> Any:
         raise AssertionError("the refined and converted survey layers merged to different rows")
     viewer.fields = dict(survey.fields)
     return viewer
+
+
+def _visible_layers(gaussians: Any) -> tuple[Any, dict[str, int]]:
+    """The viewer set without the Gaussians below the exporters' opacity threshold (``ExportOptions.min_opacity``:
+    invisible once quantised; a refined fill splat can fade to it) and its count per layer (``mvs``, ``splats``,
+    ``background``: what export/merged.ply holds)."""
+    import numpy as np
+
+    from fusion.convert_options import Source
+    from fusion.export import ExportOptions
+
+    visible = gaussians.opacities >= np.float32(ExportOptions().min_opacity)
+    if not visible.all():
+        gaussians = gaussians.subset(visible)
+    source = np.asarray(gaussians.fields["source"])
+    layers = {"mvs": Source.MVS, "splats": Source.SPLAT, "background": Source.BACKGROUND}
+    return gaussians, {name: int((source == value).sum()) for name, value in layers.items()}
 
 
 def _background_layer(path: Path | None, merged: Any) -> Any:

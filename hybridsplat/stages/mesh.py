@@ -85,8 +85,9 @@ class MeshStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         layout = ctx.layout
-        return [layout.merged_ply, layout.merged_points_ply, layout.mvs_gaussians, layout.snapshots_dir, layout.sparse,
-                layout.record("sfm")]  # fmt: skip
+        layers = [p for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]  # as trained
+        return [layout.merged_ply, layout.merged_points_ply, layout.mvs_gaussians, *layers, layout.snapshots_dir,
+                layout.sparse, layout.record("sfm")]  # fmt: skip
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         from core.io.origin import sidecar_path
@@ -121,10 +122,10 @@ class MeshStage(Stage):
         opts: MeshStageOptions = ctx.options(self)
         layout = ctx.layout
         merged = load_merged_with_source(layout.merged_ply, layout.merged_points_ply)
-        if layout.mvs_gaussians.is_file():  # the survey layer as converted: its refined appearance is for viewers
-            from fusion.appearance import with_converted_survey
+        if layout.mvs_gaussians.is_file():  # every layer as before the appearance stage: that is for viewers
+            from hybridsplat.project_io import unrefined_layers
 
-            merged = with_converted_survey(merged, read_gaussian_ply(layout.mvs_gaussians), layout.merged_ply)
+            merged = unrefined_layers(layout, merged)
         cameras = None
         if layout.sparse.is_dir():
             cameras = read_project_model(layout, layout.sparse)[0]
