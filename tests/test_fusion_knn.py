@@ -116,11 +116,11 @@ def test_far_outliers_and_separate_clusters_stay_exact_and_fast():
     plane = np.c_[rng.random((n, 2)) * 10, 0.01 * rng.random(n)]
     far = np.r_[plane, rng.random((5, 3)) * 1e4 - 5e3]  # 5 points up to 5 km away
     clusters = np.r_[plane, plane[:5000] + [1e5, 0, 0]]
-    grid = knn_grid_module._build(far, 8, 4.0)
+    grid = knn_grid_module.build_grid(far, 8, 4.0)
     assert grid is not None and grid.nx * grid.ny < 4 * len(far)
     _, _, _, n_far = knn_search._query(grid, 8, False)
     assert 1 <= n_far < 50  # the outliers (and maybe a few neighbours) take the block search
-    assert knn_grid_module._build(clusters, 8, 4.0) is None
+    assert knn_grid_module.build_grid(clusters, 8, 4.0) is None
     for p in (far, clusters):
         for k in (1, 8):
             d_grid, i_grid = knn_grid(p, k)
@@ -139,7 +139,7 @@ def test_block_search_alone_equals_brute_force(monkeypatch, k):
     monkeypatch.setattr(knn_search, "_RING_BUDGET", 0)
     total_far = 0
     for name, p in sorted(CASES.items()):
-        grid = knn_grid_module._build(np.ascontiguousarray(p, dtype=np.float64), k, 4.0)
+        grid = knn_grid_module.build_grid(np.ascontiguousarray(p, dtype=np.float64), k, 4.0)
         if grid is not None:
             total_far += knn_search._query(grid, k, False)[3]
         dist, idx = knn_grid(p, k)
@@ -160,7 +160,7 @@ def test_many_outliers_above_a_terrain_equal_kdtree():
     p = np.c_[uv, 2 * np.sin(uv[:, 0] / 2) + 0.002 * rng.normal(size=n)]
     m = n * 3 // 100
     p[:m] = rng.random((m, 3)) * [8, 8, 8] - [0, 0, 4]
-    grid = knn_grid_module._build(p, 8, 4.0)
+    grid = knn_grid_module.build_grid(p, 8, 4.0)
     assert grid is not None and grid.nx * grid.ny < 4 * n  # columns over (x, y): same sums as the k-d tree
     assert knn_search._query(grid, 8, False)[3] > m // 2
     for k in (1, 8):

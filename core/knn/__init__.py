@@ -10,7 +10,7 @@ done per column: the 3×3 neighbourhood is gathered once (when it holds at most 
 spots keep the z-windowed per-point scan) and each point of the column takes its k best among the gathered points within
 its r (branch-free filter, then insertion); a point whose k-th best is not within r falls back to the per-point ring
 scan. Points that would need more than ``_RING_BUDGET`` rings (isolated outliers) switch to a two-level search over
-blocks of ``_BLOCK``×``_BLOCK`` columns, each with its z range: blocks are visited ring by ring and pruned (with their
+blocks of ``BLOCK``×``BLOCK`` columns, each with its z range: blocks are visited ring by ring and pruned (with their
 columns) by the distance to their bounding box, which is exact and stays cheap however far the outlier is. Memory: the
 column table (≤ ``max_columns_per_point`` · N int64), a sorted copy of the points and one column key per point, O(N).
 

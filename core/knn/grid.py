@@ -1,5 +1,5 @@
 """The column grid of the k-NN search: points counting-sorted into square (x, y) columns of side h, z-sorted inside
-each column, with the z range of each block of ``_BLOCK``×``_BLOCK`` columns (see :mod:`core.knn`).
+each column, with the z range of each block of ``BLOCK``×``BLOCK`` columns (see :mod:`core.knn`).
 
 ``h`` is chosen from a robust box (0.1–99.9 % per axis) and N assuming a 2.5-D surface, then refined once from the
 measured column occupancy; points beyond the box are clamped into the border columns. The numba kernels that build
@@ -12,7 +12,7 @@ import numba
 import numpy as np
 
 from core.errors import DataError
-from core.knn.threads import _CHUNKS_PER_THREAD, run_threads
+from core.knn.threads import CHUNKS_PER_THREAD, run_threads
 
 
 def _target_per_column(k: int) -> float:
@@ -21,7 +21,7 @@ def _target_per_column(k: int) -> float:
     return 1.5 + 0.25 * k
 
 
-_BLOCK = 8
+BLOCK = 8
 """Columns per side of the blocks (with their z range) of the outliers' search."""
 
 _MAX_SCAN_FACTOR = 40.0
@@ -29,7 +29,9 @@ _MAX_SCAN_FACTOR = 40.0
 made of far-apart dense clusters, where no single column size suits all)."""
 
 
-def _checked(positions: np.ndarray, k: int) -> np.ndarray:
+def checked_positions(positions: np.ndarray, k: int) -> np.ndarray:
+    """``positions`` as contiguous (N, 3) float64 (metres), checked for a k-NN query: k ≥ 1, more than k points,
+    finite coordinates; raises :class:`DataError` otherwise."""
     p = np.ascontiguousarray(positions, dtype=np.float64)
     n = len(p)
     if k < 1 or n <= k:
@@ -41,7 +43,7 @@ def _checked(positions: np.ndarray, k: int) -> np.ndarray:
     return p
 
 
-def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
+def build_grid(p: np.ndarray, k: int, max_columns_per_point: float) -> ColumnGrid | None:
     """The column grid for ``p``, or None when a k-d tree will do better (see ``_MAX_SCAN_FACTOR``)."""
     n = len(p)
     # Grid geometry from a robust box (0.1–99.9 % per axis on a sample): far outliers are clamped into the
@@ -71,7 +73,7 @@ def _build(p: np.ndarray, k: int, max_columns_per_point: float) -> _Grid | None:
     np.cumsum(counts, out=col_start[1:])
     order = _scatter(col, col_start)
     del col  # the keys are not needed any more (N int64)
-    return _Grid(p, lo, h, nx, ny, col_start, order)
+    return ColumnGrid(p, lo, h, nx, ny, col_start, order)
 
 
 def _choose_cell(extent: np.ndarray, n: int, k: int, max_columns_per_point: float) -> float:
@@ -97,9 +99,9 @@ def _columns(p: np.ndarray, lo: np.ndarray, extent: np.ndarray, h: float) -> tup
     return col, np.bincount(col, minlength=nx * ny), nx, ny
 
 
-class _Grid:
+class ColumnGrid:
     """Points counting-sorted into (x, y) columns of side h (row-major), z-sorted inside each column, plus the z range
-    of each block of ``_BLOCK``×``_BLOCK`` columns."""
+    of each block of ``BLOCK``×``BLOCK`` columns."""
 
     def __init__(
         self, p: np.ndarray, lo: np.ndarray, h: float, nx: int, ny: int, col_start: np.ndarray, order: np.ndarray
@@ -111,12 +113,12 @@ class _Grid:
         # gather the points column by column and sort each column by z (threads over interleaved column chunks)
         self.sorted_xyz = np.empty_like(p)
         nth = numba.get_num_threads()
-        chunk = max(1, (nx * ny) // (nth * _CHUNKS_PER_THREAD) + 1)
+        chunk = max(1, (nx * ny) // (nth * CHUNKS_PER_THREAD) + 1)
         run_threads(_gather_sorted, (p, self.order, self.col_start, chunk, self.sorted_xyz), nth)
         self.lo = (float(lo[0]), float(lo[1]))
-        self.nbx = (nx + _BLOCK - 1) // _BLOCK
-        self.nby = (ny + _BLOCK - 1) // _BLOCK
-        self.bzmin, self.bzmax = _block_bounds(self.sorted_xyz, self.col_start, nx, ny, _BLOCK, self.nbx, self.nby)
+        self.nbx = (nx + BLOCK - 1) // BLOCK
+        self.nby = (ny + BLOCK - 1) // BLOCK
+        self.bzmin, self.bzmax = _block_bounds(self.sorted_xyz, self.col_start, nx, ny, BLOCK, self.nbx, self.nby)
         # slack for the rounding of column assignment: relative to h and to the coordinates' magnitude
         self.guard = 1e-9 * self.h + 16 * float(np.spacing(_max_abs_xy(p) + self.h * (nx + ny)))
 

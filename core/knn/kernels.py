@@ -1,6 +1,6 @@
-"""The numba kernels of the k-NN query over a :class:`core.knn.grid._Grid` (see :mod:`core.knn` for the search).
+"""The numba kernels of the k-NN query over a :class:`core.knn.grid.ColumnGrid` (see :mod:`core.knn` for the search).
 
-``_query_rows`` answers the points of interleaved ranges of column rows: ring 1 from the gathered 3×3
+``query_rows`` answers the points of interleaved ranges of column rows: ring 1 from the gathered 3×3
 neighbourhood, else rings of columns in a z window, else (isolated outliers) the block search; all exact.
 Distances are compared squared; indices are positions in the grid's sorted order.
 """
@@ -12,7 +12,7 @@ import numpy as np
 
 
 @numba.njit(nogil=True, cache=True)
-def _scatter_rows(src: np.ndarray, order: np.ndarray, out: np.ndarray, th: int, nth: int) -> None:
+def scatter_rows(src: np.ndarray, order: np.ndarray, out: np.ndarray, th: int, nth: int) -> None:
     """out[order[i]] = src[i] for the th-th of nth contiguous ranges of i."""
     n = len(order)
     for i in range(th * n // nth, (th + 1) * n // nth):
@@ -243,7 +243,7 @@ def _ring1_from_gathered(xyz, i, own, ng, gx, gy, gz, gi, g2, sel, cx, cy, nx, n
 
 
 @numba.njit(nogil=True, cache=True)
-def _query_rows(
+def query_rows(
     xyz: np.ndarray,
     zs: np.ndarray,
     order: np.ndarray,

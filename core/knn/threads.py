@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
-_CHUNKS_PER_THREAD = 16
+CHUNKS_PER_THREAD = 16
 """Interleaved work chunks per thread (balances uneven columns without a scheduler)."""
 
 
