@@ -237,6 +237,29 @@ def test_the_fill_and_background_are_refined_for_viewers_only(project):
     np.testing.assert_allclose(fill_points.fields["opacity"], alpha, rtol=1e-6)  # the survey points: as trained
 
 
+def test_the_merge_takes_the_layers_as_trained_without_their_refined_copies(project, tmp_path):
+    from fusion.convert_options import Source
+
+    _, project = project
+    copy = tmp_path / "project"
+    shutil.copytree(project, copy)
+    layout = ProjectLayout(copy)
+    layout.refined_fill_splats.unlink()
+    layout.refined_background_splats.unlink()
+    merge = [s for s in STAGES if s.name == "merge"]
+    run_pipeline(copy, load_config(copy), stages=merge, force=["merge"])
+    merged = read_gaussian_ply(layout.merged_ply)
+    sources = np.asarray(merged.fields["source"])
+    background = read_gaussian_ply(layout.background_splats)
+    counts = json.loads(layout.manifest.read_text())["stages"]["merge"]["counts"]
+    assert counts["background"] == int((sources == Source.BACKGROUND).sum()) > 0
+    assert not counts["background_refined"] and not counts["fill_refined"]
+    rows = np.flatnonzero(sources == Source.BACKGROUND)
+    known = {m.tobytes(): i for i, m in enumerate(background.with_origin(merged.origin).means)}
+    match = [known[m.tobytes()] for m in merged.means[rows]]
+    np.testing.assert_array_equal(merged.sh_dc[rows], background.sh_dc[match])  # the background as trained
+
+
 def test_layers_are_chosen_on_export_render_and_view_and_named_in_the_sidecar(project, tmp_path, capsys):
     from fusion.convert_options import Source
     from hybridsplat.viewer.scene import load_project

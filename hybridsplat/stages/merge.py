@@ -177,7 +177,9 @@ class MergeStage(Stage):
             if refined is not None:  # the viewer set only: the survey points keep the converted attributes
                 gaussians = _same_rows(merge_gaussians(None, refined).gaussians, gaussians)
         background_file = self._background_file(ctx)
-        background_file = self._refined_files(ctx).get(background_file, background_file)  # type: ignore[arg-type]
+        refined_background = self._refined_files(ctx).get(background_file)  # type: ignore[arg-type]
+        if refined_background is not None and refined_background.is_file():
+            background_file = refined_background
         background = _background_layer(background_file, gaussians)
         extra["background_refined"] = background_file == ctx.layout.refined_background_splats
         if background is not None:  # the viewer product only: the survey points never hold it
