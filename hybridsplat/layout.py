@@ -170,6 +170,11 @@ class ProjectLayout:
         layer, row for row, positions bit for bit (``fusion.appearance``, ``refine_context``)."""
         return self.splats_dir / "background_refined.ply"
 
+    def refined_layers(self) -> dict[Path, Path]:
+        """Each layer the appearance stage can refine for viewers → its refined copy: splats/cleaned.ply →
+        splats/fill_refined.ply, splats/background.ply → splats/background_refined.ply."""
+        return {self.cleaned_splats: self.refined_fill_splats, self.background_splats: self.refined_background_splats}
+
     @property
     def snapshots_dir(self) -> Path:
         return self.splats_dir / "snapshots"

@@ -44,11 +44,9 @@ class AppearanceStage(Stage):
     def _refined_layers(self, ctx: StageContext) -> list[tuple[Path, Path]]:
         """(layer as trained, its refined copy) for the fill and background layers that exist, with
         ``refine_context``; none without."""
-        layout = ctx.layout
         if not ctx.options(self).refine_context:
             return []
-        refined = {layout.cleaned_splats: layout.refined_fill_splats,
-                   layout.background_splats: layout.refined_background_splats}  # fmt: skip
+        refined = ctx.layout.refined_layers()
         return [(base, refined[base]) for base in layer_files(ctx)]
 
     def fingerprint(self, ctx: StageContext) -> dict[str, Any]:

@@ -91,14 +91,11 @@ class MergeStage(Stage):
         splats/background_refined.ply), for the layers the appearance stage refines (``refine_context``)."""
         from fusion.appearance import AppearanceOptions
 
-        layout = ctx.layout
         opts = ctx.config.options("appearance", AppearanceOptions)
         if not (opts.enabled and opts.refine_context):
             return {}
-        refined = {layout.cleaned_splats: layout.refined_fill_splats} if self._hybrid(ctx) else {}
-        if self._background_file(ctx) is not None:
-            refined[layout.background_splats] = layout.refined_background_splats
-        return refined
+        read = [ctx.layout.cleaned_splats] * self._hybrid(ctx) + [self._background_file(ctx)]
+        return {base: copy for base, copy in ctx.layout.refined_layers().items() if base in read}
 
     def _background_file(self, ctx: StageContext) -> Path | None:
         """splats/background.ply when the background stage is on."""
@@ -381,20 +378,17 @@ def _visible_layers(gaussians: Any) -> tuple[Any, dict[str, int]]:
 
 
 def _background_layer(path: Path | None, merged: Any) -> Any:
-    """The background layer (splats/background.ply) with the merged set's fields (``source`` = BACKGROUND, the
-    others 0), or None when there is none. Gaussians below the exporters' opacity threshold
-    (``ExportOptions.min_opacity``, invisible once quantised) are left out here, so that the layer's count in the
-    stage record is what export/merged.ply holds."""
+    """The background layer (splats/background.ply or its refined copy) with the merged set's fields (``source`` =
+    BACKGROUND, the others 0), or None when there is none (its invisible Gaussians are left out with the others',
+    :func:`_visible_layers`)."""
     import numpy as np
 
     from core.io.gaussian_ply import read_gaussian_ply
     from fusion.convert_options import Source
-    from fusion.export import ExportOptions
 
     if path is None or not path.is_file():
         return None
     background = read_gaussian_ply(path)
-    background = background.subset(background.opacities >= np.float32(ExportOptions().min_opacity))
     if len(background) == 0:
         return None
     n = len(background)
