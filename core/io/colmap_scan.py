@@ -91,7 +91,7 @@ class _Reader:
 
     def finite(self, values: tuple, what: str) -> None:
         if not all(math.isfinite(v) for v in values):
-            self.fail(f"{what} holds NaN or infinite values {list(values)}")
+            self.fail(f"{what} holds NaN or infinite values [{', '.join(f'{v:.6g}' for v in values)}]")
 
     def cstring(self) -> str:
         end = bytes(self.data[self.pos : self.pos + _MAX_NAME]).find(b"\0")
