@@ -3,7 +3,8 @@
 A training pixel is *background* when its ray leaves the survey region without meeting the cloud: the survey and
 fill Gaussians, rendered from its photo, leave it (nearly) transparent (accumulated opacity below
 ``alpha_threshold``). Background Gaussians are seeded where those rays meet a far sphere around the survey region
-(``shell_radius`` × the region's radius, centred on it) and trained at reduced resolution on the background pixels
+(``shell_radius`` × the region's radius, centred on it; among several candidate radii the one on which the photos'
+background pixels agree best, :func:`choose_shell_radius`) and trained at reduced resolution on the background pixels
 only, with the survey and fill Gaussians frozen in front of them. Their positions stay on the shell (learning rate
 0), so no background Gaussian ever enters the survey region; an environment at infinity (a sky) is drawn without
 parallax error from any viewpoint well inside the shell. They are never part of a survey product (C2C, LAS and
@@ -43,34 +44,49 @@ class BackgroundOptions:
 
     enabled: train a background layer when the photos see beyond the survey region. shell_radius: radius of the
     seeding sphere in multiples of the survey region's radius (half the diagonal of the 1st–99th percentile box of
-    the survey Gaussians). max_image_size: longer side of the training photos (px): the background is smooth and
-    far, a reduced resolution suffices. seed_stride_px: one seed per this many pixels in each direction of the
-    background pixels (at training resolution). max_seeds: at most this many seeds (an even random subset).
+    the survey Gaussians), never nearer than twice the farthest camera; several values are candidates, of which the
+    one whose shell points agree best in colour across the training photos is taken (:func:`choose_shell_radius`:
+    a far environment, a sky, is drawn without parallax only on a far shell; a nearer backdrop agrees at its own
+    depth), the first when fewer than ``min_pairs`` photo pairs decide. max_image_size: longer side of the training
+    photos (px): the background is smooth and far, a reduced resolution suffices. seed_stride_px: one seed per this
+    many pixels in each direction of the background pixels (at training resolution). max_seeds: at most this many
+    seeds (an even random subset).
     alpha_threshold: a pixel whose survey + fill accumulated opacity is below this is background. min_share: no
-    background layer when the background pixels are less than this share of every training pixel.
+    background layer when the background pixels are less than this share of every training pixel. min_pairs: the
+    fewest (background pixel, other photo) pairs that choose among several shell radii.
     training: the trainer's options (positions frozen: ``lr_means`` 0; the cap grows from the seeds).
 
-    The defaults were set before any measurement and not tuned on any view a figure is scored on: a shell well
-    outside every camera (parallax of a far environment below a pixel), 160 px (the background is smooth), 300
-    steps (a tenth of the fill's budget), SH degree 1 (a sky's gradient).
+    The defaults were not tuned on any view a figure is scored on: 160 px (the background is smooth), 300 steps (a
+    tenth of the fill's budget), SH degree 1 (a sky's gradient) set before any measurement; the shell's candidate
+    radii (8 – the radius before the choice – to 512, at which a camera baseline of the region's size moves a far
+    environment by about 0.1°) and ``min_pairs`` were chosen on the tuning layouts random-object 0 and random-aerial
+    0–2 (docs/experiments/2026-11-28-background-shell.md).
     """
 
     enabled: bool = True
-    shell_radius: float = 8.0
+    shell_radius: float | tuple[float, ...] = (8.0, 32.0, 128.0, 512.0)
     max_image_size: int = 160
     seed_stride_px: int = 3
     max_seeds: int = 20_000
     alpha_threshold: float = 0.5
     min_share: float = 0.002
+    min_pairs: int = 200
     training: TrainOptions = field(default_factory=_background_training)
 
     def __post_init__(self) -> None:
-        if not self.shell_radius > 1.0:
+        if not self.radii or not all(r > 1.0 for r in self.radii):
             raise ConfigError(f"shell_radius must be > 1 (outside the survey region), got {self.shell_radius}")
+        if self.min_pairs < 1:
+            raise ConfigError(f"min_pairs must be >= 1, got {self.min_pairs}")
         if self.max_image_size < 16 or self.seed_stride_px < 1 or self.max_seeds < 1:
             raise ConfigError("max_image_size must be >= 16, seed_stride_px and max_seeds >= 1")
         if not 0.0 < self.alpha_threshold < 1.0 or not 0.0 <= self.min_share < 1.0:
             raise ConfigError("alpha_threshold must lie in (0, 1) and min_share in [0, 1)")
+
+    @property
+    def radii(self) -> tuple[float, ...]:
+        """The candidate shell radii (multiples of the region's radius), in the order given."""
+        return tuple(self.shell_radius) if isinstance(self.shell_radius, tuple) else (float(self.shell_radius),)
 
 
 @dataclass(frozen=True)
@@ -110,33 +126,25 @@ def shell_seeds(
     images: Mapping[str, np.ndarray],
     masks: Mapping[str, np.ndarray],
     region: SurveyRegion,
+    radius: float,
     options: BackgroundOptions,
     seed: int,
 ) -> GaussianSet:
     """Degree-0 Gaussians where the rays of background pixels (every ``seed_stride_px``-th, at the masks' scale)
-    meet the sphere of radius ``shell_radius`` × ``region.radius`` around ``region.centre``, coloured by their
-    pixel; at most ``max_seeds`` (an even random subset, ``seed``)."""
+    meet the sphere of ``radius`` (metres) around ``region.centre``, coloured by their pixel; at most
+    ``max_seeds`` (an even random subset, ``seed``)."""
     from fusion.train.init import gaussians_from_points
 
-    radius = shell_radius(cameras, region, options.shell_radius)
     points, colours = [], []
     for view in cameras:
-        mask = masks.get(view.name)
-        if mask is None or view.name not in images or not mask.any():
+        if view.name not in images:
             continue
-        camera = cameras.camera_of(view)
-        rows, cols = np.nonzero(mask[:: options.seed_stride_px, :: options.seed_stride_px])
-        rows, cols = rows * options.seed_stride_px, cols * options.seed_stride_px
-        sy, sx = mask.shape[0] / camera.height, mask.shape[1] / camera.width
-        pixels = np.stack([(cols + 0.5) / sx, (rows + 0.5) / sy], axis=1)
+        pixels = _background_pixels(cameras, view, masks.get(view.name), options.seed_stride_px)
+        if not len(pixels):
+            continue
         ends = cameras.unproject(view, pixels, 1.0)
-        start = view.center
-        hits = _sphere_exit(start, ends - start, region.centre, radius)
-        points.append(hits)
-        image = np.asarray(images[view.name])
-        iy = np.clip((pixels[:, 1]).astype(int), 0, image.shape[0] - 1)
-        ix = np.clip((pixels[:, 0]).astype(int), 0, image.shape[1] - 1)
-        colours.append(_as_unit(image[iy, ix]))
+        points.append(_sphere_exit(view.center, ends - view.center, region.centre, radius))
+        colours.append(_colours_at(images[view.name], pixels))
     if not points:
         raise ConfigError("no background pixel in any training photo: nothing to seed")
     points_all, colours_all = np.concatenate(points), np.concatenate(colours)
@@ -144,6 +152,107 @@ def shell_seeds(
         keep = np.sort(np.random.default_rng(seed).choice(len(points_all), options.max_seeds, replace=False))
         points_all, colours_all = points_all[keep], colours_all[keep]
     return gaussians_from_points(points_all, colours_all, None, cameras.origin)
+
+
+def _background_pixels(cameras: Cameras, view: Any, mask: np.ndarray | None, stride: int) -> np.ndarray:
+    """Pixel centres (N, 2; the camera's full-size pixels) of every ``stride``-th background pixel of ``mask``
+    (at its own, reduced scale); none when the view has no mask."""
+    if mask is None or not mask.any():
+        return np.zeros((0, 2))
+    camera = cameras.camera_of(view)
+    rows, cols = np.nonzero(mask[::stride, ::stride])
+    sy, sx = mask.shape[0] / camera.height, mask.shape[1] / camera.width
+    return np.stack([(cols * stride + 0.5) / sx, (rows * stride + 0.5) / sy], axis=1)
+
+
+def _colours_at(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """RGB in [0, 1] (N, 3) of ``image`` at ``pixels`` (N, 2; x, y in the image's own pixels; nearest pixel)."""
+    iy = np.clip(pixels[:, 1].astype(int), 0, image.shape[0] - 1)
+    ix = np.clip(pixels[:, 0].astype(int), 0, image.shape[1] - 1)
+    return _as_unit(np.asarray(image)[iy, ix][:, :3])
+
+
+def shell_disagreement(
+    cameras: Cameras,
+    small_images: Mapping[str, np.ndarray],
+    masks: Mapping[str, np.ndarray],
+    region: SurveyRegion,
+    radius: float,
+    stride: int,
+) -> tuple[float, int]:
+    """How badly a shell of ``radius`` (metres) draws the background: the mean absolute colour difference (RGB in
+    [0, 1], averaged over channels) between every ``stride``-th background pixel of each photo and the pixel its
+    point on the shell projects to in every other photo, where that projection lies ahead of the photo, inside it
+    and on its background pixels; and the number of such pairs. ``small_images``: the photos at their masks' size.
+
+    Written here because it is the one test the choice needs: a plane sweep (which MVS does for surfaces) against
+    two-view colour agreement only on pixels that see nothing of the survey region."""
+    total, pairs = 0.0, 0
+    views = [v for v in cameras if v.name in masks and v.name in small_images]
+    for view in views:
+        pixels = _background_pixels(cameras, view, masks[view.name], stride)
+        if not len(pixels):
+            continue
+        points = _sphere_exit(view.center, cameras.unproject(view, pixels, 1.0) - view.center, region.centre, radius)
+        colours = _colours_at(small_images[view.name], pixels * _mask_scale(cameras, view, masks[view.name]))
+        for other in views:
+            if other.name == view.name:
+                continue
+            mask = masks[other.name]
+            uv, depth = cameras.project(other, points)
+            at = np.nan_to_num(uv * _mask_scale(cameras, other, mask), nan=-1.0, posinf=-1.0, neginf=-1.0)
+            inside = (depth > 0) & (at >= 0).all(axis=1) & (at[:, 0] < mask.shape[1]) & (at[:, 1] < mask.shape[0])
+            inside[inside] = mask[at[inside, 1].astype(int), at[inside, 0].astype(int)]
+            if inside.any():
+                total += float(np.abs(_colours_at(small_images[other.name], at[inside]) - colours[inside]).sum()) / 3
+                pairs += int(inside.sum())
+    return (total / pairs if pairs else float("inf")), pairs
+
+
+def _mask_scale(cameras: Cameras, view: Any, mask: np.ndarray) -> np.ndarray:
+    camera = cameras.camera_of(view)
+    return np.array([mask.shape[1] / camera.width, mask.shape[0] / camera.height])
+
+
+@dataclass(frozen=True)
+class ShellChoice:
+    """The shell the background is seeded on: its ``multiple`` of the region's radius and ``radius`` (metres);
+    ``scores``: per candidate multiple, (disagreement, pairs) of :func:`shell_disagreement` (empty for one
+    candidate); ``decided``: whether the pairs sufficed (else the first candidate)."""
+
+    multiple: float
+    radius: float
+    scores: dict[float, tuple[float, int]]
+    decided: bool
+
+
+def choose_shell_radius(
+    cameras: Cameras,
+    images: Mapping[str, np.ndarray],
+    masks: Mapping[str, np.ndarray],
+    region: SurveyRegion,
+    options: BackgroundOptions,
+) -> ShellChoice:
+    """Among ``options.radii``, the shell whose points agree best in colour across the training photos (``images``:
+    full size; ``masks``: their background pixels at reduced size); the first candidate when any candidate has
+    fewer than ``options.min_pairs`` pairs (too few background pixels that two photos share to choose)."""
+    import cv2
+
+    radii = options.radii
+    if len(radii) == 1:
+        return ShellChoice(radii[0], shell_radius(cameras, region, radii[0]), {}, False)
+    small = {name: cv2.resize(_as_unit(images[name]).astype(np.float32), mask.shape[::-1], interpolation=cv2.INTER_AREA)
+             for name, mask in masks.items() if name in images}  # fmt: skip
+    by_metres: dict[float, tuple[float, int]] = {}
+    scores = {}
+    for multiple in radii:
+        metres = shell_radius(cameras, region, multiple)
+        if metres not in by_metres:
+            by_metres[metres] = shell_disagreement(cameras, small, masks, region, metres, options.seed_stride_px)
+        scores[multiple] = by_metres[metres]
+    decided = min(pairs for _, pairs in scores.values()) >= options.min_pairs
+    best = min(radii, key=lambda m: scores[m][0]) if decided else radii[0]
+    return ShellChoice(best, shell_radius(cameras, region, best), scores, decided)
 
 
 def shell_radius(cameras: Cameras, region: SurveyRegion, multiple: float) -> float:
@@ -196,7 +305,8 @@ def train_background(
     if share < options.min_share:
         return f"the photos see nothing beyond the survey region ({100 * share:.2f} % of the pixels)"
     region = survey_region(foreground.with_origin(cameras.origin).means)
-    seeds = shell_seeds(cameras, images, masks, region, options, seed)
+    shell = choose_shell_radius(cameras, images, masks, region, options)
+    seeds = shell_seeds(cameras, images, masks, region, shell.radius, options, seed)
     full = {name: _upsample(mask, images[name].shape[:2]) for name, mask in masks.items() if name in images}
     training = options.training
     cap = max(training.strategy.cap, 2 * len(seeds)) if isinstance(training.strategy, DefaultStrategy) else None
@@ -204,7 +314,9 @@ def train_background(
     train_opts = replace(training, downscale=downscale, seed=seed, strategy=strategy)
     result = train_splats(cameras, images, full, seeds, foreground, train_opts, progress)
     counts = {"share": share, "seeds": len(seeds), "gaussians": len(result.splats), "downscale": downscale,
-              "shell_radius_m": shell_radius(cameras, region, options.shell_radius), "region_radius_m": region.radius,
+              "shell_radius_m": shell.radius, "shell_multiple": shell.multiple, "shell_decided": shell.decided,
+              "shell_scores": {f"{m:g}": {"disagreement": d, "pairs": n} for m, (d, n) in shell.scores.items()},
+              "region_radius_m": region.radius,
               "iterations": result.iterations, "stopped_early": result.stopped_early,
               "holdout_psnr_db": result.history[-1].holdout_psnr if result.history else None}  # fmt: skip
     return BackgroundResult(result.splats, result, counts)

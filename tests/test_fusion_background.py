@@ -11,8 +11,11 @@ from core.errors import ConfigError
 from core.gaussians import SH_C0, GaussianSet
 from fusion.background import (
     BackgroundOptions,
+    SurveyRegion,
     _sphere_exit,
     background_masks,
+    choose_shell_radius,
+    shell_disagreement,
     shell_radius,
     survey_region,
     train_background,
@@ -117,3 +120,65 @@ def test_nothing_beyond_the_region_trains_nothing():
     images = {v.name: np.full((36, 48, 3), 0.5) for v in cameras}
     result = train_background(cameras, images, wall, BackgroundOptions(max_image_size=48), seed=0)
     assert isinstance(result, str) and "see nothing beyond the survey region" in result
+
+
+def _pattern(directions: np.ndarray) -> np.ndarray:
+    """A smooth colour (N, 3) in [0.1, 0.9] of unit vectors (N, 3): a few cycles per radian."""
+    return 0.5 + 0.4 * np.sin(np.stack([7 * directions[:, 0], 5 * directions[:, 1] + 1, 6 * directions[:, 2] + 2], 1))
+
+
+def _photos_of(cameras: Cameras, backdrop: float | None) -> dict[str, np.ndarray]:
+    """Every camera's photo of a pattern drawn on a sphere of radius ``backdrop`` around the origin (the
+    pattern a function of the point's direction from the origin), or at infinity (of the ray's direction)."""
+    images = {}
+    for view in cameras:
+        camera = cameras.camera_of(view)
+        cols, rows = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
+        pixels = np.stack([cols.ravel(), rows.ravel()], axis=1)
+        rays = cameras.unproject(view, pixels, 1.0) - view.center
+        rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+        if backdrop is not None:
+            hits = _sphere_exit(view.center, rays, np.zeros(3), backdrop)
+            rays = hits / np.linalg.norm(hits, axis=1, keepdims=True)
+        images[view.name] = _pattern(rays).reshape(camera.height, camera.width, 3)
+    return images
+
+
+@pytest.mark.parametrize("backdrop, expected", [(None, 40.0), (5.0, 5.0)])
+def test_the_shell_is_chosen_where_the_photos_agree(backdrop, expected):
+    cameras = _ring(n=8, distance=1.0)
+    images = _photos_of(cameras, backdrop)
+    masks = {name: np.ones((18, 24), bool) for name in images}  # nothing of a survey region in front
+    region = SurveyRegion(np.zeros(3), 1.0)
+    options = BackgroundOptions(shell_radius=(2.5, 5.0, 10.0, 40.0), seed_stride_px=1, min_pairs=50)
+    choice = choose_shell_radius(cameras, images, masks, region, options)
+    assert choice.decided and choice.multiple == expected and choice.radius == pytest.approx(expected)
+    scores = {m: d for m, (d, _) in choice.scores.items()}
+    if backdrop is None:  # an environment at infinity: the farther the shell, the better it agrees
+        assert scores[2.5] > scores[5.0] > scores[10.0] > scores[40.0]
+    else:  # a backdrop at 5 m agrees (up to the nearest-pixel sampling) on a shell of its radius only
+        assert 3 * scores[5.0] < min(scores[2.5], scores[10.0], scores[40.0])
+
+
+def test_too_few_shared_background_pixels_keep_the_first_shell():
+    cameras = _ring(n=8, distance=1.0)
+    images = _photos_of(cameras, None)
+    masks = {name: np.zeros((18, 24), bool) for name in images}
+    for mask in masks.values():
+        mask[0, 0] = True  # one background pixel a photo: no other photo sees its direction
+    region = SurveyRegion(np.zeros(3), 1.0)
+    options = BackgroundOptions(shell_radius=(2.5, 40.0), seed_stride_px=1, min_pairs=50)
+    choice = choose_shell_radius(cameras, images, masks, region, options)
+    assert not choice.decided and choice.multiple == 2.5
+    assert shell_disagreement(cameras, images, masks, region, 40.0, 1)[1] < 50
+    single = choose_shell_radius(cameras, images, masks, region, BackgroundOptions(shell_radius=8.0))
+    assert single.multiple == 8.0 and single.scores == {} and single.radius == pytest.approx(8.0)
+
+
+def test_a_single_shell_radius_in_a_config_is_still_read():
+    from hybridsplat.options import options_from_table
+
+    assert options_from_table(BackgroundOptions, {"shell_radius": 8.0}, "config.toml").radii == (8.0,)
+    assert options_from_table(BackgroundOptions, {"shell_radius": [8, 64]}, "config.toml").radii == (8.0, 64.0)
+    with pytest.raises(ConfigError):
+        BackgroundOptions(shell_radius=(8.0, 0.5))

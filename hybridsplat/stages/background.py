@@ -70,8 +70,9 @@ class BackgroundStage(Stage):
     def summary(self, counts: dict[str, Any]) -> str:
         if not counts.get("gaussians"):
             return f"no background layer: {counts.get('reason', 'nothing to train')}"
+        chosen = " (chosen by the photos' agreement)" if counts.get("shell_decided") else ""
         return (
-            f"{counts['gaussians']} Gaussians on a {counts['shell_radius_m']:.3g} m shell, "
+            f"{counts['gaussians']} Gaussians on a {counts['shell_radius_m']:.3g} m shell{chosen}, "
             f"{100 * counts['share']:.1f} % of the pixels, {counts['iterations']} steps"
         )
 
