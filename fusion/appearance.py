@@ -203,8 +203,9 @@ def with_converted_survey(
     back the attributes of the converted MVS Gaussian at the same position (``converted``: export/mvs_gaussians.ply),
     and, when given, its fill rows (``Source.SPLAT``) those of ``fill`` (splats/cleaned.ply) and its background rows
     (``Source.BACKGROUND``) those of ``background`` (splats/background.ply): the layers as before the appearance
-    stage. The refinement never moves a Gaussian, so positions identify the rows (each reference is brought to
-    ``merged``'s origin as the merge brings it); of several Gaussians at one position, the first is taken. What the
+    stage, in ``converted``'s origin. The refinement never moves a Gaussian, so positions identify the rows (each
+    reference is brought to that origin as the merge brings it); of several Gaussians at one position, the first is
+    taken. What the
     survey products (the mesh, the controls that measure MVS) read instead of the refined appearance. Raises
     :class:`DataError` (naming ``source_path``) when a row matches no Gaussian of its reference."""
     from core.errors import DataError
@@ -213,6 +214,10 @@ def with_converted_survey(
     if "source" not in merged.fields:
         raise DataError("the merged Gaussians have no 'source' field: the survey layer cannot be told apart",
                         source_path)  # fmt: skip
+    if not np.array_equal(merged.origin, converted.origin):
+        # A file re-based on reading (a far background beyond the readers' local range): the same points, exactly,
+        # when both origins are whole metres (what choose_origin gives); any other difference fails by position.
+        merged = merged.with_origin(converted.origin)
     out = merged.subset(np.arange(len(merged)))
     references = {Source.MVS: ("converted MVS Gaussian", converted), Source.SPLAT: ("fill splat", fill),
                   Source.BACKGROUND: ("background Gaussian", background)}  # fmt: skip
@@ -220,9 +225,6 @@ def with_converted_survey(
         rows = np.flatnonzero(np.asarray(merged.fields["source"]) == source)
         if reference is None or len(rows) == 0:
             continue
-        if source == Source.MVS and not np.array_equal(merged.origin, converted.origin):
-            raise DataError("the merged Gaussians and the converted MVS Gaussians have different origins",
-                            source_path)  # fmt: skip
         _restore_rows(out, rows, reference.with_origin(merged.origin), what, source_path)
     return out
 

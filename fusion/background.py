@@ -44,7 +44,8 @@ class BackgroundOptions:
 
     enabled: train a background layer when the photos see beyond the survey region. shell_radius: radius of the
     seeding sphere in multiples of the survey region's radius (half the diagonal of the 1st–99th percentile box of
-    the survey Gaussians), never nearer than twice the farthest camera; several values are candidates, of which the
+    the survey Gaussians), never nearer than twice the farthest camera, nor farther than :data:`MAX_SHELL_M` unless
+    the cameras are; several values are candidates, of which the
     one whose shell points agree best in colour across the training photos is taken (:func:`choose_shell_radius`:
     a far environment, a sky, is drawn without parallax only on a far shell; a nearer backdrop agrees at its own
     depth), the first when fewer than ``min_pairs`` photo pairs decide. max_image_size: longer side of the training
@@ -255,11 +256,18 @@ def choose_shell_radius(
     return ShellChoice(best, shell_radius(cameras, region, best), scores, decided)
 
 
+MAX_SHELL_M = 2000.0
+"""The farthest a shell is put from the region's centre (metres) unless the cameras are farther: SPZ keeps its
+0.24 mm position step within ±2 048 m of the local origin, and the PLY readers re-base local coordinates beyond
+10 km; a shell at 2 km moves a far environment by 0.3° for a 10 m camera baseline."""
+
+
 def shell_radius(cameras: Cameras, region: SurveyRegion, multiple: float) -> float:
-    """Radius (metres) of the seeding sphere: ``multiple`` × the region's radius, and at least twice the distance
-    of the farthest camera from the region's centre (every camera inside the shell, far from it)."""
+    """Radius (metres) of the seeding sphere: ``multiple`` × the region's radius, at most :data:`MAX_SHELL_M`, and
+    at least twice the distance of the farthest camera from the region's centre (every camera inside the shell, far
+    from it)."""
     farthest = max(float(np.linalg.norm(view.center - region.centre)) for view in cameras)
-    return max(multiple * region.radius, 2.0 * farthest)
+    return max(min(multiple * region.radius, MAX_SHELL_M), 2.0 * farthest)
 
 
 def _as_unit(pixels: np.ndarray) -> np.ndarray:

@@ -219,3 +219,27 @@ def test_every_layer_gets_its_attributes_back_by_position():
     np.testing.assert_array_equal(restored.means, merged.means)
     with pytest.raises(DataError, match="no fill splat does"):
         with_converted_survey(merged, converted, fill=fill.subset(np.arange(11)))  # row 11 is merged
+
+
+def test_a_merged_file_rebased_on_reading_still_finds_its_layers(tmp_path):
+    from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
+
+    rng = np.random.default_rng(8)
+    converted = _set(rng.normal(size=(20, 3)), rng.uniform(size=(20, 3)), 0.01, 1.0)
+    background = _set(6e4 + rng.normal(size=(5, 3)), rng.uniform(size=(5, 3)), 50.0, 0.5)  # a far shell: 60 km
+    write_gaussian_ply(tmp_path / "mvs.ply", converted)
+    write_gaussian_ply(tmp_path / "background.ply", background)
+    refined = [converted.subset(np.arange(20)), background.subset(np.arange(5))]
+    for g in refined:
+        g.sh_dc += 0.3
+    merged = GaussianSet.concatenate(refined)
+    merged.fields["source"] = np.array([Source.MVS] * 20 + [Source.BACKGROUND] * 5, np.uint8)
+    write_gaussian_ply(tmp_path / "merged.ply", merged, extra_fields=True)
+    read = read_gaussian_ply(tmp_path / "merged.ply")
+    assert not np.array_equal(read.origin, merged.origin)  # the reader moved it to a local origin
+    reference = read_gaussian_ply(tmp_path / "mvs.ply")
+    restored = with_converted_survey(read, reference, background=read_gaussian_ply(tmp_path / "background.ply"))
+    np.testing.assert_array_equal(restored.origin, reference.origin)
+    np.testing.assert_array_equal(restored.means[:20], reference.means)  # bit for bit, in the survey's frame
+    np.testing.assert_array_equal(restored.sh_dc[:20], reference.sh_dc)
+    np.testing.assert_allclose(restored.sh_dc[20:], background.sh_dc, atol=1e-6)

@@ -10,6 +10,7 @@ from core.cameras import Camera, Cameras, View
 from core.errors import ConfigError
 from core.gaussians import SH_C0, GaussianSet
 from fusion.background import (
+    MAX_SHELL_M,
     BackgroundOptions,
     SurveyRegion,
     _sphere_exit,
@@ -74,6 +75,8 @@ def test_the_region_ignores_outliers_and_the_shell_holds_every_camera():
     assert farthest == pytest.approx(20.0, abs=0.05)
     assert shell_radius(cameras, region, 8.0) == pytest.approx(2 * farthest, rel=1e-12)  # beyond every camera
     assert shell_radius(_ring(distance=1.0), region, 8.0) == pytest.approx(8 * region.radius)
+    assert shell_radius(_ring(distance=1.0), region, 1e5) == MAX_SHELL_M  # SPZ's and the readers' local range
+    assert shell_radius(_ring(distance=2e3), region, 1e5) == pytest.approx(4e3)  # but beyond every camera
     with pytest.raises(ConfigError):
         BackgroundOptions(shell_radius=0.5)
 
