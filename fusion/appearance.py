@@ -205,9 +205,8 @@ def with_converted_survey(
     (``Source.BACKGROUND``) those of ``background`` (splats/background.ply): the layers as before the appearance
     stage, in ``converted``'s origin. The refinement never moves a Gaussian, so positions identify the rows (each
     reference is brought to that origin as the merge brings it); of several Gaussians at one position, the first is
-    taken. What the
-    survey products (the mesh, the controls that measure MVS) read instead of the refined appearance. Raises
-    :class:`DataError` (naming ``source_path``) when a row matches no Gaussian of its reference."""
+    taken. What the survey products (the mesh, the controls that measure MVS) read instead of the refined
+    appearance. Raises :class:`DataError` (naming ``source_path``) when a row matches no Gaussian of its reference."""
     from core.errors import DataError
     from fusion.convert_options import Source
 

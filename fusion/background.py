@@ -45,10 +45,10 @@ class BackgroundOptions:
     enabled: train a background layer when the photos see beyond the survey region. shell_radius: radius of the
     seeding sphere in multiples of the survey region's radius (half the diagonal of the 1st–99th percentile box of
     the survey Gaussians), never nearer than twice the farthest camera, nor farther than :data:`MAX_SHELL_M` unless
-    the cameras are; several values are candidates, of which the
-    one whose shell points agree best in colour across the training photos is taken (:func:`choose_shell_radius`:
-    a far environment, a sky, is drawn without parallax only on a far shell; a nearer backdrop agrees at its own
-    depth), the first when fewer than ``min_pairs`` photo pairs decide. max_image_size: longer side of the training
+    the cameras are; several values are candidates, of which the one whose shell points agree best in colour
+    across the training photos is taken (:func:`choose_shell_radius`: a far environment, a sky, is drawn without
+    parallax only on a far shell; a nearer backdrop agrees at its own depth), the first when fewer than
+    ``min_pairs`` photo pairs decide. max_image_size: longer side of the training
     photos (px): the background is smooth and far, a reduced resolution suffices. seed_stride_px: one seed per this
     many pixels in each direction of the background pixels (at training resolution). max_seeds: at most this many
     seeds (an even random subset).
@@ -140,12 +140,10 @@ def shell_seeds(
     for view in cameras:
         if view.name not in images:
             continue
-        pixels = _background_pixels(cameras, view, masks.get(view.name), options.seed_stride_px)
-        if not len(pixels):
-            continue
-        ends = cameras.unproject(view, pixels, 1.0)
-        points.append(_sphere_exit(view.center, ends - view.center, region.centre, radius))
-        colours.append(_colours_at(images[view.name], pixels))
+        pixels, hits = _shell_points(cameras, view, masks.get(view.name), options.seed_stride_px, region, radius)
+        if len(pixels):
+            points.append(hits)
+            colours.append(_colours_at(images[view.name], pixels))
     if not points:
         raise ConfigError("no background pixel in any training photo: nothing to seed")
     points_all, colours_all = np.concatenate(points), np.concatenate(colours)
@@ -155,15 +153,20 @@ def shell_seeds(
     return gaussians_from_points(points_all, colours_all, None, cameras.origin)
 
 
-def _background_pixels(cameras: Cameras, view: Any, mask: np.ndarray | None, stride: int) -> np.ndarray:
-    """Pixel centres (N, 2; the camera's full-size pixels) of every ``stride``-th background pixel of ``mask``
-    (at its own, reduced scale); none when the view has no mask."""
+def _shell_points(
+    cameras: Cameras, view: Any, mask: np.ndarray | None, stride: int, region: SurveyRegion, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel centres (N, 2; the camera's full-size pixels) of every ``stride``-th background pixel of ``mask`` (at
+    its own, reduced scale) and where their rays leave the sphere of ``radius`` around ``region.centre`` (N, 3);
+    none when the view has no mask."""
     if mask is None or not mask.any():
-        return np.zeros((0, 2))
+        return np.zeros((0, 2)), np.zeros((0, 3))
     camera = cameras.camera_of(view)
     rows, cols = np.nonzero(mask[::stride, ::stride])
     sy, sx = mask.shape[0] / camera.height, mask.shape[1] / camera.width
-    return np.stack([(cols * stride + 0.5) / sx, (rows * stride + 0.5) / sy], axis=1)
+    pixels = np.stack([(cols * stride + 0.5) / sx, (rows * stride + 0.5) / sy], axis=1)
+    ends = cameras.unproject(view, pixels, 1.0)
+    return pixels, _sphere_exit(view.center, ends - view.center, region.centre, radius)
 
 
 def _colours_at(image: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -186,15 +189,14 @@ def shell_disagreement(
     point on the shell projects to in every other photo, where that projection lies ahead of the photo, inside it
     and on its background pixels; and the number of such pairs. ``small_images``: the photos at their masks' size.
 
-    Written here because it is the one test the choice needs: a plane sweep (which MVS does for surfaces) against
-    two-view colour agreement only on pixels that see nothing of the survey region."""
+    Hand-written: MVS's photo-consistency scores surfaces; this scores a candidate depth for pixels that see no
+    surface of the survey region, against the other photos' background pixels only."""
     total, pairs = 0.0, 0
     views = [v for v in cameras if v.name in masks and v.name in small_images]
     for view in views:
-        pixels = _background_pixels(cameras, view, masks[view.name], stride)
+        pixels, points = _shell_points(cameras, view, masks[view.name], stride, region, radius)
         if not len(pixels):
             continue
-        points = _sphere_exit(view.center, cameras.unproject(view, pixels, 1.0) - view.center, region.centre, radius)
         colours = _colours_at(small_images[view.name], pixels * _mask_scale(cameras, view, masks[view.name]))
         for other in views:
             if other.name == view.name:

@@ -94,7 +94,9 @@ class MergeStage(Stage):
         opts = ctx.config.options("appearance", AppearanceOptions)
         if not (opts.enabled and opts.refine_context):
             return {}
-        read = [ctx.layout.cleaned_splats] * self._hybrid(ctx) + [self._background_file(ctx)]
+        read = {self._background_file(ctx)}
+        if self._hybrid(ctx):
+            read.add(ctx.layout.cleaned_splats)
         return {base: copy for base, copy in ctx.layout.refined_layers().items() if base in read}
 
     def _background_file(self, ctx: StageContext) -> Path | None:
