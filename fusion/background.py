@@ -21,7 +21,7 @@ import numpy as np
 
 from core.cameras import Cameras
 from core.errors import ConfigError
-from core.gaussians import GaussianSet
+from core.gaussians import SH_C0, GaussianSet
 from fusion.train.options import TrainOptions
 from fusion.train.strategy import DefaultStrategy
 
@@ -54,7 +54,11 @@ class BackgroundOptions:
     seeds (an even random subset).
     alpha_threshold: a pixel whose survey + fill accumulated opacity is below this is background. min_share: no
     background layer when the background pixels are less than this share of every training pixel. min_pairs: the
-    fewest (background pixel, other photo) pairs that choose among several shell radii.
+    fewest (background pixel, other photo) pairs that choose among several shell radii. unseen_step_deg: after
+    training, directions of the shell that no background Gaussian covers (beyond every photo's frame, or hidden
+    behind the survey region in every photo that frames them) get Gaussians this many degrees apart, coloured from
+    the nearest trained ones (:func:`fill_unseen_directions`), so that a viewer turned past the photos shows a
+    continuation of the surroundings instead of black; 0 leaves them empty.
     training: the trainer's options (positions frozen: ``lr_means`` 0; the cap grows from the seeds).
 
     The defaults were not tuned on any view a figure is scored on: 160 px (the background is smooth), 300 steps (a
@@ -72,6 +76,7 @@ class BackgroundOptions:
     alpha_threshold: float = 0.5
     min_share: float = 0.002
     min_pairs: int = 200
+    unseen_step_deg: float = 2.0
     training: TrainOptions = field(default_factory=_background_training)
 
     def __post_init__(self) -> None:
@@ -81,6 +86,8 @@ class BackgroundOptions:
             raise ConfigError(f"min_pairs must be >= 1, got {self.min_pairs}")
         if self.max_image_size < 16 or self.seed_stride_px < 1 or self.max_seeds < 1:
             raise ConfigError("max_image_size must be >= 16, seed_stride_px and max_seeds >= 1")
+        if not 0.0 <= self.unseen_step_deg <= 30.0:
+            raise ConfigError(f"unseen_step_deg must lie in [0, 30] (0: off), got {self.unseen_step_deg}")
         if not 0.0 < self.alpha_threshold < 1.0 or not 0.0 <= self.min_share < 1.0:
             raise ConfigError("alpha_threshold must lie in (0, 1) and min_share in [0, 1)")
 
@@ -287,6 +294,52 @@ def _sphere_exit(start: np.ndarray, directions: np.ndarray, centre: np.ndarray, 
     return start + t[:, None] * d
 
 
+def fill_unseen_directions(
+    trained: GaussianSet, centre: np.ndarray, radius: float, step_deg: float, neighbours: int = 8
+) -> GaussianSet:
+    """Gaussians on the sphere of ``radius`` (metres) around ``centre`` (the local frame of ``trained``) at the
+    directions of a near-uniform lattice ``step_deg`` apart that no Gaussian of ``trained`` covers (its nearest one,
+    as seen from ``centre``, farther than twice the step and three of that one's σ). Each is isotropic with σ =
+    0.6 step (neighbours overlap) and opacity 0.95, its colour the inverse-square-distance mean of the base colours
+    of its ``neighbours`` nearest trained Gaussians, without view-dependent colour; ``trained``'s SH degree, origin
+    and fields (zero). An extrapolation: no photo shows these directions, so their Gaussians only stand in for black.
+    """
+    from scipy.spatial import cKDTree
+
+    offsets = trained.means - centre
+    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
+    lattice = _fibonacci_sphere(max(int(4.0 * np.pi / np.radians(step_deg) ** 2), 1))
+    k = min(neighbours, len(trained))
+    if k == 0:
+        return trained.subset(np.zeros(0, dtype=int))
+    gaps, nearest = cKDTree(offsets / distances[:, None]).query(lattice, k=k)
+    gaps, nearest = gaps.reshape(len(lattice), k), nearest.reshape(len(lattice), k)
+    angular_sigma = trained.scales.max(axis=1) / distances  # radians; chords ≈ angles at these sizes
+    step = np.radians(step_deg)
+    uncovered = gaps[:, 0] > np.maximum(2.0 * step, 3.0 * angular_sigma[nearest[:, 0]])
+    weights = 1.0 / np.maximum(gaps[uncovered], 1e-9) ** 2
+    colours = np.einsum("nk,nkc->nc", weights, trained.base_colors[nearest[uncovered]]) / weights.sum(1)[:, None]
+    n = int(uncovered.sum())
+    return GaussianSet(
+        centre + radius * lattice[uncovered],
+        np.full((n, 3), np.log(0.6 * step * radius)),
+        np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
+        np.full(n, float(np.log(0.95 / 0.05))),
+        (colours - 0.5) / SH_C0,
+        np.zeros((n, trained.sh_rest.shape[1], 3)),  # type: ignore[union-attr]
+        trained.origin.copy(),
+        {name: np.zeros(n, dtype=values.dtype) for name, values in trained.fields.items()},
+    )
+
+
+def _fibonacci_sphere(count: int) -> np.ndarray:
+    """``count`` unit vectors (count, 3) spread near-uniformly over the sphere (the golden-angle spiral)."""
+    i = np.arange(count) + 0.5
+    polar = np.arccos(1.0 - 2.0 * i / count)
+    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
+
+
 @dataclass
 class BackgroundResult:
     """The trained background Gaussians (local frame of the cameras), the trainer's result and counts."""
@@ -323,13 +376,17 @@ def train_background(
     strategy = replace(training.strategy, cap=cap) if cap is not None else training.strategy
     train_opts = replace(training, downscale=downscale, seed=seed, strategy=strategy)
     result = train_splats(cameras, images, full, seeds, foreground, train_opts, progress)
-    counts = {"share": share, "seeds": len(seeds), "gaussians": len(result.splats), "downscale": downscale,
+    trained = result.splats
+    unseen = trained.subset(np.zeros(0, dtype=int))
+    if options.unseen_step_deg > 0:
+        unseen = fill_unseen_directions(trained, region.centre, shell.radius, options.unseen_step_deg)
+    counts = {"share": share, "seeds": len(seeds), "gaussians": len(trained) + len(unseen), "downscale": downscale,
               "shell_radius_m": shell.radius, "shell_multiple": shell.multiple, "shell_decided": shell.decided,
               "shell_scores": {f"{m:g}": {"disagreement": d, "pairs": n} for m, (d, n) in shell.scores.items()},
-              "region_radius_m": region.radius,
+              "region_radius_m": region.radius, "unseen_gaussians": len(unseen),
               "iterations": result.iterations, "stopped_early": result.stopped_early,
               "holdout_psnr_db": result.history[-1].holdout_psnr if result.history else None}  # fmt: skip
-    return BackgroundResult(result.splats, result, counts)
+    return BackgroundResult(GaussianSet.concatenate([trained, unseen]), result, counts)
 
 
 def _upsample(mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -16,6 +16,7 @@ from fusion.background import (
     _sphere_exit,
     background_masks,
     choose_shell_radius,
+    fill_unseen_directions,
     shell_disagreement,
     shell_radius,
     survey_region,
@@ -114,6 +115,80 @@ def test_a_trained_background_draws_the_sky_behind_a_frozen_foreground():
     target = images[view.name]
     error_alone, error_both = np.abs(alone - target).mean(), np.abs(drawn - target).mean()
     assert error_both < 0.2 * error_alone, (error_alone, error_both)
+
+
+def _looking_up(cameras: Cameras) -> Cameras:
+    """``cameras`` with one more view: at (1, 0, 0) looking straight up, where no camera of the ring looks."""
+    rotation = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # rows: right, down, forward
+    up = View.from_matrix(99, "up.png", 1, np.c_[rotation, -rotation @ np.array([1.0, 0.0, 0.0])])
+    return Cameras(dict(cameras.cameras), {**cameras.views, 99: up})
+
+
+@pytest.mark.parametrize("step_deg", [0.0, 3.0])
+def test_a_view_turned_past_every_photo_sees_the_sky_continued_not_black(step_deg):
+    from fusion.render.scene import render_gaussian_set
+
+    cameras, ball = _ring(n=8), _ball()
+    images = {}
+    for view in cameras:  # the ball (grey) in front of a uniform sky
+        rendered = render_gaussian_set(ball, cameras.camera_of(view), view, background=tuple(SKY))
+        images[view.name] = rendered.colour.detach().numpy()
+    training = TrainOptions(iterations=60, lr_means=0.0, sh_degree=0, min_iterations=60,
+                            strategy=DefaultStrategy(cap=4000, refine_start=40, refine_every=40))  # fmt: skip
+    options = BackgroundOptions(max_image_size=48, seed_stride_px=2, unseen_step_deg=step_deg, training=training)
+    result = train_background(cameras, images, ball, options, seed=0)
+    assert not isinstance(result, str)
+    # the ring's photos see up to ~24° above the horizon; the zenith view 59°–90°: no photo shows it
+    both = _looking_up(cameras)
+    up = both.views[99]
+    drawn = render_gaussian_set(GaussianSet.concatenate([ball, result.gaussians]), both.camera_of(up), up)
+    colour = drawn.colour.detach().numpy().reshape(-1, 3)
+    if step_deg == 0:
+        assert result.counts["unseen_gaussians"] == 0 and colour.max() < 0.05  # black: nothing drawn there
+    else:
+        assert result.counts["unseen_gaussians"] > 0
+        assert np.abs(colour - SKY).max(axis=1).mean() < 0.05  # the sky's colour, continued
+
+
+def _cap(centre: np.ndarray, radius: float, rgb: tuple[float, float, float], polar_max_deg: float, n: int = 3000):
+    """``n`` small Gaussians of colour ``rgb`` on the sphere of ``radius`` around ``centre``, within
+    ``polar_max_deg`` of its north pole (+z), with a ``source`` field of 3."""
+    rng = np.random.default_rng(3)
+    z = rng.uniform(np.cos(np.radians(polar_max_deg)), 1.0, n)
+    azimuth = rng.uniform(0, 2 * np.pi, n)
+    ring = np.sqrt(1 - z * z)
+    directions = np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], 1)
+    return GaussianSet(centre + radius * directions, np.full((n, 3), np.log(0.01 * radius)),
+                       np.tile([1.0, 0, 0, 0], (n, 1)), np.full(n, 3.0),
+                       np.tile((np.array(rgb) - 0.5) / SH_C0, (n, 1)), np.zeros((n, 3, 3)),
+                       origin=np.array([1e5, 2e5, 10.0]), fields={"source": np.full(n, 3, np.uint8)})  # fmt: skip
+
+
+def test_unseen_directions_are_filled_on_the_shell_with_the_nearest_colours():
+    centre, radius = np.array([2.0, -1.0, 0.5]), 50.0
+    north = _cap(centre, radius, (0.9, 0.1, 0.1), 60.0)
+    south = _cap(centre, radius, (0.1, 0.1, 0.9), 60.0)
+    south.means = centre + (south.means - centre) * np.array([1.0, 1.0, -1.0])  # mirrored: around the south pole
+    trained = GaussianSet.concatenate([north, south])
+    filled = fill_unseen_directions(trained, centre, radius, 4.0)
+    offsets = filled.means - centre
+    np.testing.assert_allclose(np.linalg.norm(offsets, axis=1), radius, rtol=1e-9)  # on the shell
+    polar = np.degrees(np.arccos(offsets[:, 2] / radius))
+    # only the band the caps leave open (60°–120° from the north pole), less a margin of twice the step
+    assert polar.min() > 60.0 + 4.0 and polar.max() < 120.0 - 4.0
+    lattice_in_band = 4 * np.pi / np.radians(4.0) ** 2 * (np.cos(np.radians(68)) - np.cos(np.radians(112))) / 2
+    assert 0.6 * lattice_in_band < len(filled) < 1.3 * lattice_in_band
+    colours = filled.base_colors
+    upper, lower = polar < 80.0, polar > 100.0
+    assert (colours[upper, 0] > colours[upper, 2]).all() and (colours[lower, 2] > colours[lower, 0]).all()
+    assert np.allclose(colours[:, 1], 0.1, atol=1e-3)  # never a colour outside its neighbours'
+    assert filled.sh_degree == 1 and not filled.sh_rest.any()  # no view-dependent colour invented
+    np.testing.assert_array_equal(filled.origin, trained.origin)
+    assert set(filled.fields) == {"source"} and len(filled.fields["source"]) == len(filled)
+    whole = _cap(centre, radius, (0.5, 0.5, 0.5), 180.0, n=40000)
+    assert len(fill_unseen_directions(whole, centre, radius, 4.0)) == 0  # every direction covered: nothing to add
+    with pytest.raises(ConfigError):
+        BackgroundOptions(unseen_step_deg=-1.0)
 
 
 def test_nothing_beyond_the_region_trains_nothing():

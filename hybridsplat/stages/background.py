@@ -71,8 +71,10 @@ class BackgroundStage(Stage):
         if not counts.get("gaussians"):
             return f"no background layer: {counts.get('reason', 'nothing to train')}"
         chosen = " (chosen by the photos' agreement)" if counts.get("shell_decided") else ""
+        unseen = counts.get("unseen_gaussians", 0)
+        unseen_text = f" ({unseen} extrapolated to directions no photo shows)" if unseen else ""
         return (
-            f"{counts['gaussians']} Gaussians on a {counts['shell_radius_m']:.3g} m shell{chosen}, "
+            f"{counts['gaussians']} Gaussians on a {counts['shell_radius_m']:.3g} m shell{chosen}{unseen_text}, "
             f"{100 * counts['share']:.1f} % of the pixels, {counts['iterations']} steps"
         )
 
