@@ -65,7 +65,9 @@ class BackgroundOptions:
     tenth of the fill's budget), SH degree 1 (a sky's gradient) set before any measurement; the shell's candidate
     radii (8 – the radius before the choice – to 512, at which a camera baseline of the region's size moves a far
     environment by about 0.1°) and ``min_pairs`` were chosen on the tuning layouts random-object 0 and random-aerial
-    0–2 (docs/experiments/2026-11-28-background-shell.md).
+    0–2 (docs/experiments/2026-11-28-background-shell.md); ``unseen_step_deg`` 2° was set before any measurement (about
+    twice the seeds' spacing: every 3rd pixel at 160 px, ~1.1° across a 60° view) and checked on those tuning layouts
+    only (docs/experiments/2026-11-28-unseen-directions.md §3).
     """
 
     enabled: bool = True
