@@ -171,3 +171,26 @@ def test_point_product_keeps_the_needs_splats_mvs_points_of_the_chosen_classes(t
     np.testing.assert_array_equal(has(pts_with, reflective), has(pts_without, reflective))
     extra = len(pts_with) - len(pts_without)
     assert extra == int((~has(pts_without, textureless)).sum()) > 0
+
+
+def test_a_collaborative_only_project_trains_no_fill_and_merges_the_survey_layer(tmp_path) -> None:
+    """Issue 29's skip: every region mask empty (no non-collaborative point, no hole) → no fill training, said
+    with its reason; the merge writes the survey layer alone."""
+    from core.io.json_io import write_json_atomic
+
+    layout, truth, _ = make_project(tmp_path / "p")
+    names = [v.name for v in ring_cameras(6)]
+    for name in names:
+        write_image(layout.mask_path(name), np.zeros((48, 64), np.uint8))
+    per_photo = [{"name": n, "coverage": 0.0, "empty": True, "train_margin_px": 0} for n in names]
+    write_json_atomic(layout.record("masks"), {"per_photo": per_photo, "training_needed": False})
+    ctx = StageContext(layout=layout, config=ProjectConfig(), source=SimpleNamespace(holdout_names=()))
+    assert TrainStage().needs(ctx) == "every region mask is empty: no non-collaborative region or hole needs splats"
+    assert "stage 'train' was skipped" in CleanStage().needs(ctx)
+    counts = MergeStage().run(ctx)
+    merged = read_gaussian_ply(layout.merged_ply)
+    assert counts["splats"] == 0 and counts["mvs"] == len(merged) > 0.9 * len(truth)  # the merge's filter aside
+    assert (np.asarray(merged.fields["source"]) == Source.MVS).all()
+    converted = read_gaussian_ply(layout.mvs_gaussians)
+    rows = {tuple(p) for p in converted.means + converted.origin}
+    assert all(tuple(p) in rows for p in merged.means + merged.origin)  # every position exactly an MVS Gaussian's
