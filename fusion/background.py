@@ -21,7 +21,7 @@ import numpy as np
 
 from core.cameras import Cameras
 from core.errors import ConfigError
-from core.gaussians import SH_C0, GaussianSet
+from core.gaussians import SH_C0, GaussianSet, logit
 from fusion.train.options import TrainOptions
 from fusion.train.strategy import DefaultStrategy
 
@@ -308,12 +308,14 @@ def fill_unseen_directions(
     """
     from scipy.spatial import cKDTree
 
-    offsets = trained.means - centre
-    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
-    lattice = _fibonacci_sphere(max(int(4.0 * np.pi / np.radians(step_deg) ** 2), 1))
+    from fusion.sphere_lattice import fibonacci_sphere
+
     k = min(neighbours, len(trained))
     if k == 0:
         return trained.subset(np.zeros(0, dtype=int))
+    offsets = trained.means - centre
+    distances = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
+    lattice = fibonacci_sphere(max(int(4.0 * np.pi / np.radians(step_deg) ** 2), 1))
     gaps, nearest = cKDTree(offsets / distances[:, None]).query(lattice, k=k)
     gaps, nearest = gaps.reshape(len(lattice), k), nearest.reshape(len(lattice), k)
     angular_sigma = trained.scales.max(axis=1) / distances  # radians; chords ≈ angles at these sizes
@@ -326,20 +328,12 @@ def fill_unseen_directions(
         centre + radius * lattice[uncovered],
         np.full((n, 3), np.log(0.6 * step * radius)),
         np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)),
-        np.full(n, float(np.log(0.95 / 0.05))),
+        np.full(n, float(logit(np.array(0.95)))),
         (colours - 0.5) / SH_C0,
         np.zeros((n, trained.sh_rest.shape[1], 3)),  # type: ignore[union-attr]
         trained.origin.copy(),
         {name: np.zeros(n, dtype=values.dtype) for name, values in trained.fields.items()},
     )
-
-
-def _fibonacci_sphere(count: int) -> np.ndarray:
-    """``count`` unit vectors (count, 3) spread near-uniformly over the sphere (the golden-angle spiral)."""
-    i = np.arange(count) + 0.5
-    polar = np.arccos(1.0 - 2.0 * i / count)
-    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * i
-    return np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
 
 
 @dataclass

@@ -116,6 +116,7 @@ import numpy as np
 
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import SH_C0, GaussianSet, logit, sigmoid
+from fusion.sphere_lattice import fibonacci_sphere
 
 EXTENSION = "KHR_gaussian_splatting"
 """The glTF extension name."""
@@ -212,14 +213,6 @@ def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(out, axis=1)
 
 
-def _fibonacci_sphere(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    r = np.sqrt(1.0 - z * z)
-    phi = np.pi * (3.0 - math.sqrt(5.0)) * i
-    return np.c_[r * np.cos(phi), r * np.sin(phi), z]
-
-
 def rotate_sh_rest(sh_rest: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     """SH coefficients (N, K−1, 3) (degrees 1..3, our layout) re-expressed in a frame rotated by ``rotation``.
 
@@ -233,7 +226,7 @@ def rotate_sh_rest(sh_rest: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     if k == 0:
         return rest.astype(np.float32)
     degree = int(round(math.sqrt(k + 1))) - 1
-    dirs_new = _fibonacci_sphere(64)
+    dirs_new = fibonacci_sphere(64)
     dirs_old = dirs_new @ np.asarray(rotation, np.float64)  # rows: Rᵀ · d_new
     basis_new = sh_basis(dirs_new, degree)
     basis_old = sh_basis(dirs_old, degree)

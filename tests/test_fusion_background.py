@@ -53,6 +53,23 @@ def _ball(radius: float = 0.15, n: int = 400, seed: int = 0) -> GaussianSet:
                        np.full((n, 3), (0.5 - 0.5) / SH_C0))  # fmt: skip
 
 
+def _ball_before_the_sky(cameras: Cameras, ball: GaussianSet) -> dict[str, np.ndarray]:
+    """Every camera's photo of the ball (grey) in front of a uniform sky."""
+    from fusion.render.scene import render_gaussian_set
+
+    images = {}
+    for view in cameras:
+        rendered = render_gaussian_set(ball, cameras.camera_of(view), view, background=tuple(SKY))
+        images[view.name] = rendered.colour.detach().numpy()
+    return images
+
+
+def _short_training(iterations: int) -> TrainOptions:
+    """A few background steps at SH degree 0, positions frozen, densifying every 40 steps."""
+    return TrainOptions(iterations=iterations, lr_means=0.0, sh_degree=0, min_iterations=iterations,
+                        strategy=DefaultStrategy(cap=4000, refine_start=40, refine_every=40))  # fmt: skip
+
+
 def test_rays_leave_the_sphere_where_the_geometry_says():
     rng = np.random.default_rng(1)
     centre, radius = np.array([1.0, -2.0, 0.5]), 3.0
@@ -96,13 +113,8 @@ def test_a_trained_background_draws_the_sky_behind_a_frozen_foreground():
     from fusion.render.scene import render_gaussian_set
 
     cameras, ball = _ring(n=8), _ball()
-    images = {}
-    for view in cameras:  # the ball (grey) in front of a uniform sky
-        rendered = render_gaussian_set(ball, cameras.camera_of(view), view, background=tuple(SKY))
-        images[view.name] = rendered.colour.detach().numpy()
-    training = TrainOptions(iterations=120, lr_means=0.0, sh_degree=0, min_iterations=120,
-                            strategy=DefaultStrategy(cap=4000, refine_start=40, refine_every=40))  # fmt: skip
-    options = BackgroundOptions(max_image_size=48, seed_stride_px=2, training=training)
+    images = _ball_before_the_sky(cameras, ball)
+    options = BackgroundOptions(max_image_size=48, seed_stride_px=2, training=_short_training(120))
     result = train_background(cameras, images, ball, options, seed=0)
     assert not isinstance(result, str)
     region = survey_region(ball.means)
@@ -129,13 +141,9 @@ def test_a_view_turned_past_every_photo_sees_the_sky_continued_not_black(step_de
     from fusion.render.scene import render_gaussian_set
 
     cameras, ball = _ring(n=8), _ball()
-    images = {}
-    for view in cameras:  # the ball (grey) in front of a uniform sky
-        rendered = render_gaussian_set(ball, cameras.camera_of(view), view, background=tuple(SKY))
-        images[view.name] = rendered.colour.detach().numpy()
-    training = TrainOptions(iterations=60, lr_means=0.0, sh_degree=0, min_iterations=60,
-                            strategy=DefaultStrategy(cap=4000, refine_start=40, refine_every=40))  # fmt: skip
-    options = BackgroundOptions(max_image_size=48, seed_stride_px=2, unseen_step_deg=step_deg, training=training)
+    images = _ball_before_the_sky(cameras, ball)
+    options = BackgroundOptions(max_image_size=48, seed_stride_px=2, unseen_step_deg=step_deg,
+                                training=_short_training(60))  # fmt: skip
     result = train_background(cameras, images, ball, options, seed=0)
     assert not isinstance(result, str)
     # the ring's photos see up to ~24° above the horizon; the zenith view 59°–90°: no photo shows it
