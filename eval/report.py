@@ -300,6 +300,23 @@ def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
     return notes
 
 
+#: how the report names the rasteriser that rendered the held-out views (the eval stage's ``renderer`` count)
+RENDERER_NAMES = {
+    "cpu": "the CPU rasteriser",
+    "gsplat": "gsplat (CUDA)",
+    "reference": "the PyTorch reference rasteriser",
+}
+
+
+def _renderer_note(report: Mapping[str, Any]) -> str:
+    """The image tables' title suffix " (rendered with …)": which rasteriser the eval stage rendered the held-out
+    views with (gsplat on a GPU, the CPU rasteriser elsewhere; their renders agree to 56–58 dB on the demo product,
+    docs/experiments/2026-11-27-gpu-paths.md); empty when the eval record does not say (an older project)."""
+    counts = ((report.get("stages") or {}).get("eval") or {}).get("counts") or {}
+    renderer = counts.get("renderer")
+    return f" (rendered with {RENDERER_NAMES.get(renderer, str(renderer))})" if renderer else ""
+
+
 def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
     """(title, header, rows) of every table, shared by Markdown and HTML."""
     products = report["products"]
@@ -335,9 +352,10 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
             c2c_rows,
         )
     ]
+    rendered = _renderer_note(report)
     for part, title in (
-        ("full", "Table 3 — image metrics, whole image"),
-        ("masked", "Table 4 — image metrics, non-collaborative mask"),
+        ("full", f"Table 3 — image metrics, whole image{rendered}"),
+        ("masked", f"Table 4 — image metrics, non-collaborative mask{rendered}"),
     ):
         rows = []
         notes = _budget_notes(report)

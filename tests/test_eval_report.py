@@ -123,6 +123,22 @@ def test_report_files_self_contained(project):
     assert "fusion.train" in page
 
 
+@pytest.mark.parametrize("renderer, named", [("gsplat", "gsplat (CUDA)"), ("cpu", "the CPU rasteriser")])
+def test_report_names_the_renderer_of_the_image_tables(project, renderer, named):
+    paths = _write(project)
+    assert "rendered with" not in paths.markdown.read_text()  # the eval record does not say: nothing claimed
+    manifest = json.loads((project / "manifest.json").read_text())
+    manifest["stages"]["eval"] = {"seconds": 1.0, "peak_mb": 1.0, "skipped": False, "reason": None,
+                                  "counts": {"renderer": renderer, "views": 3}}  # fmt: skip
+    (project / "manifest.json").write_text(json.dumps(manifest))
+    paths = _write(project)
+    md, page = paths.markdown.read_text(), paths.html.read_text()
+    for table in ("Table 3 — image metrics, whole image", "Table 4 — image metrics, non-collaborative mask"):
+        assert f"## {table} (rendered with {named})" in md
+        assert f"{table} (rendered with {named})" in page
+    assert "Table 2 — distance to the reference (metres)\n" in md  # geometry tables are not rendered
+
+
 def test_report_without_inputs(tmp_path):
     rep = _build(tmp_path)
     for name in ("mvs", "splats", "merged"):

@@ -364,6 +364,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     from dataclasses import replace
 
     from core.io.gaussian_ply import write_gaussian_ply
+    from fusion.render.gsplat_backend import gsplat_available
     from hybridsplat.stages.evaluate import EvalStageOptions
 
     _, project = project
@@ -376,6 +377,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
 
     again = run_pipeline(copy, load_config(copy), force=["eval"]).stages["eval"]
     assert again.counts["reused"] == len(measured)  # nothing changed: every measurement restored
+    assert again.counts["renderer"] == ("gsplat" if gsplat_available() else "cpu")  # the report names it
     assert json.loads(layout.metrics_json.read_text()) == first
     for name in measured:  # with the files they name
         for rel in first["products"][name]["c2c"]["files"].values():

@@ -271,6 +271,10 @@ class EvalStage(Stage):
         products = self._products(ctx)
         cache = self._cache(ctx, reference, tau, images, lpips_model) if opts.cache else None
         counts: dict[str, Any] = {"lpips": lpips_model is not None, "views": len(images.views) if images else 0}
+        if images is not None:
+            from fusion.render.api import resolve_backend
+
+            counts["renderer"] = resolve_backend("auto").value  # what rendered the held-out views (the report says)
         measured: dict[str, tuple[Any, Any]] = {}
         stored_tables: dict[str, Any] = {}
         keys: dict[str, str] = {}
