@@ -82,7 +82,7 @@ def _fmt(value: float | None, digits: int) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("project", type=Path)
-    parser.add_argument("--budgets", type=int, nargs="+", default=[0, 250, 500, 1000])
+    parser.add_argument("--budgets", type=int, nargs="*", default=[0, 250, 500, 1000])
     parser.add_argument("--work", type=Path, default=None, help="folder of the copies (default: PROJECT.ttq)")
     args = parser.parse_args()
     project = args.project.resolve()

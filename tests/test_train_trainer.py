@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -148,6 +149,22 @@ def test_training_is_deterministic_with_a_seed() -> None:
     assert len(a.splats) == len(b.splats)
     np.testing.assert_array_equal(a.splats.means, b.splats.means)
     np.testing.assert_array_equal(a.splats.sh_rest, b.splats.sh_rest)
+
+
+def test_a_snapshot_is_the_set_as_it_was_at_its_step() -> None:
+    # the optimiser updates the parameters in place: a snapshot that aliased them carried the run's last attributes
+    # (positions excepted); with no schedule tied to the run's length, the snapshot at step k is the k-step run's set
+    cams = ring_cameras(4)
+    truth = blob_set(80, 3)
+    photos = render_all(truth, cams)
+    fixed = DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0)
+    opts = TrainOptions(iterations=12, sh_degree=1, sh_degree_interval=4, lr_means=0.0, seed=2, strategy=fixed)
+    long = train_splats(cams, photos, None, perturbed(truth, 4), options=replace(opts, snapshot_iterations=(6,)))
+    short = train_splats(cams, photos, None, perturbed(truth, 4), options=replace(opts, iterations=6))
+    snapshot = long.snapshots[6]
+    for field in ("means", "log_scales", "quats", "logit_opacities", "sh_dc", "sh_rest"):
+        np.testing.assert_array_equal(getattr(snapshot, field), getattr(short.splats, field), err_msg=field)
+    assert not np.array_equal(snapshot.sh_dc, long.splats.sh_dc)  # the run went on after it
 
 
 def test_no_mask_pixels_is_a_data_error() -> None:

@@ -70,8 +70,9 @@ def context_from_set(gs: GaussianSet, centre: np.ndarray, sh_degree: int) -> Con
 def set_from_tensors(
     params: dict[str, torch.Tensor], centre: np.ndarray, origin: np.ndarray, sh_degree: int | None = None
 ) -> GaussianSet:
-    """A :class:`GaussianSet` (local frame of ``origin``) from training-frame parameters; SH cut to ``sh_degree``."""
-    p = {k: v.detach().cpu().numpy() for k, v in params.items()}
+    """A :class:`GaussianSet` (local frame of ``origin``) from training-frame parameters; SH cut to ``sh_degree``.
+    The set owns copies: the optimiser updates the parameters in place, so a view would change with them."""
+    p = {k: v.detach().cpu().numpy().copy() for k, v in params.items()}
     gs = GaussianSet(
         p["means"].astype(np.float64) + np.asarray(centre, np.float64),
         p["log_scales"],
