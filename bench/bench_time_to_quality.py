@@ -31,19 +31,21 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from hybridsplat.layout import ProjectLayout  # noqa: E402
+
 #: the hybrid's stages after SfM whose seconds the copies do not change (appearance and merge are rerun)
 UPSTREAM = ("mvs", "classify", "masks", "convert", "train", "clean", "background")
 
 
 def _stage_seconds(project: Path) -> dict[str, float]:
     """Seconds of each stage that ran (not skipped, not cached) in the project's manifest."""
-    stages = json.loads((project / "manifest.json").read_text())["stages"]
+    stages = json.loads(ProjectLayout(project).manifest.read_text())["stages"]
     return {name: rec["seconds"] for name, rec in stages.items() if not rec.get("skipped") and not rec.get("cached")}
 
 
 def _image_scores(project: Path) -> dict[str, dict[str, float]]:
     """Held-out image scores per product of eval/metrics.json: psnr, ssim, lpips (whole photo), masked_psnr."""
-    products = json.loads((project / "eval" / "metrics.json").read_text())["products"]
+    products = json.loads(ProjectLayout(project).metrics_json.read_text())["products"]
     out = {}
     for name, rec in products.items():
         images = rec.get("images") or {}
@@ -92,7 +94,7 @@ def main() -> None:
         sys.exit(f"{project}: no baseline trained and scored in this project (run it with the baseline on)")
     baseline_s, target = seconds["baseline"], scores["baseline"]["psnr"]
     upstream = sum(seconds.get(name, 0.0) for name in UPSTREAM)
-    counts = json.loads((project / "manifest.json").read_text())["stages"]["baseline"]["counts"]
+    counts = json.loads(ProjectLayout(project).manifest.read_text())["stages"]["baseline"]["counts"]
     print(f"{project.name}: baseline {counts.get('iterations')} steps, {baseline_s:.1f} s, held-out "
           f"{target:.2f} dB / SSIM {scores['baseline']['ssim']:.3f} / LPIPS {scores['baseline']['lpips']:.3f}, "
           f"masked {_fmt(scores['baseline']['masked_psnr'], 2)} dB")  # fmt: skip
@@ -110,7 +112,7 @@ def main() -> None:
         s = _stage_seconds(copy)
         rows.append((budget, s.get("appearance", 0.0), s.get("merge", 0.0), _image_scores(copy).get("merged"), copy))
     for budget, appear, merge, row, where in rows:
-        stages = json.loads((where / "manifest.json").read_text())["stages"]
+        stages = json.loads(ProjectLayout(where).manifest.read_text())["stages"]
         steps = (stages["appearance"].get("counts") or {}).get("iterations", 0) if budget != 0 else 0
         total = upstream + appear + merge
         label = "default" if budget is None else str(budget)
