@@ -55,7 +55,7 @@ def _refine(cameras, images, survey, context, steps: int, seed: int):
     from fusion.appearance import AppearanceOptions, refine_survey_appearance
 
     base = AppearanceOptions()
-    options = replace(base, training=replace(base.training, iterations=steps, patience=10**6))
+    options = replace(base, max_passes=0, training=replace(base.training, iterations=steps, patience=10**6))
     return refine_survey_appearance(cameras, images, survey, context, options, seed)
 
 
@@ -81,7 +81,8 @@ def curve(root: Path, steps: int) -> None:
 
 
 def held_back_view(root: Path, name: str, budgets: list[int]) -> None:
-    """Score survey + fill + background at the training photo ``name`` refined without it, per budget."""
+    """Score survey + fill + background at the training photo ``name`` refined without it, per budget (the fill
+    and background as refined beside the survey layer with ``refine_context``, the default; else as trained)."""
     from core.cameras import Cameras
     from core.gaussians import GaussianSet
     from eval.image_metrics import psnr
@@ -97,9 +98,12 @@ def held_back_view(root: Path, name: str, budgets: list[int]) -> None:
     camera = cameras.cameras[target.camera_id]
     for steps in budgets:
         t0 = time.perf_counter()
-        refined = _refine(others, images, survey, context, steps, seed).gaussians if steps else survey
+        result = _refine(others, images, survey, context, steps, seed) if steps else None
         seconds = time.perf_counter() - t0
-        layers = [refined.with_origin(cameras.origin)] + ([context] if context is not None else [])
+        refined = result.gaussians if result is not None else survey
+        beside = result.context if result is not None and result.context is not None else context  # refine_context
+        layers = [refined.with_origin(cameras.origin)]
+        layers += [beside.with_origin(cameras.origin)] if beside is not None else []
         degree = max(g.sh_degree for g in layers)
         scene = GaussianSet.concatenate([g.with_sh_degree(degree) for g in layers])
         colour = render_gaussian_set(scene, camera, target, cameras_origin=cameras.origin).colour.numpy()

@@ -6,7 +6,8 @@ held-out PSNR, against the baseline's own time?
 PROJECT is a finished ``hybridsplat run`` with the baseline trained to its plateau (e.g. 8 000 steps, with
 checkpoints) and ``eval`` run, alone on the machine (its stage seconds are the figures). For each appearance budget
 B in ``--budgets`` (0 = the appearance stage off: the survey layer keeps its converted look), a copy of PROJECT
-under ``--work`` reruns ``appearance`` (at most B steps, the stage's early stop as configured), ``merge`` and
+under ``--work`` reruns ``appearance`` (at most B steps: the stage's early stop as configured, its cap in passes
+over the photos off), ``merge`` and
 ``eval`` through the pipeline (eval's cache rescores only the products that changed). Printed per budget:
 
 - the hybrid's seconds after SfM: the project's own seconds of mvs, classify, masks, convert, train, clean and
@@ -70,7 +71,7 @@ def _rerun_with_budget(project: Path, copy: Path, budget: int) -> None:
     training = appearance.training
     if budget > 0:
         training = replace(training, iterations=budget, min_iterations=min(training.min_iterations, budget))
-    options = replace(appearance, enabled=budget > 0, training=training)
+    options = replace(appearance, enabled=budget > 0, max_passes=0, training=training)  # B steps, no pass cap
     names = ["appearance", "merge", "eval"]
     stages = [s for s in registered_stages() if s.name in names]
     run_pipeline(copy, config.with_stage_options("appearance", options), stages=stages, terminal=Terminal(quiet=True),

@@ -26,6 +26,7 @@ opacity, scales and rotations, not the higher SH bands.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -63,8 +64,9 @@ class AppearanceOptions:
     their σ unbounded), instead of keeping them frozen as trained. max_image_size: longer side of the
     training photos (px; 0 = full size). max_scale_spacings: the largest σ of a survey Gaussian, in multiples of
     its point's local spacing (never below its converted σ). spacing_neighbours: neighbours of that spacing.
-    training: the trainer's options (positions frozen: ``lr_means`` must be 0; the strategy must not refine; its
-    cap is raised to the survey layer's count).
+    max_passes: the step budget in passes over the training photos: at most ``max_passes`` × photos steps, never
+    more than ``training.iterations`` (0: no cap). training: the trainer's options (positions frozen: ``lr_means``
+    must be 0; the strategy must not refine; its cap is raised to the survey layer's count).
 
     How the defaults were set (never on a scored view): the fill's resolution (640 px); a bound of one spacing
     (2.5 × the conversion's σ of 0.4 spacings: neighbouring surfels overlap, none covers a hole; set before any
@@ -75,6 +77,9 @@ class AppearanceOptions:
     training views of the demo and the fountain (docs/experiments/2026-11-28-appearance-budget.md). ``refine_context``
     on by the held-out views of four tuning layouts (random-object 0, random-aerial 0–2; seeds no figure is scored
     on): whole-image PSNR and LPIPS better on all four (docs/experiments/2026-11-28-joint-refinement.md).
+    ``max_passes`` (84) is that 2 000-step budget per photo of the demo it was chosen on (24 photos: 83 passes), so a
+    scene with fewer photos does not fit each photo more often; a held-back training photo of the fountain (10
+    photos) scores no better after 2 000 steps than after 1 000 (docs/experiments/2026-11-29-time-to-quality.md).
     """
 
     enabled: bool = True
@@ -82,6 +87,7 @@ class AppearanceOptions:
     max_image_size: int = 640
     max_scale_spacings: float = 1.0
     spacing_neighbours: int = 8
+    max_passes: float = 84.0
     training: TrainOptions = field(default_factory=_appearance_training)
 
     def __post_init__(self) -> None:
@@ -89,6 +95,8 @@ class AppearanceOptions:
             raise ConfigError(f"max_image_size must be >= 0 (0: full size), got {self.max_image_size}")
         if not self.max_scale_spacings > 0 or not 1 <= self.spacing_neighbours <= 64:
             raise ConfigError("max_scale_spacings must be > 0 and spacing_neighbours in 1..64")
+        if not self.max_passes >= 0:
+            raise ConfigError(f"max_passes must be >= 0 (0: no cap), got {self.max_passes}")
         if self.training.lr_means != 0.0:
             raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got "
                               f"{self.training.lr_means}")  # fmt: skip
@@ -96,6 +104,14 @@ class AppearanceOptions:
         if not isinstance(strategy, DefaultStrategy) or strategy.refine_start < strategy.refine_stop:
             raise ConfigError("the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
                               "DefaultStrategy that never refines (refine_stop <= refine_start)")  # fmt: skip
+
+
+def step_budget(options: AppearanceOptions, photos: int) -> int:
+    """The fit's steps for ``photos`` training photos: ``training.iterations``, at most ``max_passes`` passes over
+    the photos (at least one step)."""
+    if options.max_passes == 0:
+        return options.training.iterations
+    return max(1, min(options.training.iterations, math.ceil(options.max_passes * photos)))
 
 
 def scale_bounds(means: np.ndarray, log_scales: np.ndarray, multiple: float, neighbours: int) -> np.ndarray:
@@ -150,7 +166,8 @@ def refine_survey_appearance(
         bounds = np.r_[bounds, np.full(len(context), np.inf)]
     downscale = training_downscale(cameras, options.training.downscale, options.max_image_size)
     strategy = replace(options.training.strategy, cap=max(options.training.strategy.cap, len(init)))
-    train_opts = replace(options.training, downscale=downscale, seed=seed, strategy=strategy)
+    steps = step_budget(options, sum(1 for view in cameras if view.name in images))
+    train_opts = replace(options.training, iterations=steps, downscale=downscale, seed=seed, strategy=strategy)
     result = train_splats(cameras, images, None, init, frozen, train_opts, progress, max_scales=bounds)
     trained = result.splats.with_origin(survey.origin)
     n = len(survey)
@@ -170,6 +187,7 @@ def refine_survey_appearance(
     counts = {
         "gaussians": len(refined),
         "iterations": result.iterations,
+        "step_budget": steps,
         "downscale": downscale,
         "resolution": list(result.resolution),
         "sh_degree": train_opts.sh_degree,

@@ -10,7 +10,13 @@ import pytest
 from core.cameras import Camera, Cameras, View
 from core.errors import ConfigError, DataError
 from core.gaussians import SH_C0, GaussianSet
-from fusion.appearance import AppearanceOptions, refine_survey_appearance, scale_bounds, with_converted_survey
+from fusion.appearance import (
+    AppearanceOptions,
+    refine_survey_appearance,
+    scale_bounds,
+    step_budget,
+    with_converted_survey,
+)
 from fusion.convert_options import Source
 from fusion.train.options import TrainOptions
 from fusion.train.strategy import DefaultStrategy
@@ -91,6 +97,24 @@ def test_options_refuse_moving_positions_or_densifying():
         AppearanceOptions(training=TrainOptions(lr_means=0.0))
     with pytest.raises(ConfigError):
         AppearanceOptions(max_scale_spacings=0.0)
+
+
+def test_the_step_budget_is_capped_in_passes_over_the_photos():
+    default = AppearanceOptions()
+    assert default.training.iterations == 2000 and default.max_passes == 84
+    assert step_budget(default, 24) == 2000  # the demo's 24 photos: the budget it was chosen with
+    assert step_budget(default, 10) == 840 and step_budget(default, 1) == 84
+    assert step_budget(AppearanceOptions(max_passes=0), 10) == 2000  # 0: no cap
+    assert step_budget(AppearanceOptions(max_passes=0.1), 2) == 1  # at least one step
+    with pytest.raises(ConfigError, match="max_passes"):
+        AppearanceOptions(max_passes=-1)
+    cameras, points = _ring(n=3), _ball(n=40)
+    gs = _set(points, np.full((40, 3), 0.5), 0.02, 0.0)
+    images = {v.name: np.full((36, 48, 3), 0.4, np.float32) for v in cameras}
+    fixed = DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0)
+    training = TrainOptions(iterations=50, lr_means=0.0, sh_degree=0, min_iterations=50, strategy=fixed)
+    result = refine_survey_appearance(cameras, images, gs, None, AppearanceOptions(max_passes=4, training=training), 0)
+    assert result.counts["iterations"] == result.counts["step_budget"] == 12  # 4 passes over 3 photos
 
 
 def test_the_trainer_refuses_a_scale_bound_on_a_set_that_may_grow():
