@@ -184,6 +184,7 @@ def hole_filled_depth(depth: np.ndarray) -> np.ndarray:
     would be across an MVS hole if it continued smoothly. (OpenCV's ``inpaint`` takes float32 images but returned
     values off by a metre on a plane 2 m away in our check.)"""
     from scipy.interpolate import LinearNDInterpolator
+    from threadpoolctl import threadpool_limits
 
     depth = np.asarray(depth, dtype=np.float32)
     holes = ~(np.isfinite(depth) & (depth > 0))
@@ -197,7 +198,10 @@ def hole_filled_depth(depth: np.ndarray) -> np.ndarray:
     targets = np.argwhere(holes).astype(np.float64)
     filled = np.full(len(targets), np.nan)
     if len(sites) >= 3 and np.linalg.matrix_rank(sites - sites[0]) == 2:
-        filled = LinearNDInterpolator(sites, values)(targets)
+        # one BLAS thread: qhull solves a 2 × 2 system per triangle, and OpenBLAS threads on such calls only spin
+        # (the merge of a fountain project sat in exec_blas_async_wait for minutes beside a second process)
+        with threadpool_limits(limits=1, user_api="blas"):
+            filled = LinearNDInterpolator(sites, values)(targets)
     outside = ~np.isfinite(filled)
     if outside.any():
         filled[outside] = values[cKDTree(sites).query(targets[outside])[1]]
