@@ -310,8 +310,8 @@ RENDERER_NAMES = {
 
 def _renderer_note(report: Mapping[str, Any]) -> str:
     """The image tables' title suffix " (rendered with …)": which rasteriser the eval stage rendered the held-out
-    views with (gsplat on a GPU, the CPU rasteriser elsewhere; their renders agree to 56–58 dB on the demo product,
-    docs/experiments/2026-11-27-gpu-paths.md); empty when the eval record does not say (an older project)."""
+    views with (gsplat on a GPU, the CPU rasteriser elsewhere; compared in docs/experiments/2026-11-27-gpu-paths.md);
+    empty when the eval record does not say (an older project)."""
     counts = ((report.get("stages") or {}).get("eval") or {}).get("counts") or {}
     renderer = counts.get("renderer")
     return f" (rendered with {RENDERER_NAMES.get(renderer, str(renderer))})" if renderer else ""

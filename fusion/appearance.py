@@ -78,8 +78,8 @@ class AppearanceOptions:
     on by the held-out views of four tuning layouts (random-object 0, random-aerial 0–2; seeds no figure is scored
     on): whole-image PSNR and LPIPS better on all four (docs/experiments/2026-11-28-joint-refinement.md).
     ``max_passes`` (84) is that 2 000-step budget per photo of the demo it was chosen on (24 photos: 83 passes), so a
-    scene with fewer photos does not fit each photo more often; a held-back training photo of the fountain (10
-    photos) scores no better after 2 000 steps than after 1 000 (docs/experiments/2026-11-29-time-to-quality.md).
+    scene with fewer photos does not fit each photo more often (checked on a held-back training photo of the
+    fountain: docs/experiments/2026-11-29-time-to-quality.md).
     """
 
     enabled: bool = True

@@ -198,8 +198,8 @@ def hole_filled_depth(depth: np.ndarray) -> np.ndarray:
     targets = np.argwhere(holes).astype(np.float64)
     filled = np.full(len(targets), np.nan)
     if len(sites) >= 3 and np.linalg.matrix_rank(sites - sites[0]) == 2:
-        # one BLAS thread: qhull solves a 2 × 2 system per triangle, and OpenBLAS threads on such calls only spin
-        # (the merge of a fountain project sat in exec_blas_async_wait for minutes beside a second process)
+        # one BLAS thread: qhull solves a 2 × 2 system per triangle; OpenBLAS's threads on such calls only spin, and
+        # beside a second process they starve each other (bench/bench_hole_fill_contention.py)
         with threadpool_limits(limits=1, user_api="blas"):
             filled = LinearNDInterpolator(sites, values)(targets)
     outside = ~np.isfinite(filled)
