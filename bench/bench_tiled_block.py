@@ -79,6 +79,8 @@ def products(project: Path) -> dict[str, float]:
     out["merged PSNR masked (dB)"] = images["masked"]["psnr"]
     manifest = json.loads(layout.manifest.read_text())["stages"]
     out["fused points"] = manifest["convert"]["counts"]["gaussians"]
+    appearance = manifest.get("appearance") or {}
+    out["appearance stage (s)"] = float(appearance.get("seconds") or 0.0)  # tiled: tile by tile
     return out
 
 

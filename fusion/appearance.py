@@ -147,11 +147,18 @@ def refine_survey_appearance(
     options: AppearanceOptions,
     seed: int,
     progress: Callable[[Any], None] | None = None,
+    *,
+    masks: Mapping[str, np.ndarray] | None = None,
+    fixed: GaussianSet | None = None,
 ) -> AppearanceResult:
     """Fit the appearance of ``survey`` (the MVS Gaussians of the survey layer, any origin) to ``images`` (name →
     (H, W, 3) photo at its camera's size; the training photos only) beside ``context`` (the fill and background
     layers), on every pixel: the context frozen, or with ``options.refine_context`` refined in the same fit (its
-    positions frozen as well, its σ unbounded, its α free). Positions are returned bit for bit."""
+    positions frozen as well, its σ unbounded, its α free). Positions are returned bit for bit.
+
+    masks: name → (H, W) bool, the pixels fitted (None: every pixel; a tile's fit, :mod:`hybridsplat.tile_appearance`,
+    fits the pixels its own Gaussians cover). fixed: Gaussians rendered beside the others and kept frozen whatever
+    ``refine_context`` says (a tile's view of the background layer)."""
     from fusion.train.masked import training_downscale
     from fusion.train.trainer import train_splats
 
@@ -164,11 +171,14 @@ def refine_survey_appearance(
         assert context is not None
         init, frozen = GaussianSet.concatenate([survey, context]), None
         bounds = np.r_[bounds, np.full(len(context), np.inf)]
+    if fixed is not None and len(fixed):
+        fixed = fixed.with_origin(survey.origin)
+        frozen = fixed if frozen is None else GaussianSet.concatenate([frozen.with_origin(survey.origin), fixed])
     downscale = training_downscale(cameras, options.training.downscale, options.max_image_size)
     strategy = replace(options.training.strategy, cap=max(options.training.strategy.cap, len(init)))
     steps = step_budget(options, sum(1 for view in cameras if view.name in images))
     train_opts = replace(options.training, iterations=steps, downscale=downscale, seed=seed, strategy=strategy)
-    result = train_splats(cameras, images, None, init, frozen, train_opts, progress, max_scales=bounds)
+    result = train_splats(cameras, images, masks, init, frozen, train_opts, progress, max_scales=bounds)
     trained = result.splats.with_origin(survey.origin)
     n = len(survey)
     least = np.float32(np.log(MIN_OPACITY / (1.0 - MIN_OPACITY)))
@@ -200,6 +210,14 @@ def refine_survey_appearance(
         "seconds_training": result.seconds,
     }
     return AppearanceResult(refined, result, counts, refined_context)
+
+
+def assign_attributes(out: GaussianSet, rows: np.ndarray, refined: GaussianSet) -> None:
+    """``out``'s ``rows`` (in place) take ``refined``'s scales, rotations, opacities and SH (the same SH degree);
+    positions, origin and fields untouched."""
+    out.log_scales[rows], out.quats[rows] = refined.log_scales, refined.quats
+    out.logit_opacities[rows], out.sh_dc[rows] = refined.logit_opacities, refined.sh_dc
+    out.sh_rest[rows] = refined.sh_rest
 
 
 def with_attributes(base: GaussianSet, trained: GaussianSet) -> GaussianSet:

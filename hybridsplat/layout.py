@@ -17,6 +17,19 @@ MESH_FORMATS = ("ply", "obj", "glb")
 
 
 @dataclass(frozen=True)
+class TileAppearanceFiles:
+    """A tile's part of a tiled appearance stage: its inputs, written by the parent (the parent's survey Gaussians
+    that do not need splats and its cleaned fill splats, those in the tile's bounds, in the parent's order), what the
+    tile refined of them (same rows), and its record (what the inputs were, for a resumed run)."""
+
+    survey: Path
+    fill: Path
+    survey_refined: Path
+    fill_refined: Path
+    record: Path
+
+
+@dataclass(frozen=True)
 class ProjectLayout:
     """Paths of one project folder ``root`` (nothing is created here; stages create what they write)."""
 
@@ -146,6 +159,17 @@ class ProjectLayout:
         """In a tile's project: the neighbouring tiles' cleaned splats that lie in this tile's overlap, frozen as
         context in its training (written by the tiled run before the tile trains; absent elsewhere)."""
         return self.splats_dir / "neighbours.ply"
+
+    def tile_appearance_files(self) -> TileAppearanceFiles:
+        """In a tile's project: the files of its part of a tiled appearance stage
+        (:mod:`hybridsplat.tile_appearance`); absent elsewhere."""
+        return TileAppearanceFiles(
+            survey=self.splats_dir / "tile_survey.ply",
+            fill=self.splats_dir / "tile_fill.ply",
+            survey_refined=self.splats_dir / "tile_survey_refined.ply",
+            fill_refined=self.splats_dir / "tile_fill_refined.ply",
+            record=self.logs_dir / "appearance_tile.json",
+        )
 
     @property
     def background_splats(self) -> Path:

@@ -19,17 +19,22 @@ from dataclasses import dataclass
 from typing import Any
 
 from core.errors import ConfigError
-from hybridsplat.tile_projects import TileJob, run_tile
+from hybridsplat.tile_projects import run_tile
 
 TileDone = Callable[[str, int, int], None]
 """Called as each tile finishes: (tile name, tiles done, tiles in all)."""
+
+TileTask = Callable[[Any], dict]
+"""What runs one tile's job (a module-level function, which Ray pickles by reference): :func:`run_tile` for the tile
+stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` for the appearance stage's part. A job has ``name``
+and ``memory_mb`` (the MB its task declares; 0: unknown)."""
 
 
 @dataclass(frozen=True)
 class ExecutionOptions:
     """How tiles run: ``workers`` tiles at a time on a local Ray instance (≤ 1: here, one by one, no Ray), or on the
     Ray cluster at ``ray_address``; ``cpus_per_tile`` CPUs declared per task; ``memory_mb_per_tile`` the memory
-    declared per task (0: each job's predicted peak, :attr:`TileJob.memory_mb`); ``max_retries`` of a task whose
+    declared per task (0: each job's ``memory_mb``, e.g. a tile's predicted peak); ``max_retries`` of a task whose
     worker died."""
 
     workers: int = 1
@@ -50,16 +55,19 @@ class ExecutionOptions:
         return bool(self.ray_address) or self.workers > 1
 
 
-def run_tiles(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None = None) -> list[dict]:
-    """Run every job; the tiles' records (:func:`run_tile`) in the order of ``jobs``."""
+def run_tiles(
+    jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDone | None = None, task: TileTask = run_tile
+) -> list[dict]:
+    """Run ``task`` on every job (:class:`TileJob` for :func:`run_tile`); the tiles' records in the order of
+    ``jobs``."""
     if not options.uses_ray:
         results = []
         for k, job in enumerate(jobs):
-            results.append(run_tile(job))
+            results.append(task(job))
             if on_done is not None:
                 on_done(job.name, k + 1, len(jobs))
         return results
-    return _run_on_ray(jobs, options, on_done)
+    return _run_on_ray(jobs, options, on_done, task)
 
 
 def import_ray() -> Any:
@@ -121,7 +129,7 @@ def _start_ray(ray: Any, options: ExecutionOptions) -> bool:
     return True
 
 
-def task_resources(job: TileJob, options: ExecutionOptions, cluster: dict[str, float]) -> dict[str, Any]:
+def task_resources(job: Any, options: ExecutionOptions, cluster: dict[str, float]) -> dict[str, Any]:
     """What a tile's Ray task declares: ``cpus_per_tile`` CPUs; memory (bytes) ``memory_mb_per_tile`` or else the
     job's predicted peak, at most 90 % of ``cluster["memory"]`` (the largest node's: a larger claim would never be
     scheduled); on a cluster with GPUs an equal share of them per tile running at once, at most one (the tile's
@@ -138,15 +146,15 @@ def task_resources(job: TileJob, options: ExecutionOptions, cluster: dict[str, f
     return resources
 
 
-def run_tile_task(job: TileJob) -> dict:
-    """:func:`run_tile` as a Ray task: its record with the resources Ray assigned to the task."""
+def run_tile_task(job: Any, task: TileTask = run_tile) -> dict:
+    """``task`` (:func:`run_tile`) as a Ray task: its record with the resources Ray assigned to the task."""
     import ray
 
-    record = run_tile(job)
+    record = task(job)
     return {**record, "resources": dict(ray.get_runtime_context().get_assigned_resources())}
 
 
-def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: TileDone | None) -> list[dict]:
+def _run_on_ray(jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDone | None, task: TileTask) -> list[dict]:
     ray = import_ray()
     started_here = _start_ray(ray, options)
     try:
@@ -154,8 +162,9 @@ def _run_on_ray(jobs: Sequence[TileJob], options: ExecutionOptions, on_done: Til
         # a task's memory must fit on one node: the largest node's, not the cluster's sum
         cluster["memory"] = max((n["Resources"].get("memory", 0.0) for n in ray.nodes() if n.get("Alive")),
                                 default=cluster.get("memory", 0.0))  # fmt: skip
-        task = ray.remote(run_tile_task)
-        pending = {task.options(**task_resources(job, options, cluster)).remote(job): k for k, job in enumerate(jobs)}
+        remote = ray.remote(run_tile_task)
+        pending = {remote.options(**task_resources(job, options, cluster)).remote(job, task): k
+                   for k, job in enumerate(jobs)}  # fmt: skip
         results: list[dict | None] = [None] * len(jobs)
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)

@@ -23,7 +23,8 @@ from recon.tiling import TilePlan
 TILE_STAGES: tuple[str, ...] = ("mvs", "classify", "masks", "convert", "train", "clean")
 """The stages each tile runs. The parent runs the rest on the stitched products: its own masks (on the stitched
 classified cloud, for every photo, held-out ones included) and conversion (exact neighbour spacing across tile
-borders), then background, appearance, merge, mesh, baseline, eval and report on the whole scene."""
+borders), then background, merge, mesh, baseline, eval and report on the whole scene, and appearance tile by tile
+(:mod:`hybridsplat.tile_appearance`)."""
 
 TRAINING_STAGES: tuple[str, ...] = ("train", "clean")
 """The tile stages that may wait for the neighbouring tiles (their splats frozen in the overlap,

@@ -205,6 +205,71 @@ def test_a_failing_tile_task_raises_its_own_error_naming_the_tile(tmp_path):
     assert "in tile r0c0 (a Ray task)" in err.value.__notes__
 
 
+def test_the_appearance_stage_refines_each_gaussian_in_the_tile_whose_core_holds_it(tiled, tmp_path):
+    import shutil
+
+    from core.io.gaussian_ply import read_gaussian_ply
+    from hybridsplat.project_io import needs_splats_per_gaussian
+
+    scene, sequential = tiled
+    project = tmp_path / "appearance"
+    shutil.copytree(sequential, project)
+    layout = ProjectLayout(project)
+    fit = options_with(AppearanceOptions, {"training.iterations": 20, "training.min_iterations": 20})
+    config = ProjectConfig(input=InputOptions(path=str(scene)),
+                           stages={**FAST, "tiles": TilesOptions(grid="2x1"), "appearance": fit})  # fmt: skip
+    counts = run_pipeline(project, config, stages=[stage_named("appearance")]).stages["appearance"].counts
+    assert counts["tiles"] == 2 and counts["survey_unrefined"] == 0 and counts["fill_unrefined"] == 0
+    assert not any(r["cached"] for r in counts["per_tile"])
+    plan = read_tile_plan(layout.tile_plan)
+    mvs, survey = read_gaussian_ply(layout.mvs_gaussians), read_gaussian_ply(layout.survey_splats)
+    np.testing.assert_array_equal(survey.means, mvs.means)
+    rows = np.flatnonzero(~needs_splats_per_gaussian(layout, mvs))
+    assert not np.allclose(survey.sh_dc[rows], mvs.sh_dc[rows])  # refined
+    fill, fill_refined = read_gaussian_ply(layout.cleaned_splats), read_gaussian_ply(layout.refined_fill_splats)
+    for t, tile in enumerate(plan.tiles):  # every row is its core's tile's, independent of the stitch's code
+        files = ProjectLayout(layout.tile_project(tile.name)).tile_appearance_files()
+        for whole, rows_of, part in ((survey, rows, files.survey_refined),
+                                     (fill_refined, np.arange(len(fill)), files.fill_refined)):  # fmt: skip
+            given = rows_of[plan.in_bounds(whole.means[rows_of], t)]
+            own = plan.owner(whole.means[given]) == t
+            refined = read_gaussian_ply(part)
+            assert own.any() and not own.all(), tile.name  # the tile saw its overlap too; the stitch kept its core
+            np.testing.assert_array_equal(whole.sh_dc[given[own]], refined.sh_dc[own])
+            np.testing.assert_array_equal(whole.logit_opacities[given[own]], refined.logit_opacities[own])
+    background = read_gaussian_ply(layout.background_splats)
+    kept = read_gaussian_ply(layout.refined_background_splats)
+    np.testing.assert_array_equal(kept.sh_dc, background.sh_dc)  # not refined tile by tile
+    # an interrupted stage: the tile whose record is gone is fitted again, the other one taken as it was
+    before = layout.survey_splats.read_bytes()
+    ProjectLayout(layout.tile_project("r0c1")).tile_appearance_files().record.unlink()
+    Manifest(layout.manifest).invalidate("appearance")
+    again = run_pipeline(project, config, stages=[stage_named("appearance")]).stages["appearance"].counts
+    assert {r["tile"]: r["cached"] for r in again["per_tile"]} == {"r0c0": True, "r0c1": False}
+    assert layout.survey_splats.read_bytes() == before  # the fit is deterministic for its seed
+
+
+def test_the_tiles_appearance_fits_as_ray_tasks_make_the_same_survey_layer(tiled, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'hybridsplat[distributed]')")
+    import shutil
+
+    scene, sequential = tiled
+    layout = ProjectLayout(tmp_path / "appearance")
+    shutil.copytree(sequential, layout.root)
+    fit = options_with(AppearanceOptions, {"training.iterations": 10, "training.min_iterations": 10})
+    products = []
+    for workers in (1, 2):
+        stages = {**FAST, "tiles": TilesOptions(grid="2x1", workers=workers), "appearance": fit}
+        config = ProjectConfig(input=InputOptions(path=str(scene)), stages=stages)
+        for tile in ("r0c0", "r0c1"):
+            ProjectLayout(layout.tile_project(tile)).tile_appearance_files().record.unlink(missing_ok=True)
+        counts = run_pipeline(layout.root, config, stages=[stage_named("appearance")], force=["appearance"])
+        per_tile = counts.stages["appearance"].counts["per_tile"]
+        assert sorted(r["tile"] for r in per_tile if not r["cached"]) == ["r0c0", "r0c1"]
+        products.append((layout.survey_splats.read_bytes(), layout.refined_fill_splats.read_bytes()))
+    assert products[0] == products[1]
+
+
 def test_a_tile_that_fuses_no_point_adds_nothing_and_is_not_redone(tiled, tmp_path, monkeypatch):
     import shutil
 

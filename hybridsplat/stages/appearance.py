@@ -8,7 +8,8 @@ points that need splats unrefined); ``merge`` builds the viewer product from it,
 the converted attributes. With ``refine_context`` (the default) the fill and background layers are refined in the
 same fit, positions frozen too: splats/fill_refined.ply and splats/background_refined.ply, row for row with
 splats/cleaned.ply and splats/background.ply, for the viewer product only (the survey points and the mesh read the
-layers as trained).
+layers as trained). On a tiled project the fit runs tile by tile (:mod:`hybridsplat.tile_appearance`; the background
+layer is then kept as trained).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fusion.appearance import AppearanceOptions
+from fusion.appearance import AppearanceOptions, assign_attributes
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import Stage, StageContext
 
@@ -34,9 +35,12 @@ class AppearanceStage(Stage):
     uses_seed = True
 
     def inputs(self, ctx: StageContext) -> list[Path]:
+        from hybridsplat.stages.tiles import tiling_on
+
         layout, ws = ctx.layout, ctx.layout.dense_workspace
         optional = [*layer_files(ctx), layout.classified_points]
-        return [layout.mvs_gaussians, *(p for p in optional if p.is_file()), ws.sparse, ws.images]
+        plan = [layout.tile_plan] if tiling_on(ctx) else []  # tiled: refined tile by tile, as the plan cuts it
+        return [layout.mvs_gaussians, *(p for p in optional if p.is_file()), ws.sparse, ws.images, *plan]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.survey_splats, *(refined for _, refined in self._refined_layers(ctx))]
@@ -72,9 +76,9 @@ class AppearanceStage(Stage):
 
         from core.io.gaussian_ply import write_gaussian_ply
         from hybridsplat import project_io
+        from hybridsplat.stages.tiles import tiling_on
 
         layout = ctx.layout
-        cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
         mvs, needs, layers = survey_layer_inputs(layout, layer_files(ctx))
         survey = np.flatnonzero(~needs)
         if len(survey) == 0:
@@ -82,6 +86,9 @@ class AppearanceStage(Stage):
             for base, refined in self._refined_layers(ctx):
                 write_gaussian_ply(refined, layers[base])
             return {"gaussians": 0, "reason": "every MVS point needs splats: the survey layer is empty"}
+        if tiling_on(ctx):  # each tile reads its own photos
+            return self._run_tiled(ctx, mvs, survey, layers)
+        cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
         from fusion.appearance import refine_survey_appearance  # torch: after the inputs are read
 
         def progress(info: Any) -> None:
@@ -93,13 +100,37 @@ class AppearanceStage(Stage):
         result = refine_survey_appearance(cameras, images, mvs.subset(survey), context, opts, ctx.config.seed,
                                           progress)  # fmt: skip
         out = mvs.with_sh_degree(result.gaussians.sh_degree)
-        refined = result.gaussians
-        out.log_scales[survey], out.quats[survey] = refined.log_scales, refined.quats
-        out.logit_opacities[survey], out.sh_dc[survey] = refined.logit_opacities, refined.sh_dc
-        out.sh_rest[survey] = refined.sh_rest
+        assign_attributes(out, survey, result.gaussians)
         write_gaussian_ply(layout.survey_splats, out)
         _write_refined_layers(self._refined_layers(ctx), layers, result.context)
         return {**result.counts, "unrefined_needs_splats": int(needs.sum())}
+
+    def _run_tiled(
+        self, ctx: StageContext, mvs: GaussianSet, survey: np.ndarray, layers: dict[Path, GaussianSet]
+    ) -> dict[str, Any]:
+        """The tiled project's fit (:mod:`hybridsplat.tile_appearance`): the survey rows and the fill refined tile by
+        tile, the background layer kept as trained (its refined copy is the layer itself)."""
+        from core.io.gaussian_ply import write_gaussian_ply
+        from hybridsplat.tile_appearance import run_tiled_appearance
+
+        layout, opts = ctx.layout, ctx.options(self)
+        fill = layers.get(layout.cleaned_splats)
+        background = layers.get(layout.background_splats)
+        with_background = background is not None and len(background) > 0
+        stitched = run_tiled_appearance(ctx, mvs.subset(survey), fill, with_background, opts)
+        out = mvs.with_sh_degree(stitched.survey.sh_degree)
+        assign_attributes(out, survey, stitched.survey)
+        write_gaussian_ply(layout.survey_splats, out)
+        for base, refined in self._refined_layers(ctx):
+            write_gaussian_ply(refined, stitched.fill if base == layout.cleaned_splats else layers[base])
+        return {
+            "gaussians": len(survey),
+            "sh_degree": stitched.survey.sh_degree,
+            "context_refined": len(fill) if fill is not None and self._refined_layers(ctx) else 0,
+            "background_refined": False,
+            "unrefined_needs_splats": int(len(mvs) - len(survey)),
+            **stitched.counts,
+        }
 
     def summary(self, counts: dict[str, Any]) -> str:
         if not counts.get("gaussians"):
@@ -108,6 +139,10 @@ class AppearanceStage(Stage):
         psnr = f", held-back PSNR {first:.2f} -> {last:.2f} dB" if first is not None and last is not None else ""
         context = counts.get("context_refined", 0)
         beside = f" with {context} fill and background Gaussians" if context else ""
+        if counts.get("tiles"):
+            beside = f" with {context} fill Gaussians" if context else ""
+            where = f" in {counts['tiles']} tiles (background as trained), up to {counts['iterations']} steps a tile"
+            return f"{counts['gaussians']} survey Gaussians refined{beside}{where}, SH {counts['sh_degree']}"
         return (
             f"{counts['gaussians']} survey Gaussians refined{beside} (positions frozen), {counts['iterations']} "
             f"steps, SH {counts['sh_degree']}{psnr}"

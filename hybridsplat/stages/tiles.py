@@ -13,8 +13,8 @@ stitched cloud, and every later stage on the whole scene as untiled.
 Before the tiles run, the stage prints the cost model's prediction of wall time and peak memory for the workers
 given (:mod:`hybridsplat.tile_cost`) and records it beside what happened. The tiles train in two checkerboard
 phases, the second with the first's splats frozen in its overlap (:mod:`hybridsplat.tile_context`; ``--no-tile-context``
-trains every tile alone). Not done per tile yet: the background and appearance layers (whole scene, after the
-stitch).
+trains every tile alone). The ``appearance`` stage then refines the survey layer tile by tile
+(:mod:`hybridsplat.tile_appearance`); the background layer is trained on the whole scene after the stitch.
 """
 
 from __future__ import annotations
