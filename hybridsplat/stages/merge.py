@@ -7,7 +7,8 @@ converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, S
 3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable); the tileset also holds the survey points as a
 point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it). ``splat_surface``
 (``run --splat-surface``, off by default) adds the splat-surface points of the fill layer to the survey points
-(:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record.
+(:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record; on a tiled project they
+are found tile by tile (:mod:`hybridsplat.tile_surface`).
 """
 
 from __future__ import annotations
@@ -303,15 +304,22 @@ def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any
     from fusion.splat_surface import as_point_set, front_depths_from_points, splat_surface_points
     from fusion.survey import classes_of_points, with_splat_surface
     from hybridsplat import project_io
+    from hybridsplat.stages.tiles import tiling_on
 
     layout, opts = ctx.layout, ctx.options(MergeStage)
     held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
     masks = project_io.read_region_masks(layout, views.cameras, training=True)
     masks = {k: m for k, m in masks.items() if k not in held_out and m.any() and len(splats)}  # none: nothing to render
-    front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
     mvs, needs = mvs_needs
     anchors = mvs.with_origin(views.cameras.origin).means  # the σ model's anchor surface: every fused MVS point
-    found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points, anchors)
+    if tiling_on(ctx):  # each tile renders its own views (hybridsplat.tile_surface)
+        from hybridsplat.tile_surface import run_tiled_surface
+
+        found = run_tiled_surface(ctx, splats, views.cameras, set(masks), views.trusted, anchors,
+                                  opts.splat_surface_points)  # fmt: skip
+    else:
+        front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
+        found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points, anchors)
     surface = as_point_set(found, views.cameras.origin)
     support = None
     if opts.splat_surface_support is not None:
