@@ -49,11 +49,12 @@ class CostRates:
 
 
 REFERENCE_RATES = CostRates(
-    per_photo_mpx_s=14.7, per_step_mpx_s=1.0, per_tile_s=2.0, base_mb=700.0, per_photo_mpx_mb=150.0
+    per_photo_mpx_s=11.6, per_step_mpx_s=0.75, per_tile_s=2.0, base_mb=700.0, per_photo_mpx_mb=150.0
 )
-"""Rates of the 2-core reference machine (Python 3.11, torch CPU): fitted on the demo scene (seed 0, 24 photos of
-320 × 240, 300 training steps) run as 2 × 1 tiles on 2026-11-28 (docs/experiments/2026-11-28-tiled-runs.md); a
-project's own finished tiles replace them."""
+"""Rates of the 2-core reference machine (Python 3.11, torch CPU) for a tile task of one CPU: fitted on the demo
+scene (seed 0, 24 photos of 320 × 240, 300 training steps) run as 2 × 1 tiles on 2 Ray workers of one CPU each
+(docs/experiments/2026-11-29-tiled-appearance.md; the memory rates of the first fit, 2026-11-28, on tiles in one
+process, docs/experiments/2026-11-28-tiled-runs.md); a project's own finished tiles replace them."""
 
 
 @dataclass(frozen=True)
