@@ -26,8 +26,9 @@ TileDone = Callable[[str, int, int], None]
 
 TileTask = Callable[[Any], dict]
 """What runs one tile's job (a module-level function, which Ray pickles by reference): :func:`run_tile` for the tile
-stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` for the appearance stage's part. A job has ``name``
-and ``memory_mb`` (the MB its task declares; 0: unknown)."""
+stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` and :func:`hybridsplat.tile_surface.run_tile_surface`
+for the appearance and merge stages' parts. A job has ``name`` and ``memory_mb`` (the MB its task declares; 0:
+unknown)."""
 
 
 @dataclass(frozen=True)

@@ -62,13 +62,19 @@ class AppearanceStage(Stage):
 
     def expected_bytes(self, ctx: StageContext) -> int:
         """Bytes of splats/survey.ply: the converted MVS Gaussians (export/mvs_gaussians.ply's count and fields) at
-        the training SH degree, an origin sidecar and the log (64 KiB)."""
+        the training SH degree, an origin sidecar and the log (64 KiB); with tiles, also each tile's inputs and
+        refined copies of the survey and fill Gaussians in its bounds (counted as the whole layers three times:
+        two files each, overlaps held twice)."""
+        from hybridsplat.stages.tiles import tiling_on
+
         opts: AppearanceOptions = ctx.options(self)
         total = sizes.SIDECAR_BYTES + sizes.LOG_BYTES
+        tiled = tiling_on(ctx)
         for path in [ctx.layout.mvs_gaussians, *(base for base, _ in self._refined_layers(ctx))]:
             layer = sizes.ply_vertices(path)
             degree = max(layer.sh_degree, opts.training.sh_degree)
-            total += sizes.gaussian_ply_bytes(layer.count, degree, len(layer.extras)) + sizes.SIDECAR_BYTES
+            one = sizes.gaussian_ply_bytes(layer.count, degree, len(layer.extras)) + sizes.SIDECAR_BYTES
+            total += one * (4 if tiled and path != ctx.layout.background_splats else 1)
         return total
 
     def run(self, ctx: StageContext) -> dict[str, Any]:
