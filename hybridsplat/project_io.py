@@ -8,6 +8,7 @@ Gaussians. Every reader names the file it found wrong in its error.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -55,17 +56,23 @@ def read_project_model(layout: ProjectLayout, path: Path) -> tuple[Cameras, Poin
 
 
 def read_training_photos(
-    layout: ProjectLayout, held_out: set[str] | frozenset[str]
+    layout: ProjectLayout, held_out: Collection[str] = (), only: Collection[str] | None = None
 ) -> tuple[Cameras, dict[str, np.ndarray]]:
     """The dense workspace's cameras without the ``held_out`` photos (never trained on) and their undistorted photos
-    by name (the whole images a layer is trained on)."""
+    by name (the whole images a layer is trained on); ``only``: just these photos (a tile's)."""
     from core.io.images import read_image
 
-    ws = layout.dense_workspace
-    cameras, _ = read_project_model(layout, ws.sparse)
-    views = {i: v for i, v in cameras.views.items() if v.name not in held_out}
-    cameras = Cameras(cameras.cameras, views, cameras.origin)
-    return cameras, {v.name: read_image(ws.images / v.name) for v in cameras}
+    cameras = dense_cameras(layout, held_out, only)
+    return cameras, {v.name: read_image(layout.dense_workspace.images / v.name) for v in cameras}
+
+
+def dense_cameras(
+    layout: ProjectLayout, held_out: Collection[str] = (), only: Collection[str] | None = None
+) -> Cameras:
+    """The dense workspace's cameras without the ``held_out`` photos, and with ``only`` just those photos."""
+    cameras, _ = read_project_model(layout, layout.dense_workspace.sparse)
+    keep = {i: v for i, v in cameras.views.items() if v.name not in held_out and (only is None or v.name in only)}
+    return Cameras(cameras.cameras, keep, cameras.origin)
 
 
 # ------------------------------------------------------------------------------------------------- masks: a record

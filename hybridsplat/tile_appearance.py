@@ -114,6 +114,8 @@ def run_tile_appearance(job: TileAppearanceJob) -> dict[str, Any]:
     were up to date). A task of :func:`hybridsplat.tile_execution.run_tiles`: small values in and out."""
     from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
     from core.io.json_io import read_json_object, write_json_atomic
+    from hybridsplat import project_io
+    from hybridsplat.manifest import PeakMemory
 
     files = ProjectLayout(job.root).tile_appearance_files()
     key = _inputs_key(job, files)
@@ -121,13 +123,11 @@ def run_tile_appearance(job: TileAppearanceJob) -> dict[str, Any]:
         record = read_json_object(files.record)
         if record.get("inputs") == key and (files.fill_refined.is_file() or not files.fill.is_file()):
             return {"tile": job.name, **record["counts"], "seconds": 0.0, "cached": True}
-    from hybridsplat.manifest import PeakMemory
-
     start = time.perf_counter()
     files.record.unlink(missing_ok=True)
     with PeakMemory(interval_s=0.2) as memory:
         parent = ProjectLayout(job.parent)
-        cameras, images = _tile_photos(parent, job.photos)
+        cameras, images = project_io.read_training_photos(parent, only=set(job.photos))
         survey = read_gaussian_ply(files.survey)
         fill = read_gaussian_ply(files.fill) if files.fill.is_file() else None
         background = read_gaussian_ply(parent.background_splats) if job.with_background else None
@@ -169,19 +169,6 @@ def _refine(
     context = fill if fill is not None and len(fill) else None
     return refine_survey_appearance(cameras, images, survey, context, job.options, job.seed, masks=masks,
                                     fixed=background)  # fmt: skip
-
-
-def _tile_photos(parent: ProjectLayout, names: Sequence[str]) -> tuple[Cameras, dict[str, np.ndarray]]:
-    """The parent's dense cameras of the photos ``names`` and those undistorted photos."""
-    from core.io.images import read_image
-    from hybridsplat.project_io import read_project_model
-
-    ws = parent.dense_workspace
-    cameras, _ = read_project_model(parent, ws.sparse)
-    wanted = set(names)
-    views = {i: v for i, v in cameras.views.items() if v.name in wanted}
-    cameras = Cameras(cameras.cameras, views, cameras.origin)
-    return cameras, {v.name: read_image(ws.images / v.name) for v in cameras}
 
 
 def _inputs_key(job: TileAppearanceJob, files: TileAppearanceFiles) -> str:
@@ -276,6 +263,7 @@ def run_tiled_appearance(
     splats) and ``fill`` (its cleaned splats; None without) refined tile by tile on the tiles' training photos, the
     background layer frozen beside them when ``with_background``, run like the tile stages (``[tiles]`` workers,
     ray_address, cpus_per_tile) and stitched by core. Counts: tiles, per tile, the Gaussians no tile refined."""
+    from hybridsplat.manifest import PeakMemory
     from hybridsplat.stages.tiles import TilesOptions
     from hybridsplat.tile_execution import ExecutionOptions, run_tiles
     from recon.tiling import read_tile_plan
@@ -294,15 +282,11 @@ def run_tiled_appearance(
         jobs.append(prepare_tile_appearance(layout, plan, tile.index, survey, fill, photos, tile_options,
                                             ctx.config.seed, with_background))  # fmt: skip
         indices.append(tile.index)
-    tiles: TilesOptions = ctx.config.options("tiles", TilesOptions)
-    execution = ExecutionOptions(workers=tiles.workers, ray_address=tiles.ray_address,
-                                 cpus_per_tile=tiles.cpus_per_tile)  # fmt: skip
+    execution = ExecutionOptions.of(ctx.config.options("tiles", TilesOptions))
     ctx.progress("appearance: tiles", 0, len(jobs))
 
     def done(name: str, finished: int, total: int) -> None:
         ctx.progress(f"appearance: tile {name} done", finished, total)
-
-    from hybridsplat.manifest import PeakMemory
 
     with PeakMemory(interval_s=0.2, children=True) as memory:  # the Ray workers' memory too
         records = run_tiles(jobs, execution, done, task=run_tile_appearance)

@@ -51,6 +51,12 @@ class ExecutionOptions:
                 f"{self.workers}, {self.cpus_per_tile}, {self.memory_mb_per_tile}, {self.max_retries}"
             )
 
+    @classmethod
+    def of(cls, tiles: Any) -> ExecutionOptions:
+        """How the tiles of a project run: its ``[tiles]`` options' ``workers``, ``ray_address`` and
+        ``cpus_per_tile`` (:class:`hybridsplat.stages.tiles.TilesOptions`)."""
+        return cls(workers=tiles.workers, ray_address=tiles.ray_address, cpus_per_tile=tiles.cpus_per_tile)
+
     @property
     def uses_ray(self) -> bool:
         return bool(self.ray_address) or self.workers > 1

@@ -83,7 +83,6 @@ def run_tile_surface(job: TileSurfaceJob) -> dict[str, Any]:
     (points found, pixel counts). A task of :func:`hybridsplat.tile_execution.run_tiles`."""
     import time
 
-    from core.cameras import Cameras
     from core.io.gaussian_ply import read_gaussian_ply
     from core.io.json_io import write_json_atomic
     from fusion.splat_surface import front_depths_from_points, splat_surface_points
@@ -92,9 +91,7 @@ def run_tile_surface(job: TileSurfaceJob) -> dict[str, Any]:
     start = time.perf_counter()
     parent = ProjectLayout(job.parent)
     files = ProjectLayout(job.root).tile_surface_files()
-    cameras, _ = project_io.read_project_model(parent, parent.dense_workspace.sparse)
-    wanted = set(job.views)
-    cameras = Cameras(cameras.cameras, {i: v for i, v in cameras.views.items() if v.name in wanted}, cameras.origin)
+    cameras = project_io.dense_cameras(parent, only=set(job.views))
     masks = project_io.read_region_masks(parent, cameras, training=True)
     splats = read_gaussian_ply(files.splats)
     with np.load(files.points) as points:
@@ -116,6 +113,8 @@ def stitch_tile_surface(
     """The points of ``tiles`` (plan indices whose files exist), each kept from the tile whose core holds it, in
     tile order; ``reference`` re-indexed to ``views`` (the parent's masked views, in camera order); the pixel
     counts summed over the tiles."""
+    from core.io.json_io import read_json_object
+
     index = {name: k for k, name in enumerate(views)}
     parts: dict[str, list[np.ndarray]] = {k: [] for k in _ARRAYS}
     counts: dict[str, int] = {}
@@ -127,8 +126,6 @@ def stitch_tile_surface(
             for key in _ARRAYS:
                 parts[key].append(found[key][own])
             parts["reference"][-1] = np.array([index[tile_views[r]] for r in parts["reference"][-1]], np.int32)
-        from core.io.json_io import read_json_object
-
         for key, value in read_json_object(files.record)["counts"].items():
             counts[key] = counts.get(key, 0) + int(value)
     if not tiles:
@@ -167,9 +164,7 @@ def run_tiled_surface(
             continue  # no pixel of it could be confirmed by enough other views
         jobs.append(prepare_tile_surface(layout, plan, tile.index, local, trusted, anchors, tile_views, options))
         indices.append(tile.index)
-    tiles: TilesOptions = ctx.config.options("tiles", TilesOptions)
-    execution = ExecutionOptions(workers=tiles.workers, ray_address=tiles.ray_address,
-                                 cpus_per_tile=tiles.cpus_per_tile)  # fmt: skip
+    execution = ExecutionOptions.of(ctx.config.options("tiles", TilesOptions))
 
     def done(name: str, finished: int, total: int) -> None:
         ctx.progress(f"splat surface: tile {name} done", finished, total)

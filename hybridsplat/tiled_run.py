@@ -58,8 +58,7 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
             too_few.append(tile.name)  # its core is seen by fewer than two photos: nothing to match depth between
             continue
         jobs.append((tile.index, prepare_tile(layout, plan, tile.index, ctx.config, held_out)))
-    execution = ExecutionOptions(workers=options.workers, ray_address=options.ray_address,
-                                 cpus_per_tile=options.cpus_per_tile)  # fmt: skip
+    execution = ExecutionOptions.of(options)
 
     phases = None  # the training phases as positions in ``jobs``, for the cost model
     if options.neighbour_context:
