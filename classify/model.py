@@ -94,7 +94,9 @@ class TrainingReport:
 
     per_class: scores per class. binary: scores of "needs splats" as the positive class. confusion: (C, C) int64,
     rows true, columns predicted, in ``class_names`` order. importances: feature name → mean decrease in impurity.
-    n_train / n_test: points.
+    n_train / n_test: points. out_of_fold_needs: (N,) float32 needs-splats probability of every row of the training
+    table from a forest that did not see its group (smoothed as the model will smooth), when training had grouped
+    folds, else None: per-scene held-out scores of a recipe (:func:`classify.training.scene_scores_out_of_fold`).
     """
 
     per_class: tuple[ClassScores, ...]
@@ -104,6 +106,7 @@ class TrainingReport:
     importances: dict[str, float]
     n_train: int
     n_test: int
+    out_of_fold_needs: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -230,10 +233,12 @@ def train(
     grouped = n_groups >= 2
     folds = min(options.folds, n_groups)
     smooth = options.smooth_passes if grouped and table.neighbours is not None else 0
+    oof_needs = None
     if grouped:
         proba = _out_of_fold_proba(x, y, rows, np.asarray(groups), folds, classes, options)
         if smooth:
             proba = smooth_probabilities(proba, table.neighbours, smooth)  # type: ignore[arg-type]
+        oof_needs = proba[:, classes.needs_splats_of(classes.codes)].sum(axis=1).astype(np.float32)
         test = rows
         p_test = proba[test]
         n_train = len(rows)
@@ -248,7 +253,7 @@ def train(
     final = _forest(options)
     final.fit(x[every], y[every])  # type: ignore[attr-defined]
     imp = dict(zip(table.names, (float(v) for v in final.feature_importances_), strict=True))  # type: ignore[attr-defined]
-    report = TrainingReport(per_class, binary, conf, classes.names, imp, n_train, len(test))
+    report = TrainingReport(per_class, binary, conf, classes.names, imp, n_train, len(test), oof_needs)
     model = ClassifierModel(final, table.names, feature_options, classes, dict(info or {}))
     model.info["forest_options"] = asdict(options)
     model.info["held_out"] = {"needs_splats_f1": binary.f1, "n_test": len(test), "grouped": bool(grouped)}

@@ -16,7 +16,16 @@ import numpy as np
 from classify.classes import UNLABELLED, ClassSet, load_classes
 from classify.features import FeatureOptions, FeatureTable, compute_features, views_from_workspace
 from classify.labels import labels_from_field, labels_from_masks, scene_point_truth, transfer_labels
-from classify.model import ClassifierModel, ForestOptions, TrainingReport, save_model, spatial_groups, train
+from classify.model import (
+    ClassifierModel,
+    ClassScores,
+    ForestOptions,
+    TrainingReport,
+    save_model,
+    scores,
+    spatial_groups,
+    train,
+)
 from classify.synthetic import SceneData, stack_scenes
 from core.errors import ConfigError, DataError, InputFileError
 from core.pointcloud import PointCloud
@@ -49,18 +58,25 @@ class SynthTrainingScene:
 
 DEFAULT_TRAINING_SCENES: tuple[SynthTrainingScene, ...] = tuple(
     SynthTrainingScene(preset, seed, FULL_SIZE if seed % 2 == 0 else SMALL_SIZE)
-    for seed in range(24)
+    for seed in range(48)
     for preset in ("random-object", "random-aerial")
 )
 """The scenes the shipped model ``classify/models/default.skops`` is trained on, in order: procedural layouts
-(``data_synth`` presets ``random-object`` and ``random-aerial``) of seeds 0–23, the even seeds at
+(``data_synth`` presets ``random-object`` and ``random-aerial``) of seeds 0–47, the even seeds at
 :data:`FULL_SIZE`, the odd ones at :data:`SMALL_SIZE`. No scored scene shares a layout with them: the hand-built
 layouts (``demo``, ``tabletop``, ``aerial``) are scored only, and procedural seeds 100–199 are reserved for
 scoring (issue 30: generalisation is measured on layouts, not seeds)."""
 
 SCENE_FOLDS = 6
 """Folds the default model's training scenes are dealt to for its out-of-fold threshold (each scene held out
-whole): 48 scenes in 6 fits instead of 48."""
+whole): 96 scenes in 6 fits instead of 96."""
+
+DEFAULT_FOREST = ForestOptions(class_weight=None)
+"""The forest of the shipped model's recipe: :class:`classify.model.ForestOptions` with unweighted classes (32
+trees, depth ≤ 14, leaves ≥ 5, one smoothing pass, seed 0). Chosen with the band kept in training and today's three
+feature groups by the mean out-of-fold F1 (band left out) over the 96 training scenes alone, among 19 recipes
+(``bench/bench_classify.py --part choose``; docs/experiments/2026-11-29-classify-fair-choice.md); no scored scene
+was loaded to choose it."""
 
 
 def train_on_scenes(
@@ -90,6 +106,25 @@ def train_on_scenes(
     return train(
         table, codes, classes, options, forest, info=info, groups=groups, groups_are_projects=True if by_scene else None
     )
+
+
+def scene_scores_out_of_fold(datas: list[SceneData], report: TrainingReport, threshold: float) -> list[ClassScores]:
+    """Needs-splats scores of each scene of a :func:`train_on_scenes` run (``by_scene``), from its out-of-fold
+    probabilities (each scene predicted by a forest that never saw it) at ``threshold``, the truth's ignore band
+    left out (the issue-30 score): the figure a recipe is chosen by without looking at a scored scene.
+
+    datas: the scenes in the order they were trained on; report: that run's report."""
+    p = report.out_of_fold_needs
+    if p is None:
+        raise ConfigError("the training run has no out-of-fold probabilities (it needs two scenes or more)")
+    sizes = [len(d.truth.codes) for d in datas]
+    if sum(sizes) != len(p):
+        raise DataError(f"{len(p)} out-of-fold rows for {sum(sizes)} points of {len(datas)} scenes")
+    out = []
+    for d, p_scene in zip(datas, np.split(p, np.cumsum(sizes)[:-1]), strict=True):
+        ok = d.truth.scored
+        out.append(scores(d.truth.needs_splats[ok], p_scene[ok] >= threshold, "needs_splats"))
+    return out
 
 
 # -- training from the user's projects --------------------------------------------------------------------------

@@ -1,15 +1,16 @@
 """Train the default classifier shipped as classify/models/default.skops, reproducibly.
 
-Training data: procedural data_synth layouts (``random-object`` and ``random-aerial``, seeds 0–23:
+Training data: procedural data_synth layouts (``random-object`` and ``random-aerial``, seeds 0–47:
 ``classify.training.DEFAULT_TRAINING_SCENES``), the even seeds at 24 views of 320×240, the odd ones at 16
 requested views of 288×216 (two sampling densities), 2 held-out views each, reconstructed with ``hybridsplat sfm``
 (the scene's known cameras) and ``hybridsplat mvs --threads 1`` (CPU MVS). Labels: the scenes' truth (τ = 3 GSD),
-the ignore band (points within τ of both kinds of surface) kept in training (a choice made on the scored layouts,
-not on training layouts: docs/experiments/2026-11-27-classify-procedural.md says so and what to redo).
-Forest: 32 trees, depth ≤ 14, leaves ≥ 5 points, balanced class weights, seed 0, probabilities smoothed once over
-the finest neighbourhood; the needs-splats threshold is chosen on leave-one-scene-out predictions (each scene
-predicted by a forest that never saw it, the scenes dealt to 6 folds; ``classify.training.train_on_scenes``). Scoring
-(``bench/bench_classify.py``) uses the hand-built layouts and procedural seeds 100–105, never a training layout.
+the ignore band (points within τ of both kinds of surface) kept in training. Features: geometric, radiometric and
+multi-view. Forest: ``classify.training.DEFAULT_FOREST`` (32 trees, depth ≤ 14, leaves ≥ 5 points, unweighted
+classes, seed 0, probabilities smoothed once over the finest neighbourhood); the needs-splats threshold is chosen
+on leave-one-scene-out predictions (each scene predicted by a forest that never saw it, the scenes dealt to 6
+folds; ``classify.training.train_on_scenes``). The recipe was chosen on these training scenes alone
+(``bench/bench_classify.py --part choose``: each candidate's mean out-of-fold F1); scoring (``bench/bench_classify.py
+--part score``) uses the hand-built layouts and procedural seeds 106–111, never a training layout.
 
     python scripts/train_default_classifier.py --data D        # reuses D/<preset>_s<seed>/{scene,proj}
     python scripts/train_default_classifier.py --data D --out classify/models/default.skops
@@ -26,13 +27,14 @@ import json
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from classify.classes import load_classes
 from classify.features import FeatureGroup, FeatureOptions
-from classify.model import ForestOptions, same_forest, save_model
+from classify.model import same_forest, save_model
 from classify.synthetic import load_scene_data
-from classify.training import DEFAULT_TRAINING_SCENES, SCENE_FOLDS, SynthTrainingScene, train_on_scenes
+from classify.training import DEFAULT_FOREST, DEFAULT_TRAINING_SCENES, SCENE_FOLDS, SynthTrainingScene, train_on_scenes
 from data_synth.layout import SceneLayout
 from hybridsplat.layout import ProjectLayout
 
@@ -84,7 +86,7 @@ def main() -> None:
         "ignore_band": bool(args.ignore_band),
         "scene_folds": args.scene_folds,
     }
-    forest = ForestOptions(seed=args.seed)
+    forest = replace(DEFAULT_FOREST, seed=args.seed)
     t1 = time.perf_counter()
     model, report = train_on_scenes(
         datas, classes, options, forest, info=info, ignore_ambiguous=args.ignore_band, scene_folds=args.scene_folds
