@@ -317,7 +317,10 @@ def part_choose(args) -> dict:
     """Each candidate recipe trained on the training scenes with scenes dealt to folds: every scene scored
     (needs-splats F1, band left out) by a forest that never saw it, at the threshold the recipe itself picks. The
     recipe is chosen here, by the mean over the training scenes (``--choose-on``: over these of them), before any
-    scored scene is loaded (issue 30: defaults are chosen on layouts disjoint from the scored ones)."""
+    scored scene is loaded (issue 30: defaults are chosen on layouts disjoint from the scored ones).
+    ``--forest-seeds``: each recipe trained once per forest seed and each scene's F1 averaged over them; the
+    per-seed means show how much of a difference between recipes the forest's own randomness makes (on 29 Nov the
+    top recipes differed by less than it: docs/experiments/2026-11-29-classify-fair-choice.md)."""
     from classify.training import scene_scores_out_of_fold
 
     classes = load_classes()
@@ -331,21 +334,28 @@ def part_choose(args) -> dict:
         if args.only and not any(o in label for o in args.only):
             continue
         t1 = time.perf_counter()
-        model, report = train_on_scenes(
-            list(train_sets.values()), classes, features, forest,
-            ignore_ambiguous=ignore_band, scene_folds=args.scene_folds,
-        )  # fmt: skip
-        per_scene = scene_scores_out_of_fold(list(train_sets.values()), report, float(model.info["threshold"]))
-        f1 = {n: sc.f1 for n, sc in zip(names, per_scene, strict=True) if sc.support > 0}
+        per_seed, thresholds = [], []
+        for seed in args.forest_seeds:
+            model, report = train_on_scenes(
+                list(train_sets.values()), classes, features, replace(forest, seed=seed),
+                ignore_ambiguous=ignore_band, scene_folds=args.scene_folds,
+            )  # fmt: skip
+            threshold = float(model.info["threshold"])
+            per_scene = scene_scores_out_of_fold(list(train_sets.values()), report, threshold)
+            per_seed.append({n: sc.f1 for n, sc in zip(names, per_scene, strict=True) if sc.support > 0})
+            thresholds.append(threshold)
+        f1 = {n: float(np.mean([s[n] for s in per_seed])) for n in per_seed[0]}
         chosen = [f1[n] for n in choose_on if n in f1]
+        seed_means = [float(np.mean([s[n] for n in choose_on if n in s])) for s in per_seed]
         res = {"features": list(features.selected()), "forest": asdict(forest), "band_ignored_in_training": ignore_band,
-               "threshold": model.info["threshold"], "train_s": time.perf_counter() - t1, "f1": f1,
+               "forest_seeds": list(args.forest_seeds), "thresholds": thresholds, "seed_means": seed_means,
+               "train_s": time.perf_counter() - t1, "f1": f1,
                "mean_f1": float(np.mean(chosen)), "min_f1": float(np.min(chosen)),
                "scenes_at_0_85": int(np.sum(np.asarray(chosen) >= 0.85)), "scenes": len(chosen),
                "forest_pickle_bytes": len(pickle.dumps(model.forest))}  # fmt: skip
-        print(f"[{label}] out-of-fold F1 over {len(chosen)} training scenes: mean {res['mean_f1']:.3f}, "
-              f"min {res['min_f1']:.3f}, {res['scenes_at_0_85']} at >= 0.85; threshold {res['threshold']}, "
-              f"{res['train_s']:.0f} s")  # fmt: skip
+        print(f"[{label}] out-of-fold F1 over {len(chosen)} training scenes: mean {res['mean_f1']:.3f} (per forest "
+              f"seed {', '.join(f'{m:.3f}' for m in seed_means)}), min {res['min_f1']:.3f}, {res['scenes_at_0_85']} "
+              f"at >= 0.85; thresholds {thresholds}, {res['train_s']:.0f} s")  # fmt: skip
         out["results"][label] = res
     best = max(out["results"], key=lambda k: (out["results"][k]["mean_f1"], out["results"][k]["min_f1"]))
     out["chosen"] = best
@@ -509,6 +519,8 @@ def main() -> None:
     )
     ap.add_argument("--choose-on", nargs="*", default=None,
                     help="--part choose: the training scenes that choose (default: all of --train)")  # fmt: skip
+    ap.add_argument("--forest-seeds", nargs="+", type=int, default=[0],
+                    help="--part choose: forest seeds each recipe is trained with (F1 averaged over them)")  # fmt: skip
     ap.add_argument("--compare-model", nargs="*", default=[], help="saved models scored beside (controls)")
     ap.add_argument("--mask-scenes", nargs="*", default=[], help="scenes scored for their masks only (textured_s1)")
     ap.add_argument("--only", nargs="*", default=None, help="run only experiments whose label contains one of these")

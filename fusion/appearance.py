@@ -240,9 +240,11 @@ def with_converted_survey(
     and, when given, its fill rows (``Source.SPLAT``) those of ``fill`` (splats/cleaned.ply) and its background rows
     (``Source.BACKGROUND``) those of ``background`` (splats/background.ply): the layers as before the appearance
     stage, in ``converted``'s origin. The refinement never moves a Gaussian, so positions identify the rows (each
-    reference is brought to that origin as the merge brings it); of several Gaussians at one position, the first is
-    taken. What the survey products (the mesh, the controls that measure MVS) read instead of the refined
-    appearance. Raises :class:`DataError` (naming ``source_path``) when a row matches no Gaussian of its reference."""
+    reference is brought to that origin as the merge brings it); where several Gaussians share one position (a
+    clone that moved with its parent), the k-th such row of ``merged`` takes the k-th of the reference, in file
+    order (the merge keeps each layer's order). What the survey products (the mesh, the controls that measure MVS)
+    read instead of the refined appearance. Raises :class:`DataError` (naming ``source_path``) when a row matches no
+    Gaussian of its reference."""
     from core.errors import DataError
     from fusion.convert_options import Source
 
@@ -270,12 +272,15 @@ def _restore_rows(out: GaussianSet, rows: np.ndarray, reference: GaussianSet, wh
 
     keys = _position_keys(reference.means)
     order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
     wanted = _position_keys(out.means[rows])
-    at = np.minimum(np.searchsorted(keys[order], wanted), len(order) - 1)
-    found = keys[order][at] == wanted if len(order) else np.zeros(len(rows), bool)
+    first = np.searchsorted(sorted_keys, wanted, side="left")
+    count = np.searchsorted(sorted_keys, wanted, side="right") - first
+    found = count > 0
     if not found.all():
         raise DataError(f"{int((~found).sum())} Gaussians of the merged product lie where no {what} does: the "
                         f"layer changed since the merge", source_path)  # fmt: skip
+    at = first + np.minimum(_rank_among_equal(wanted), count - 1)
     index = order[at]
     source = reference.with_sh_degree(out.sh_degree)
     out.log_scales[rows] = source.log_scales[index]
@@ -283,6 +288,15 @@ def _restore_rows(out: GaussianSet, rows: np.ndarray, reference: GaussianSet, wh
     out.logit_opacities[rows] = source.logit_opacities[index]
     out.sh_dc[rows] = source.sh_dc[index]
     out.sh_rest[rows] = source.sh_rest[index]  # type: ignore[index]
+
+
+def _rank_among_equal(keys: np.ndarray) -> np.ndarray:
+    """(N,) int64: how many earlier entries of ``keys`` (N,) equal each one (0 for the first of its value)."""
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    rank = np.empty(len(keys), dtype=np.int64)
+    rank[order] = np.arange(len(keys)) - np.searchsorted(sorted_keys, sorted_keys, side="left")
+    return rank
 
 
 def _position_keys(means: np.ndarray) -> np.ndarray:

@@ -245,6 +245,28 @@ def test_every_layer_gets_its_attributes_back_by_position():
         with_converted_survey(merged, converted, fill=fill.subset(np.arange(11)))  # row 11 is merged
 
 
+def test_gaussians_that_share_a_position_keep_their_own_attributes():
+    """A clone that moved with its parent: two fill splats at one position, bit for bit, with different colours
+    and opacities. Each merged row gets back its own as-trained attributes (the k-th at a position the k-th),
+    also when one of them was dropped before it (then the one left takes the first)."""
+    rng = np.random.default_rng(8)
+    converted = _set(rng.normal(size=(5, 3)), rng.uniform(size=(5, 3)), 0.01, 1.0)
+    fill = _set(rng.normal(size=(6, 3)), rng.uniform(size=(6, 3)), 0.02, 0.5)
+    fill.means[4] = fill.means[1]
+    fill.logit_opacities[4] = -1.5
+    refined = fill.subset(np.arange(6))
+    refined.sh_dc += 0.3
+    merged = GaussianSet.concatenate([converted, refined])
+    merged.fields["source"] = np.array([Source.MVS] * 5 + [Source.SPLAT] * 6, np.uint8)
+    restored = with_converted_survey(merged, converted, fill=fill)
+    np.testing.assert_array_equal(restored.sh_dc[5:], fill.sh_dc)
+    np.testing.assert_array_equal(restored.logit_opacities[5:], fill.logit_opacities)
+    assert not np.array_equal(fill.sh_dc[1], fill.sh_dc[4])
+    one_left = GaussianSet.concatenate([converted, refined.subset(np.array([0, 2, 3, 4, 5]))])
+    one_left.fields["source"] = merged.fields["source"][:10]
+    np.testing.assert_array_equal(with_converted_survey(one_left, converted, fill=fill).sh_dc[8], fill.sh_dc[1])
+
+
 def test_a_merged_file_rebased_on_reading_still_finds_its_layers(tmp_path):
     from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
 
