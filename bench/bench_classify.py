@@ -289,7 +289,7 @@ def recipe_candidates(args) -> dict[str, tuple[FeatureOptions, ForestOptions, bo
     """label → (features, forest options, band ignored in training): the recipes ``--part choose`` compares on the
     training scenes alone — today's three groups, + fusion evidence, all six; the band kept or left out; today's
     groups without the absolute colour (red, green, blue, hue: a layout's palette, not its material); the forest's
-    leaf size, depth, smoothing, class weights and tree count (a smaller file at equal F1 wins)."""
+    leaf size, depth, smoothing, class weights and tree count."""
     base = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     today = FeatureOptions(groups=ALL)
     fusion = FeatureOptions(groups=(*ALL, FeatureGroup.FUSION))

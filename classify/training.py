@@ -74,7 +74,7 @@ whole): 96 scenes in 6 fits instead of 96."""
 DEFAULT_FOREST = ForestOptions(class_weight=None)
 """The forest of the shipped model's recipe: :class:`classify.model.ForestOptions` with unweighted classes (32
 trees, depth ≤ 14, leaves ≥ 5, one smoothing pass, seed 0). Chosen with the band kept in training and today's three
-feature groups by the mean out-of-fold F1 (band left out) over the 96 training scenes alone, among 19 recipes
+feature groups by the mean out-of-fold F1 (band left out) over the 96 training scenes alone, among 16 recipes
 (``bench/bench_classify.py --part choose``; docs/experiments/2026-11-29-classify-fair-choice.md); no scored scene
 was loaded to choose it."""
 
