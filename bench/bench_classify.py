@@ -287,16 +287,17 @@ def part_score(args) -> dict:
 
 def recipe_candidates(args) -> dict[str, tuple[FeatureOptions, ForestOptions, bool]]:
     """label → (features, forest options, band ignored in training): the recipes ``--part choose`` compares on the
-    training scenes alone — today's three groups, + fusion evidence, all six; the band kept or left out; today's
+    training scenes alone — today's three groups, + fusion evidence, every group; the band kept or left out; today's
     groups without the absolute colour (red, green, blue, hue: a layout's palette, not its material); the forest's
-    leaf size, depth, smoothing, class weights and tree count."""
+    leaf size, depth, smoothing, class weights and tree count; the shipped recipe (unweighted classes) + image
+    texture and with every group."""
     base = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     today = FeatureOptions(groups=ALL)
     fusion = FeatureOptions(groups=(*ALL, FeatureGroup.FUSION))
     every = FeatureOptions(groups=tuple(FeatureGroup))
     no_colour = FeatureOptions(names=tuple(n for n in today.selected() if n not in ("red", "green", "blue", "hue")))
     out = {}
-    for groups_label, features in (("3 groups", today), ("3 groups + fusion", fusion), ("6 groups", every)):
+    for groups_label, features in (("3 groups", today), ("3 groups + fusion", fusion), ("every group", every)):
         for band_label, ignore in (("band kept", False), ("band ignored", True)):
             out[f"{groups_label}, {band_label}"] = (features, base, ignore)
     out["3 groups without absolute colour, band kept"] = (no_colour, base, False)
@@ -310,6 +311,9 @@ def recipe_candidates(args) -> dict[str, tuple[FeatureOptions, ForestOptions, bo
     for passes in (2, 3):
         unweighted = replace(base, class_weight=None, smooth_passes=passes)
         out[f"3 groups, band kept, unweighted classes, {passes} smoothing passes"] = (today, unweighted, False)
+    texture = FeatureOptions(groups=(*ALL, FeatureGroup.IMAGE_TEXTURE))
+    out["3 groups + image texture, band kept, unweighted classes"] = (texture, replace(base, class_weight=None), False)
+    out["every group, band kept, unweighted classes"] = (every, replace(base, class_weight=None), False)
     return out
 
 

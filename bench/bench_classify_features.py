@@ -4,10 +4,10 @@ Reads ``P/dense`` (``fused.ply`` + ``.vis``, the photos and depth maps of the de
 photos never take part) and times each feature group on the whole fused cloud: geometric (``compute_features``
 with that group alone: the space-filling-curve order, the finest k-NN every other group reuses, three scales),
 then each view-based group's own function on the same points (multiview, fusion, view_dependent,
-image_boundaries), and ``compute_features`` with the default three groups and with all six. Photos and depth
-maps are decoded once beforehand (their decode time is printed apart), so the figures compare the groups' work,
-not the file reads; each figure is the best of ``--repeat`` runs. A figure taken while something else runs on the
-machine is not a figure: the load (``uptime``) is printed before and after::
+image_boundaries, image_texture), and ``compute_features`` with the default three groups and with all seven.
+Photos and depth maps are decoded once beforehand (their decode time is printed apart), so the figures compare the
+groups' work, not the file reads; each figure is the best of ``--repeat`` runs. A figure taken while something else
+runs on the machine is not a figure: the load (``uptime``) is printed before and after::
 
     python bench/bench_classify_features.py --project P [--repeat 3] [--max-points 500000]
 """
@@ -33,6 +33,7 @@ from classify.features import (
 )
 from classify.features.fusion_evidence import fusion_features
 from classify.features.image_boundaries import image_boundary_features
+from classify.features.image_texture import image_texture_features
 from classify.features.multiview import multiview_features
 from classify.features.view_dependent import view_dependent_features
 from core.pointcloud import PointCloud
@@ -87,6 +88,7 @@ def _group_runs(cloud: PointCloud, views: ViewData, geo: FeatureTable) -> dict[s
         "fusion": lambda: fusion_features(pos, vis, views, geo.spacing, geo.neighbours, mv),
         "view_dependent": lambda: view_dependent_features(pos, vis, cloud.normals, views, mv),
         "image_boundaries": lambda: image_boundary_features(pos, vis, views, geo.spacing, mv),
+        "image_texture": lambda: image_texture_features(pos, vis, views, mv),
     }
 
 
@@ -115,7 +117,7 @@ def main() -> None:
     for name, fn in _group_runs(cloud, views, geo).items():  # type: ignore[arg-type]
         t, cols = _best(fn, args.repeat)
         rows.append((name, len(cols), t))  # type: ignore[arg-type]
-    for label, groups in (("compute_features default 3", ALL_GROUPS), ("compute_features all 6", ALL_GROUPS_EXTENDED)):
+    for label, groups in (("compute_features default 3", ALL_GROUPS), ("compute_features all 7", ALL_GROUPS_EXTENDED)):
         t, table = _best(lambda g=groups: compute_features(cloud, FeatureOptions(groups=g), views), args.repeat)
         rows.append((label, len(table.names), t))  # type: ignore[union-attr]
     t_mv = dict((r[0], r[2]) for r in rows)["multiview"]

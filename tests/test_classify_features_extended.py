@@ -1,7 +1,7 @@
-"""The three opt-in view-based groups (fusion, view_dependent, image_boundaries) wired into the registry,
+"""The four opt-in view-based groups (fusion, view_dependent, image_boundaries, image_texture) wired into the registry,
 compute_features and the model file: the defaults unchanged, selection by group name, every value finite on a
 small dense workspace read from disk (COLMAP model, photos, depth maps, fused.ply + .vis), and a model trained
-on all six groups saved and loaded."""
+on all seven groups saved and loaded."""
 
 from __future__ import annotations
 
@@ -28,15 +28,15 @@ from core.io.ply import write_ply
 from core.pointcloud import PointCloud
 from recon.workspace import DenseWorkspace, read_fused, write_array, write_vis
 
-NEW = (FeatureGroup.FUSION, FeatureGroup.VIEW_DEPENDENT, FeatureGroup.IMAGE_BOUNDARIES)
+NEW = (FeatureGroup.FUSION, FeatureGroup.VIEW_DEPENDENT, FeatureGroup.IMAGE_BOUNDARIES, FeatureGroup.IMAGE_TEXTURE)
 
 
-def test_defaults_are_the_three_groups_and_the_extension_lists_six_in_registry_order():
+def test_defaults_are_the_three_groups_and_the_extension_lists_seven_in_registry_order():
     assert FeatureOptions().groups == ALL_GROUPS and ALL_GROUPS_EXTENDED == (*ALL_GROUPS, *NEW)
     default = FeatureOptions().selected()
     assert len(default) == 51 and not any(feature_specs(3)[n].group in NEW for n in default)
     every = FeatureOptions(groups=ALL_GROUPS_EXTENDED).selected()
-    assert every[:51] == default and len(every) == 51 + 3 + 4 + 3
+    assert every[:51] == default and len(every) == 51 + 3 + 4 + 3 + 3
     assert list(every) == list(feature_specs(3))  # the registry order
     assert set(VIEW_GROUPS) == {FeatureGroup.MULTIVIEW, *NEW}
     for g in NEW:
@@ -85,7 +85,7 @@ def workspace(tmp_path):
     return ws, truth
 
 
-def test_all_six_groups_on_a_dense_workspace_and_the_model_round_trip(workspace, tmp_path):
+def test_all_seven_groups_on_a_dense_workspace_and_the_model_round_trip(workspace, tmp_path):
     ws, truth = workspace
     cloud = read_fused(ws.root)
     views = views_from_workspace(ws.root)
@@ -97,7 +97,7 @@ def test_all_six_groups_on_a_dense_workspace_and_the_model_round_trip(workspace,
     floating = truth == 1
     dist = t.column("fusion_backproj_dist")
     assert np.median(dist[floating]) > 10 * np.median(dist[~floating])
-    with pytest.raises(ConfigError, match="fusion, view_dependent, image_boundaries"):
+    with pytest.raises(ConfigError, match="fusion, view_dependent, image_boundaries, image_texture"):
         compute_features(cloud, FeatureOptions(groups=NEW))
     model, _ = train(t, truth, load_classes(), opts, ForestOptions(n_estimators=4, n_jobs=1))
     back = load_model(save_model(model, tmp_path / "m.skops"))

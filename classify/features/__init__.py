@@ -1,5 +1,5 @@
-"""Per-point features of a dense cloud: geometric (multi-scale), radiometric and multi-view, and three optional
-view-based groups (fusion evidence, view-dependent colour, image boundaries).
+"""Per-point features of a dense cloud: geometric (multi-scale), radiometric and multi-view, and four optional
+view-based groups (fusion evidence, view-dependent colour, image boundaries, image texture).
 
 ``compute_features(cloud, options, views)`` returns a :class:`FeatureTable` (names + an (N, F) float32 matrix).
 Every feature is documented in :mod:`classify.features.registry` and selectable by name.
@@ -14,6 +14,7 @@ import numpy as np
 from classify.features.fusion_evidence import fusion_features
 from classify.features.geometric import GeometricOptions, geometric_features, point_spacing, spatial_order
 from classify.features.image_boundaries import image_boundary_features
+from classify.features.image_texture import image_texture_features
 from classify.features.multiview import MultiViewOptions, ViewData, multiview_features, views_from_workspace
 from classify.features.radiometric import color_variance, rgb_hsv
 from classify.features.registry import (
@@ -46,13 +47,14 @@ __all__ = [
 ]
 
 ALL_GROUPS = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
-# Every group, in registry order: the default three plus fusion evidence, view-dependent colour and image
-# boundaries (opt-in: the shipped model is trained on ALL_GROUPS).
+# Every group, in registry order: the default three plus fusion evidence, view-dependent colour, image boundaries
+# and image texture (opt-in: the shipped model is trained on ALL_GROUPS).
 ALL_GROUPS_EXTENDED = (
     *ALL_GROUPS,
     FeatureGroup.FUSION,
     FeatureGroup.VIEW_DEPENDENT,
     FeatureGroup.IMAGE_BOUNDARIES,
+    FeatureGroup.IMAGE_TEXTURE,
 )
 # The groups that need the photos, cameras and depth maps of the dense workspace (``views``).
 VIEW_GROUPS = (
@@ -60,6 +62,7 @@ VIEW_GROUPS = (
     FeatureGroup.FUSION,
     FeatureGroup.VIEW_DEPENDENT,
     FeatureGroup.IMAGE_BOUNDARIES,
+    FeatureGroup.IMAGE_TEXTURE,
 )
 
 
@@ -69,8 +72,8 @@ class FeatureOptions:
 
     names: feature names (full names, geometric base names or group names; None = every feature of ``groups``).
     groups: the groups used when ``names`` is None (default: geometric, radiometric, multiview;
-    :data:`ALL_GROUPS_EXTENDED` adds fusion, view_dependent and image_boundaries).
-    geometric / multiview: their options. chunk_size applies to every chunked step; the three view-based groups
+    :data:`ALL_GROUPS_EXTENDED` adds fusion, view_dependent, image_boundaries and image_texture).
+    geometric / multiview: their options. chunk_size applies to every chunked step; the four view-based groups
     after multiview take their chunking, image cache and fallback depth tolerance from ``multiview`` too.
     """
 
@@ -222,4 +225,6 @@ def _view_columns(
         columns.update(view_dependent_features(pos, vis, cloud.normals, views, mv))
     if FeatureGroup.IMAGE_BOUNDARIES in groups:
         columns.update(image_boundary_features(pos, vis, views, spacing, mv))
+    if FeatureGroup.IMAGE_TEXTURE in groups:
+        columns.update(image_texture_features(pos, vis, views, mv))
     return columns

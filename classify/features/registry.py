@@ -5,7 +5,7 @@ stores the names it was trained on and refuses data whose names differ. Geometri
 scale; their names carry the scale index (``linearity_s0``, ``linearity_s1``...). The table below is the
 documentation users see (``hybridsplat classify features`` prints it).
 
-Groups, in registry order (``FeatureOptions()`` selects the first three; ``ALL_GROUPS_EXTENDED`` all six):
+Groups, in registry order (``FeatureOptions()`` selects the first three; ``ALL_GROUPS_EXTENDED`` all seven):
 
 ================ ===================== ===================================================================
 group            module                what it measures
@@ -16,12 +16,13 @@ multiview        multiview.py          photos and depth maps of the frustum / fu
 fusion           fusion_evidence.py    disagreement of the fusing depth maps; offset from the neighbours' plane
 view_dependent   view_dependent.py     luminance against viewing direction across the fusing views
 image_boundaries image_boundaries.py   photo edges (Sobel, Canny distance) at the point's projections
+image_texture    image_texture.py      grey-level spread and corner strength in the MVS window at the projections
 ================ ===================== ===================================================================
 
 Units: ``1`` dimensionless (lengths divided by the cloud's median point spacing among them, as the meaning says),
 ``px`` photo pixels.
-The new groups (fusion, view_dependent, image_boundaries) need the views, like multiview; each has a documented
-neutral value for a point without the evidence (no fusing view, fewer than 2 or 3 views, no normal).
+The newer groups (fusion, view_dependent, image_boundaries, image_texture) need the views, like multiview; each has a
+documented neutral value for a point without the evidence (no fusing view, fewer than 2 or 3 views, no normal).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ class FeatureGroup(str, Enum):
     FUSION = "fusion"
     VIEW_DEPENDENT = "view_dependent"
     IMAGE_BOUNDARIES = "image_boundaries"
+    IMAGE_TEXTURE = "image_texture"
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ class FeatureSpec:
 
 _G, _R, _M = FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW
 _F, _V, _B = FeatureGroup.FUSION, FeatureGroup.VIEW_DEPENDENT, FeatureGroup.IMAGE_BOUNDARIES
+_T = FeatureGroup.IMAGE_TEXTURE
 
 # Geometric features per scale; e1 >= e2 >= e3 are the covariance eigenvalues divided by their sum.
 GEOMETRIC_BASE: tuple[FeatureSpec, ...] = (
@@ -168,6 +171,27 @@ IMAGE_BOUNDARIES: tuple[FeatureSpec, ...] = (
     ),
 )
 
+IMAGE_TEXTURE: tuple[FeatureSpec, ...] = (
+    FeatureSpec(
+        "texture_std_views",
+        "1",
+        _T,
+        "mean grey std (0-1) in the MVS window (7 x 7 px) at the point's projections in the fusing views (0: none)",
+    ),
+    FeatureSpec(
+        "texture_corner_views",
+        "1/px",
+        _T,
+        "mean sqrt of the smaller structure-tensor eigenvalue in that window (grey / 255 per px; 0: none)",
+    ),
+    FeatureSpec(
+        "texture_log_spread",
+        "1",
+        _T,
+        "std over the fusing views of ln(window grey std + 0.004): unlike texture between views (0: < 2 views)",
+    ),
+)
+
 
 def geometric_name(base: str, scale: int) -> str:
     """Name of a geometric feature at scale index ``scale`` (``linearity_s0``)."""
@@ -181,7 +205,7 @@ def feature_specs(n_scales: int) -> dict[str, FeatureSpec]:
         for spec in GEOMETRIC_BASE + (COARSE_BASE if s >= 1 else ()):
             name = geometric_name(spec.name, s)
             out[name] = FeatureSpec(name, spec.unit, spec.group, f"{spec.meaning} (scale {s})")
-    for spec in RADIOMETRIC + MULTIVIEW + FUSION + VIEW_DEPENDENT + IMAGE_BOUNDARIES:
+    for spec in RADIOMETRIC + MULTIVIEW + FUSION + VIEW_DEPENDENT + IMAGE_BOUNDARIES + IMAGE_TEXTURE:
         out[spec.name] = spec
     return out
 
