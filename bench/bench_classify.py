@@ -173,7 +173,8 @@ def _true_points_in_box(cams, view, depth: np.ndarray, lo: np.ndarray, hi: np.nd
 
 
 def ablation_groups() -> dict[str, tuple[FeatureGroup, ...]]:
-    """The issue's ablation, cumulative: today's features; + fusion evidence; + view-dependent; + image boundaries."""
+    """The issue's ablation, cumulative: today's features; + fusion evidence; + view-dependent; + image boundaries;
+    + image texture."""
     today = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
     extra = [g for g in FeatureGroup if g not in today]
     out = {"today's features (geometric + radiometric + multi-view)": today}
