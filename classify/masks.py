@@ -30,7 +30,8 @@ A mask pixel is set (255 in the PNG) where
   terrain; sky and backdrop do not. The growth is on by default because it covers most of the needs-splats
   pixels the cloud's outline misses at a small cost in the rest (measured on held-out scenes; see
   docs/experiments/2026-11-27-domain-defaults.md). Pixels at infinity (no parallax between the
-  photo and its neighbours, :func:`at_infinity`: sky, a distant backdrop) outside what the cloud's points
+  photo and its neighbours but parallax at the view's median point depth, :func:`at_infinity`: sky, a distant
+  backdrop; not a uniform surface, which agrees at every depth) outside what the cloud's points
   enclose are no valid area and GrabCut's certain background; with such a backdrop in view, the area below the
   envelope outside the hull keeps only what GrabCut puts with the scene;
 - a user mask (the pipeline's ``--splat-masks``) is set.
@@ -230,6 +231,7 @@ def at_infinity(
     tolerance: float = 0.01,
     window: int = 5,
     max_px: int = 640,
+    finite_depth: float | None = None,
 ) -> np.ndarray:
     """(H, W) bool: pixels of ``view`` whose colour shows no parallax: they lie at infinity (sky, a distant
     backdrop), where multi-view stereo finds nothing and no splat is needed.
@@ -241,8 +243,11 @@ def at_infinity(
     the photo there within ``tolerance`` (mean |ΔRGB| / 255 over a ``window`` × ``window`` box). One is enough:
     finite objects hide different parts of a backdrop from each camera. A uniform finite region wider than its
     parallax agrees too (a blank wall seen from close cameras), so callers apply this only outside the
-    reconstructed scene's outline. Runs at most ``max_px`` pixels on the long side. Hand-written: OpenCV warps by
-    a homography but has no parallax test over a block of cameras."""
+    reconstructed scene's outline. With ``finite_depth`` (z-depth in metres, e.g. the median depth of the view's
+    points), a pixel is at infinity only where a neighbour agrees at infinity *and disagrees* at that finite depth:
+    a uniform region agrees at every depth, so the photos cannot say where it is (a textureless slab, a blank wall
+    running out of the photo), and it is not called infinity. Runs at most ``max_px`` pixels on the long side.
+    Hand-written: OpenCV warps by a homography but has no parallax test over a block of cameras."""
     cam = cameras.camera_of(view)
     h, w = cam.height, cam.width
     axis, centre = view.rotation[2], view.center  # optical axis: third row of the world-to-camera rotation
@@ -262,24 +267,34 @@ def at_infinity(
     def load(v: View) -> np.ndarray:
         return _reduced_rgb(np.asarray(photo(v.name)), (sh, sw))
 
+    def agreement(other: View, source: np.ndarray, d_cam: np.ndarray) -> np.ndarray:
+        """(sh, sw) bool: ``other``'s photo resampled at the points ``d_cam`` (its camera frame) agrees with ref."""
+        ocam = cameras.camera_of(other)
+        front = d_cam[:, 2] > 1e-6
+        uv = np.full((len(d_cam), 2), -1e6)
+        uv[front] = ocam.project(d_cam[front])
+        ox = (uv[:, 0] * (sw / ocam.width) - 0.5).reshape(sh, sw).astype(np.float32)
+        oy = (uv[:, 1] * (sh / ocam.height) - 0.5).reshape(sh, sw).astype(np.float32)
+        inside = ((ox >= 0) & (oy >= 0) & (ox <= sw - 1) & (oy <= sh - 1)).astype(np.uint8)
+        warped = cv2.remap(source, ox, oy, cv2.INTER_LINEAR).astype(np.float32)
+        diff = cv2.blur(np.abs(warped - ref).mean(axis=2), (window, window)) / 255.0
+        return cv2.erode(inside, np.ones((window, window), np.uint8)).astype(bool) & (diff < tolerance)
+
     agree = np.zeros((sh, sw), dtype=bool)
     if chosen:
         ref = load(view).astype(np.float32)
         rows, cols = np.mgrid[0:sh, 0:sw]
         pix = np.c_[(cols.ravel() + 0.5) / scale, (rows.ravel() + 0.5) / scale]
-        dirs = cam.unproject(pix, 1.0) @ view.rotation  # world directions of the pixels' rays (d_w = Rᵀ d_c)
+        rays = cam.unproject(pix, 1.0)  # camera frame, z = 1
+        dirs = rays @ view.rotation  # world directions of the pixels' rays (d_w = Rᵀ d_c)
     for other in chosen:
-        ocam = cameras.camera_of(other)
-        d_cam = dirs @ other.rotation.T
-        front = d_cam[:, 2] > 1e-6
-        uv = np.full((len(dirs), 2), -1e6)
-        uv[front] = ocam.project(d_cam[front])
-        ox = (uv[:, 0] * (sw / ocam.width) - 0.5).reshape(sh, sw).astype(np.float32)
-        oy = (uv[:, 1] * (sh / ocam.height) - 0.5).reshape(sh, sw).astype(np.float32)
-        inside = ((ox >= 0) & (oy >= 0) & (ox <= sw - 1) & (oy <= sh - 1)).astype(np.uint8)
-        warped = cv2.remap(load(other), ox, oy, cv2.INTER_LINEAR).astype(np.float32)
-        diff = cv2.blur(np.abs(warped - ref).mean(axis=2), (window, window)) / 255.0
-        agree |= cv2.erode(inside, np.ones((window, window), np.uint8)).astype(bool) & (diff < tolerance)
+        source = load(other)
+        at_inf = agreement(other, source, dirs @ other.rotation.T)
+        if finite_depth is not None and finite_depth > 0:
+            # The same rays ending at z = finite_depth, in the other camera's frame: R_o (C + d Rᵀ r) + t_o.
+            finite = (view.center + finite_depth * dirs) @ other.rotation.T + other.translation
+            at_inf &= ~agreement(other, source, finite)
+        agree |= at_inf
     if (sh, sw) != (h, w):
         agree = cv2.resize(agree.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
     return agree
@@ -455,7 +470,8 @@ def _valid_area(
     # Backdrop at infinity, outside what the cloud's points enclose (a blank wall inside the scene is kept).
     backdrop = np.zeros((h, w), dtype=bool)
     if options.infinity and photo is not None and (area & ~covered).any():
-        backdrop = at_infinity(cameras, view, photo) & ~ndimage.binary_fill_holes(covered)
+        depth = float(np.median(pr.z)) if len(pr.idx) else None
+        backdrop = at_infinity(cameras, view, photo, finite_depth=depth) & ~ndimage.binary_fill_holes(covered)
     if options.grow_area > 0 and photo is not None:
         grown = _grow_area(
             np.asarray(photo(view.name)), covered, area, options.grow_area, options.grow_max_px, background=backdrop

@@ -1,6 +1,6 @@
 """Pixels at infinity (no parallax between neighbouring photos) against an analytic scene with exact truth: a
 textured square on z = 0 in front of an environment that depends on the ray's direction only (as data_synth's
-sky and distant ground do), seen by three cameras side by side."""
+sky and distant ground do), seen by three cameras side by side; and a blank square, which agrees with every depth."""
 
 from __future__ import annotations
 
@@ -27,8 +27,9 @@ def _square(p: np.ndarray) -> np.ndarray:
                      100 + 50 * np.sin(5.3 * x) * np.cos(6.1 * y)], axis=1)  # fmt: skip
 
 
-def _render(cams: Cameras, view: View) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W, 3) uint8 photo and (H, W) bool truth "the ray misses the square" (it sees the environment)."""
+def _render(cams: Cameras, view: View, blank: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W, 3) uint8 photo and (H, W) bool truth "the ray misses the square" (it sees the environment); with
+    ``blank`` the square is uniform grey (a textureless surface)."""
     rows, cols = np.mgrid[0:H, 0:W]
     pix = np.c_[cols.ravel() + 0.5, rows.ravel() + 0.5]
     d = cams.camera_of(view).unproject(pix, 1.0) @ view.rotation
@@ -37,11 +38,12 @@ def _render(cams: Cameras, view: View) -> tuple[np.ndarray, np.ndarray]:
     t = np.where(d[:, 2] < 0, -c[2] / np.minimum(d[:, 2], -1e-12), np.inf)
     p = c + t[:, None] * d
     hit = np.isfinite(t) & (np.abs(p[:, 0]) <= HALF) & (np.abs(p[:, 1]) <= HALF)
-    rgb = np.where(hit[:, None], _square(np.where(hit[:, None], p, 0.0)), _environment(d))
+    square = np.full((len(d), 3), 128.0) if blank else _square(np.where(hit[:, None], p, 0.0))
+    rgb = np.where(hit[:, None], square, _environment(d))
     return np.clip(np.round(rgb), 0, 255).astype(np.uint8).reshape(H, W, 3), ~hit.reshape(H, W)
 
 
-def _block() -> tuple[Cameras, dict[str, np.ndarray], dict[str, np.ndarray]]:
+def _block(blank: bool = False) -> tuple[Cameras, dict[str, np.ndarray], dict[str, np.ndarray]]:
     """v1 in the middle, v0 / v2 0.3 m to its sides, v3 / v4 0.3 m above and below it, all aimed at the square."""
     cam = Camera.pinhole(F, F, W / 2, H / 2, W, H)
     centres = [(-0.3, -0.9, 0.45), (0.0, -0.9, 0.45), (0.3, -0.9, 0.45), (0.0, -0.9, 0.75), (0.0, -0.9, 0.15)]
@@ -52,7 +54,7 @@ def _block() -> tuple[Cameras, dict[str, np.ndarray], dict[str, np.ndarray]]:
     cams = Cameras({1: cam}, views)
     photos, backdrop = {}, {}
     for v in cams:
-        photos[v.name], backdrop[v.name] = _render(cams, v)
+        photos[v.name], backdrop[v.name] = _render(cams, v, blank)
     return cams, photos, backdrop
 
 
@@ -68,6 +70,32 @@ def test_at_infinity_finds_the_environment_and_never_the_finite_square():
     far_from_edge = ndimage.binary_erosion(bg, iterations=4) & interior
     assert inf[far_from_edge].mean() > 0.9
     assert not inf[~bg].any()  # the square is about 1 m away, 0.3 m baselines: ~30 px of parallax
+
+
+def test_a_blank_surface_agrees_with_every_depth_and_is_not_called_infinity():
+    """A uniform square agrees with its neighbours at infinity as well as at its own depth: the photos cannot say
+    where it is. Given a finite depth to compare with (the view's points lie about 1 m away), only the textured
+    environment, which disagrees there, stays at infinity."""
+    cams, photos, backdrop = _block(blank=True)
+    view = cams.by_name("v1.png")
+    bg = backdrop["v1.png"]
+    interior = np.zeros_like(bg)
+    interior[4:-4, 4:-4] = True
+    # Away from the square's outline, where the comparison window straddles square and environment.
+    inside_square = ndimage.binary_erosion(~bg, iterations=8) & interior
+    far_from_edge = ndimage.binary_erosion(bg, iterations=4) & interior
+    assert inside_square.sum() > 300
+    plain = at_infinity(cams, view, photos.__getitem__)
+    assert plain[inside_square].mean() > 0.9  # the parallax test alone calls the blank square infinity
+    depth = float(np.linalg.norm(view.center - np.array([0.0, 0.0, 0.1])))
+    decided = at_infinity(cams, view, photos.__getitem__, finite_depth=depth)
+    assert not decided[inside_square].any()
+    assert decided[far_from_edge].mean() > 0.9
+    # The textured square's block: the finite depth changes nothing where the parallax test could decide.
+    cams, photos, backdrop = _block()
+    textured = at_infinity(cams, view, photos.__getitem__, finite_depth=depth)
+    assert textured[ndimage.binary_erosion(backdrop["v1.png"], iterations=4) & interior].mean() > 0.9
+    assert not textured[~backdrop["v1.png"]].any()
 
 
 def test_at_infinity_needs_a_neighbour():
