@@ -46,6 +46,12 @@ class FusingSamples:
         """(S,) float64 z-depths (metres) of the samples."""
         return self.cam_pts[:, 2]
 
+    def sample(self, image: np.ndarray) -> np.ndarray:
+        """(S, ...) values of ``image`` (H, W[, C]: a photo, depth map or per-view feature map covering the camera's
+        image at any resolution proportional to it) at the nearest pixel of each sample's projection."""
+        sx, sy = image.shape[1] / self.camera.width, image.shape[0] / self.camera.height
+        return sample_nearest(image, self.col * sx, self.row * sy)
+
 
 def fusing_chunks(
     positions: np.ndarray,

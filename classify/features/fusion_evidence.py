@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from classify.features.fusing import FusingSamples, fusing_chunks, sample_nearest
+from classify.features.fusing import FusingSamples, fusing_chunks
 from classify.features.multiview import MultiViewOptions, ViewData
 from core.errors import DataError
 
@@ -135,8 +135,7 @@ def _accumulate_view(acc: _FusionSums, views: ViewData, s: FusingSamples, p: np.
     depth = views.depth(s.view.name)
     if depth is None:
         return
-    sx, sy = depth.shape[1] / s.camera.width, depth.shape[0] / s.camera.height
-    d = sample_nearest(depth, s.col * sx, s.row * sy).astype(np.float64)
+    d = s.sample(depth).astype(np.float64)
     ok = (d > 0) & np.isfinite(d)
     if not ok.any():
         return

@@ -27,7 +27,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from classify.features.fusing import fusing_chunks, sample_nearest
+from classify.features.fusing import fusing_chunks
 from classify.features.multiview import MultiViewOptions, ViewData
 from core.errors import DataError
 
@@ -84,11 +84,10 @@ def image_boundary_features(
     for sl, samples in fusing_chunks(pts, visibility, views, options.chunk_size, options.depth_tolerance):
         for s in samples:
             strength, dist = maps(s.view.name)
-            sx, sy = strength.shape[1] / s.camera.width, strength.shape[0] / s.camera.height
-            fc, fr = s.col * sx, s.row * sy
-            d_px = sample_nearest(dist, fc, fr).astype(np.float64)
+            sx, sy = strength.shape[1] / s.camera.width, strength.shape[0] / s.camera.height  # map px per camera px
+            d_px = s.sample(dist).astype(np.float64)
             idx = s.idx + sl.start
-            strength_sum[idx] += sample_nearest(strength, fc, fr)
+            strength_sum[idx] += s.sample(strength)
             dist_sum[idx] += d_px
             fx, fy = s.camera.focal
             metric_sum[idx] += np.minimum(

@@ -33,7 +33,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from classify.features.fusing import fusing_chunks, sample_nearest
+from classify.features.fusing import fusing_chunks
 from classify.features.multiview import MultiViewOptions, ViewData
 
 IMAGE_TEXTURE_NAMES = ("texture_std_views", "texture_corner_views", "texture_log_spread")
@@ -90,13 +90,11 @@ def image_texture_features(
     for sl, samples in fusing_chunks(pts, visibility, views, options.chunk_size, options.depth_tolerance):
         for s in samples:
             std_map, corner_map = maps(s.view.name)
-            sx, sy = std_map.shape[1] / s.camera.width, std_map.shape[0] / s.camera.height
-            fc, fr = s.col * sx, s.row * sy
-            std = sample_nearest(std_map, fc, fr).astype(np.float64)
+            std = s.sample(std_map).astype(np.float64)
             log_std = np.log(std + TEXTURE_EPS)
             idx = s.idx + sl.start
             std_sum[idx] += std
-            corner_sum[idx] += sample_nearest(corner_map, fc, fr)
+            corner_sum[idx] += s.sample(corner_map)
             log_sum[idx] += log_std
             log_sq[idx] += log_std * log_std
             count[idx] += 1

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from classify.features.fusing import fusing_chunks, sample_nearest, segment_bounds
+from classify.features.fusing import fusing_chunks, segment_bounds
 from classify.features.multiview import MultiViewOptions, ViewData
 
 VIEW_DEPENDENT_NAMES = ("lum_cv_views", "lum_peak_views", "lum_lobe_corr", "specular_up_corr")
@@ -63,9 +63,7 @@ def view_dependent_features(
     for sl, samples in fusing_chunks(pts, visibility, views, options.chunk_size, options.depth_tolerance):
         owners, lums, rays = [], [], []
         for s in samples:
-            photo = views.image(s.view.name)
-            sx, sy = photo.shape[1] / s.camera.width, photo.shape[0] / s.camera.height
-            rgb = sample_nearest(photo, s.col * sx, s.row * sy).astype(np.float64) / 255.0
+            rgb = s.sample(views.image(s.view.name)).astype(np.float64) / 255.0
             lums.append(rgb[:, 0] * LUMA[0] + rgb[:, 1] * LUMA[1] + rgb[:, 2] * LUMA[2] if rgb.ndim == 2 else rgb)
             owners.append(s.idx)
             rays.append(s.ray)
