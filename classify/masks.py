@@ -290,7 +290,7 @@ def at_infinity(
     for other in chosen:
         source = load(other)
         at_inf = agreement(other, source, dirs @ other.rotation.T)
-        if finite_depth is not None and finite_depth > 0:
+        if finite_depth is not None and finite_depth > 0 and at_inf.any():
             # The same rays ending at z = finite_depth, in the other camera's frame: R_o (C + d Rᵀ r) + t_o.
             finite = (view.center + finite_depth * dirs) @ other.rotation.T + other.translation
             at_inf &= ~agreement(other, source, finite)
