@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from fusion.render.projection import project_gaussians
 from fusion.render.synthetic import random_scene
 from fusion.train.loss import masked_photometric_loss
 from fusion.train.params import ContextGaussians, make_parameters
@@ -115,3 +116,34 @@ def test_loss_pixels_only_matches_between_cpu_and_reference() -> None:
     assert float(cpu_a[~torch.from_numpy(view.render_pixels)].abs().max()) == 0.0
     for a, b in zip(ref_g, cpu_g, strict=True):
         assert float(a.norm()) > 0 and float((a - b).norm() / a.norm()) < 1e-3
+
+
+def test_context_projection_of_flat_surfels_is_float64_accurate() -> None:
+    """MVS Gaussians are flat surfels: their 2D covariance's determinant cancels, and a float32 projection loses up
+    to percents of the conic (and its float32 products were not reproducible from process to process). The cached
+    context projection must match a float64 projection to float32 rounding."""
+    w, h = 96, 72
+    scene = random_scene(800, w, h, seed=5, sh_degree=0)
+    log_scales = scene.log_scales.clone()
+    log_scales[:, :2] += 3.0  # tens of pixels across
+    log_scales[:, 2] = log_scales[:, :2].min(dim=1).values - 6.0  # and e⁶ ≈ 400× thinner than wide
+    context = ContextGaussians(scene.means, scene.quats, log_scales, scene.logit_opacities, scene.sh_coeffs)
+    view = TrainView("v", torch.zeros(h, w, 3), None, torch.zeros((h, w), dtype=torch.bool), scene.viewmat, scene.K,
+                     w, h, w * h, None)  # fmt: skip
+    cache = project_context(context, view)
+    assert cache is not None and len(cache) > 100
+    idx = cache.index
+    inputs = (scene.means, scene.quats, log_scales, scene.viewmat, scene.K)
+    exact = project_gaussians(*(t.double() for t in inputs), w, h)
+    single = project_gaussians(*inputs, w, h)
+
+    def error(conics: torch.Tensor) -> np.ndarray:
+        """Per Gaussian: the largest conic error relative to the row's largest exact entry."""
+        ref = exact.conics[idx]
+        return ((conics.double() - ref).abs().amax(dim=1) / ref.abs().amax(dim=1)).numpy()
+
+    assert error(single.conics[idx]).max() > 1e-4  # the case is hard: plain float32 arithmetic fails it
+    # float32 inputs (and σ = exp(log σ) in float32) amplified by the same cancellation
+    assert error(cache.conics).max() < 1e-5
+    np.testing.assert_allclose(cache.extents.numpy(), exact.extents[idx].numpy(), rtol=1e-6)
+    np.testing.assert_allclose(cache.means2d.numpy(), exact.means2d[idx].numpy(), rtol=1e-6, atol=1e-4)

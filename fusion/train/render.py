@@ -101,28 +101,32 @@ def project_context(
     ``geometry`` also their normals and plane distances."""
     if context is None or len(context) == 0:
         return None
+    # The numba kernels (float64 inside, one scalar code path per Gaussian) for either backend, not the float32
+    # torch twins, which were neither accurate (a near-flat surfel's 2D covariance determinant cancels: conics up
+    # to 3 % off) nor reproducible (about one resumed run in ten cached the first view's conics ~1e-4 apart, and
+    # training diverged from there).
     with torch.no_grad():
-        proj = project_gaussians(
-            context.means, context.quats, context.log_scales, view.viewmat, view.K, view.width, view.height
-        )
-        keep = proj.visible
+        sp = project_splats_cpu(
+            context.means, context.quats, context.log_scales, context.logit_opacities, context.sh_coeffs[:, :1],
+            context.sh_coeffs[:, 1:], view.viewmat, view.K, view.width, view.height,
+            int(round(context.sh_coeffs.shape[1] ** 0.5)) - 1,
+        )  # fmt: skip
+        keep = sp.visible
         if view.tile_prefix is not None:
-            keep = keep & boxes_touch_tiles(proj.means2d, proj.extents, view.tile_prefix)
+            keep = keep & boxes_touch_tiles(sp.means2d, sp.extents, view.tile_prefix)
         idx = torch.nonzero(keep).squeeze(1)
-        degree = int(round(context.sh_coeffs.shape[1] ** 0.5)) - 1
-        colours = sh_to_colour(context.sh_coeffs[idx], context.means[idx] - view.camera_centre, degree)
         normals = plane = None
         if geometry:
-            normals, plane = gaussian_normals(context.means[idx], context.quats[idx], context.log_scales[idx],
-                                              view.viewmat)  # fmt: skip
+            normals, plane = gaussian_normals_cpu(context.means[idx], context.quats[idx], context.log_scales[idx],
+                                                  view.viewmat)  # fmt: skip
             normals, plane = normals.contiguous(), plane.contiguous()
         return ContextProjection(
-            proj.means2d[idx].contiguous(),
-            proj.conics[idx].contiguous(),
-            proj.depths[idx].contiguous(),
-            proj.extents[idx].contiguous(),
-            torch.sigmoid(context.logit_opacities[idx]).contiguous(),
-            colours.contiguous(),
+            sp.means2d[idx].contiguous(),
+            sp.conics[idx].contiguous(),
+            sp.depths[idx].contiguous(),
+            sp.extents[idx].contiguous(),
+            sp.opacities[idx].contiguous(),
+            sp.colours[idx].contiguous(),
             idx,
             normals,
             plane,
