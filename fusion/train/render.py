@@ -102,9 +102,8 @@ def project_context(
     if context is None or len(context) == 0:
         return None
     # The numba kernels (float64 inside, one scalar code path per Gaussian) for either backend, not the float32
-    # torch twins, which were neither accurate (a near-flat surfel's 2D covariance determinant cancels: conics up
-    # to 3 % off) nor reproducible (about one resumed run in ten cached the first view's conics ~1e-4 apart, and
-    # training diverged from there).
+    # torch twins: a near-flat surfel's 2D covariance determinant cancels, and the float32 conics were neither
+    # accurate nor reproducible from run to run (docs/experiments/2026-11-29-resume-determinism.md).
     with torch.no_grad():
         sp = project_splats_cpu(
             context.means, context.quats, context.log_scales, context.logit_opacities, context.sh_coeffs[:, :1],
