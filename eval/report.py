@@ -434,8 +434,29 @@ def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> li
                         _num(r.get("splat_surface_completeness"), 3)]  # fmt: skip
         rows.append(row)
     tau = _len(per_material.get("tau_m"), u)
-    return [(f"Table 5 — per ground-truth material (completeness at τ = {tau} {u.value}; PSNR on held-out pixels)",
-             header, rows)]  # fmt: skip
+    tables = [(f"Table 5 — per ground-truth material (completeness at τ = {tau} {u.value}; PSNR on held-out pixels)",
+               header, rows)]  # fmt: skip
+    return tables + _sigma_calibration_tables(per_material.get("sigma_calibration"), u)
+
+
+def _sigma_calibration_tables(calibration: Mapping[str, Any] | None, u: Units) -> list[Table]:
+    """Table 6: the σ of the splat-surface points of ``merged`` (else the first product that has them) against their
+    distance to the reference surface (:mod:`eval.sigma_calibration`), all points and per material; none without
+    such points."""
+    if not calibration:
+        return []
+    product = "merged" if "merged" in calibration else next(iter(calibration))
+    table = calibration[product]
+    header = ["material", "points", "within 1σ (0.683 if calibrated)", "within 1.96σ (0.95)",
+              f"median σ ({u.value})", f"median distance ({u.value})"]  # fmt: skip
+    rows = [[m, str(r.get("points", 0)), _num(r.get("within_1sigma"), 3), _num(r.get("within_95"), 3),
+             _len(r.get("median_sigma_m"), u), _len(r.get("median_distance_m"), u)]
+            for m, r in table.items()]  # fmt: skip
+    title = (
+        f"Table 6 — σ of the splat-surface points of `{product}` against their distance to the reference "
+        "surface (local plane of the 8 nearest reference points)"
+    )
+    return [(title, header, rows)]
 
 
 def to_markdown(report: Mapping[str, Any]) -> str:

@@ -289,7 +289,7 @@ class EvalStage(Stage):
                 stored = cache.restore(keys[name], layout.eval_dir)
                 if stored is not None:
                     record_product(layout.metrics_json, name, stored["metrics"])
-                    stored_tables[name] = stored["per_material"]
+                    stored_tables[name] = stored["per_material"]  # {"rows": ..., "sigma_calibration": ...}
                     counts["reused"] = counts.get("reused", 0) + 1
                     _count(counts, name, stored["metrics"])
                     continue
@@ -319,8 +319,10 @@ class EvalStage(Stage):
         if cache is not None:
             entries = read_metrics(layout.metrics_json)["products"]
             tables = per_material["products"] if per_material is not None else {}
+            calibrations = per_material.get("sigma_calibration", {}) if per_material is not None else {}
             for name in measured:
-                cache.store(keys[name], layout.eval_dir, written[name], entries[name], tables.get(name))
+                stored_entry = {"rows": tables.get(name), "sigma_calibration": calibrations.get(name)}
+                cache.store(keys[name], layout.eval_dir, written[name], entries[name], stored_entry)
         return counts
 
     def _cache(self, ctx: StageContext, reference: Path | None, tau: float | None, images: Any, lpips: Any) -> Any:
@@ -406,7 +408,8 @@ class EvalStage(Stage):
     def _per_material(self, ctx: StageContext, products, stored, reference, tau, images) -> dict[str, Any] | None:
         """Accuracy, completeness and held-out PSNR per ground-truth material (data_synth scenes), or None.
 
-        products: name → (cloud, Gaussians) measured now; stored: name → the table restored from the cache."""
+        products: name → (cloud, Gaussians) measured now; stored: name → ``{"rows": table, "sigma_calibration":
+        table or None}`` restored from the cache."""
         from core.io import read_point_cloud
         from eval.per_material import as_table, psnr_per_material
 
@@ -430,10 +433,14 @@ class EvalStage(Stage):
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
-            _splat_surface_group(result["products"][name], cloud, ref, tau, names)
-        for name, table in stored.items():
-            if table is not None:
-                result["products"][name] = table
+            calibration = _splat_surface_group(result["products"][name], cloud, ref, tau, names)
+            if calibration is not None:
+                result.setdefault("sigma_calibration", {})[name] = calibration
+        for name, entry in stored.items():
+            if entry is not None and entry.get("rows") is not None:
+                result["products"][name] = entry["rows"]
+            if entry is not None and entry.get("sigma_calibration") is not None:
+                result.setdefault("sigma_calibration", {})[name] = entry["sigma_calibration"]
         mesh_points = _mesh_points(ctx.layout.mesh_path("ply"), tau)
         if mesh_points is not None:  # the mesh stage's product: geometry only, from points sampled on its surface
             geometry = geometry_per_material(mesh_points, tau)
@@ -524,21 +531,33 @@ class _MaterialReference:
         return geometry_per_material_streamed(compared_world, self.source, tau, self.plan, self.work_dir)  # type: ignore[arg-type]
 
 
-def _splat_surface_group(rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]) -> None:
+def _splat_surface_group(
+    rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]
+) -> dict[str, Any] | None:
     """The product's splat-surface points (``source`` = 4; the merge's ``splat_surface`` option) scored alone per
     material into its rows (:func:`eval.per_material.add_point_group`, group ``splat_surface``); nothing when it
-    has none, so the tables of a product without them are as before."""
+    has none, so the tables of a product without them are as before.
+
+    Returns their σ calibration table (:func:`eval.sigma_calibration.calibration_per_material`) when they carry a
+    ``sigma`` field and the reference is held in memory (not under ``memory_limit_mb``), else None."""
     from eval.per_material import add_point_group
+    from eval.sigma_calibration import calibration_per_material
     from fusion.convert_options import Source
 
     source = cloud.fields.get("source")
     if source is None:
-        return
+        return None
     mine = np.asarray(source) == Source.SPLAT_SURFACE
     if not mine.any():
-        return
+        return None
     geometry = ref.geometry(cloud.world_positions[mine], tau)
     add_point_group(rows, "splat_surface", geometry, names)
+    sigma = cloud.fields.get("sigma")
+    if sigma is None or ref.cloud is None:
+        return None
+    reference = ref.cloud
+    return calibration_per_material(cloud.world_positions[mine], np.asarray(sigma, np.float64)[mine],
+                                    reference.world_positions, reference.fields["material"], names)  # fmt: skip
 
 
 def _clouds(ctx: StageContext) -> list[tuple[sizes.PlyVertices, bool]]:
