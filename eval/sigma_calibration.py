@@ -63,7 +63,7 @@ def calibration_row(distances: np.ndarray, sigma: np.ndarray) -> dict[str, Any]:
     """One row of the calibration table: points, share within 1 σ and within 1.96 σ, median σ and distance (m).
 
     distances, sigma: (N,) metres; a σ that is not finite or not positive never holds a distance (counted as a
-    miss, not dropped). An empty group: shares and medians None."""
+    miss, not dropped; 0 in the median σ). An empty group: shares and medians None."""
     d = np.asarray(distances, np.float64).reshape(-1)
     s = np.asarray(sigma, np.float64).reshape(-1)
     if len(d) != len(s):
@@ -77,7 +77,7 @@ def calibration_row(distances: np.ndarray, sigma: np.ndarray) -> dict[str, Any]:
         "points": int(len(d)),
         "within_1sigma": float((valid & (d <= s_safe)).mean()),
         "within_95": float((valid & (d <= Z95 * s_safe)).mean()),
-        "median_sigma_m": float(np.median(s)) if valid.all() else float(np.median(s_safe)),
+        "median_sigma_m": float(np.median(s_safe)),
         "median_distance_m": float(np.median(d)),
     }
 
