@@ -4,7 +4,9 @@ Geometry, against a reference cloud with a per-point material label (a data_synt
 
 - accuracy: the mean distance from each product point to the nearest reference point, grouped by that reference
   point's material (the product point "belongs" to the material it lies on);
-- completeness at τ: the share of the reference points of a material that have a product point within τ.
+- precision at τ: the share of the product points on a material (as for accuracy) within τ of the reference;
+- completeness (recall) at τ: the share of the reference points of a material that have a product point within τ;
+- F-score at τ: the harmonic mean of the two (Tanks and Temples, ETH3D), 0 when both are 0.
 
 Images: PSNR over the held-out pixels of each material (from per-pixel material label images), the squared error
 summed over every view first, so that a material seen in few pixels of many views is weighed by its pixels.
@@ -29,6 +31,8 @@ class MaterialGeometry:
     accuracy_points: int
     completeness: float | None
     reference_points: int
+    precision: float | None = None
+    fscore: float | None = None
 
 
 @dataclass(frozen=True)
@@ -42,7 +46,7 @@ class MaterialImage:
 def geometry_per_material(
     compared_world: np.ndarray, reference_world: np.ndarray, reference_material: np.ndarray, tau: float
 ) -> dict[int, MaterialGeometry]:
-    """Accuracy and completeness at ``tau`` per material id of the reference.
+    """Accuracy, precision, completeness and F-score at ``tau`` per material id of the reference.
 
     compared_world: (N, 3) float64 world coordinates of the product's points; reference_world: (M, 3) float64;
     reference_material: (M,) integer material id per reference point; tau: metres (> 0).
@@ -68,13 +72,21 @@ def geometry_per_material(
     for m in np.unique(materials):
         on_m = owner == m
         of_m = materials == m
+        completeness = float((d_cmp[of_m] <= tau).mean())
+        precision = float((d_acc[on_m] <= tau).mean()) if on_m.any() else None
         out[int(m)] = MaterialGeometry(
             accuracy_mean=float(d_acc[on_m].mean()) if on_m.any() else None,
             accuracy_points=int(on_m.sum()),
-            completeness=float((d_cmp[of_m] <= tau).mean()),
+            completeness=completeness,
             reference_points=int(of_m.sum()),
+            precision=precision,
+            fscore=_fscore(precision or 0.0, completeness),
         )
     return out
+
+
+def _fscore(precision: float, recall: float) -> float:
+    return 2.0 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
 
 
 def psnr_per_material(pairs: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> dict[int, MaterialImage]:
@@ -114,6 +126,8 @@ def as_table(
             "accuracy_points": g.accuracy_points if g else 0,
             "completeness": g.completeness if g else None,
             "reference_points": g.reference_points if g else 0,
+            "precision": g.precision if g else None,
+            "fscore": g.fscore if g else None,
             "psnr": i.psnr if i else None,
             "pixels": i.pixels if i else 0,
         }

@@ -323,35 +323,29 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
     u = _report_units(report)
     unit_name = "metres" if u is Units.M else u.value
     c2c_rows = []
+    taus = set()
     for name, p in products.items():
         c = p["c2c"]
         if c is None:
-            c2c_rows.append([name, "–", "–", "–", "–", "–", "–", "–", "–", "–", p["reason"] or "not measured"])
+            c2c_rows.append([name, "–", "–", "–", "–", "–", "–", "–", "–", "–", "–", p["reason"] or "not measured"])
             continue
+        if c.get("tau") is not None:
+            taus.add(float(c["tau"]))
         c2c_rows.append(
-            [name, _len(c["mean"], u), _len(c["std"], u), _len(c["median"], u), _len(c["rmse"], u),
-             _len(c["p95"], u), _len(c["max"], u), _num(c["completeness"]), _num(c["fscore"]), _num(c["count"]),
-             f"{c.get('method') or 'c2c'}" + (", ICP" if c.get("registration") else "")]
+            [name, _num(c.get("precision")), _num(c["completeness"]), _num(c["fscore"]), _len(c["mean"], u),
+             _len(c["std"], u), _len(c["median"], u), _len(c["rmse"], u), _len(c["p95"], u), _len(c["max"], u),
+             _num(c["count"]), f"{c.get('method') or 'c2c'}" + (", ICP" if c.get("registration") else "")]
         )  # fmt: skip
+    at_tau = f" at τ = {_len(next(iter(taus)), u)} {u.value}" if len(taus) == 1 else " at τ"
     tables = [
         (
-            f"Table 2 — distance to the reference ({unit_name})",
-            [
-                "product",
-                "mean",
-                "st. dev.",
-                "median",
-                "RMSE",
-                "P95",
-                "max",
-                "completeness",
-                "F-score",
-                "points",
-                "note",
-            ],
+            f"Table 2 — survey accuracy: precision, recall (completeness) and F-score{at_tau}, and distance to the "
+            f"reference ({unit_name})",
+            ["product", "precision", "recall", "F-score", "mean", "st. dev.", "median", "RMSE", "P95", "max", "points",
+             "note"],
             c2c_rows,
         )
-    ]
+    ]  # fmt: skip
     rendered = _renderer_note(report)
     for part, title in (
         ("full", f"Table 3 — image metrics, whole image{rendered}"),

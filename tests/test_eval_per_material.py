@@ -16,7 +16,9 @@ def _brute_force(compared: np.ndarray, reference: np.ndarray, material: np.ndarr
     out = {}
     for m in np.unique(material):
         on = owner == m
-        out[int(m)] = (nearest[on].mean() if on.any() else None, int(on.sum()), covered[material == m].mean())
+        precision = (nearest[on] <= tau).mean() if on.any() else None
+        mean = nearest[on].mean() if on.any() else None
+        out[int(m)] = (mean, int(on.sum()), covered[material == m].mean(), precision)
     return out
 
 
@@ -29,14 +31,19 @@ def test_geometry_matches_brute_force_at_any_offset(offset: float) -> None:
     got = geometry_per_material(compared, reference, material, tau=0.08)
     want = _brute_force(compared - offset, reference - offset, material, 0.08)
     assert set(got) == set(want)
-    for m, (mean, count, completeness) in want.items():
+    for m, (mean, count, completeness, precision) in want.items():
         assert got[m].accuracy_points == count
         assert got[m].reference_points == int((material == m).sum())
         assert got[m].completeness == pytest.approx(completeness, abs=1e-12)
         if mean is None:
-            assert got[m].accuracy_mean is None
+            assert got[m].accuracy_mean is None and got[m].precision is None
+            assert got[m].fscore == 0.0
         else:
             assert got[m].accuracy_mean == pytest.approx(mean, rel=1e-6)
+            assert got[m].precision == pytest.approx(precision, abs=1e-12)
+            f = 2 * precision * completeness / (precision + completeness) if precision + completeness else 0.0
+            assert got[m].fscore == pytest.approx(f, abs=1e-12)
+    assert any(0 < got[m].precision < 1 for m in got)  # the case exercises both sides of tau
 
 
 def test_geometry_of_an_empty_product_is_zero_complete() -> None:
