@@ -53,15 +53,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-# time of a product = the sum of these stages' wall times after the shared SfM model
-PRODUCT_STAGES = {
-    "mvs": ("mvs", "convert"),
-    "baseline": ("baseline",),
-    "mvs_filtered": ("mvs", "classify", "masks", "convert", "merge"),  # the control: merged without its splats
-    "merged_no_background": ("mvs", "classify", "masks", "convert", "train", "clean", "appearance", "merge"),
-    "merged_unrefined": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "merge"),
-    "merged": ("mvs", "classify", "masks", "convert", "train", "clean", "background", "appearance", "merge"),
-}
+from eval.report_summary import PRODUCT_STAGES  # noqa: E402  (a product's time: its stages' wall times after SfM)
+
 PRODUCT_LABELS = {
     "mvs": "MVS only",
     "baseline": "whole-scene 3DGS",

@@ -44,6 +44,7 @@ from core.units import Units
 from eval.metrics_io import PRODUCTS, read_metrics
 from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
 from eval.report_options import DEFAULT_MAX_PANELS
+from eval.report_summary import SUMMARY_PRODUCTS, split_panel, summary_table
 
 SCHEMA = "hybridsplat.report/1"
 REQUIRED_PRODUCTS = PRODUCTS  # always listed, measured or with the reason they were not
@@ -397,39 +398,47 @@ Table = tuple[str, list[str], list[list[str]]]
 
 
 def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> list[Table]:
-    """Table 5: per ground-truth material, each product's accuracy, completeness at τ and held-out PSNR; for a survey
-    product with splat-surface points (the merge's ``splat_surface``; the first such product), also those points
-    alone: how many lie on the material, their accuracy and completeness."""
+    """Table 5: per ground-truth material, each product's F-score at τ (precision / recall), then its accuracy and
+    held-out PSNR; for a survey product with splat-surface points (the merge's ``splat_surface``; the first such
+    product), those points alone: how many lie on the material, their accuracy and completeness. One column per
+    product, so that the tables stay as narrow as the products are few."""
     if not per_material:
         return []
     products: Mapping[str, Any] = per_material["products"]
     kinds: Mapping[str, Any] = per_material.get("materials") or {}
     names = list(dict.fromkeys(m for table in products.values() for m in table))
-    header = ["material", "kind"]
-    # the splat-surface points (source 4) of the survey product, scored alone: columns after the first product that
-    # has them (its controls share its points: merged_no_background, merged_unrefined), none when none has them
-    grouped = {p for p, table in products.items() if any("splat_surface_points" in r for r in table.values())}
-    grouped = set(list(dict.fromkeys(p for p in products if p in grouped))[:1])
-    for p in products:
-        header += [f"{p} accuracy ({u.value})", f"{p} completeness", f"{p} PSNR"]
-        if p in grouped:
-            header += [f"{p} splat-surface points", f"{p} splat-surface accuracy ({u.value})",
-                       f"{p} splat-surface completeness"]  # fmt: skip
-    rows = []
+    # the splat-surface points (source 4) of the survey product, scored alone: the first product that has them (its
+    # controls share its points: merged_no_background, merged_unrefined), none when none has them
+    grouped = [p for p, table in products.items() if any("splat_surface_points" in r for r in table.values())]
+    tau = _len(per_material.get("tau_m"), u)
+    f_rows, geo_rows, group_rows = [], [], []
     for m in names:
         info = kinds.get(m) or {}
         kind = str(info.get("kind", "")) + ("" if info.get("collaborative", True) else " (non-collab.)")
-        row = [m, kind]
-        for p, table in products.items():
+        f_row, geo_row = [m, kind], [m, kind]
+        for table in products.values():
             r = table.get(m) or {}
-            row += [_len(r.get("accuracy_mean_m"), u), _num(r.get("completeness"), 3), _num(r.get("psnr"), 2)]
-            if p in grouped:
-                row += [str(r.get("splat_surface_points", 0)), _len(r.get("splat_surface_accuracy_mean_m"), u),
-                        _num(r.get("splat_surface_completeness"), 3)]  # fmt: skip
-        rows.append(row)
-    tau = _len(per_material.get("tau_m"), u)
-    tables = [(f"Table 5 — per ground-truth material (completeness at τ = {tau} {u.value}; PSNR on held-out pixels)",
-               header, rows)]  # fmt: skip
+            pr = f"{_num(r.get('precision'), 2)} / {_num(r.get('completeness'), 2)}"
+            f_row.append(f"{_num(r.get('fscore'), 3)} ({pr})")
+            geo_row.append(f"{_len(r.get('accuracy_mean_m'), u)} · {_num(r.get('psnr'), 2)}")
+        f_rows.append(f_row)
+        geo_rows.append(geo_row)
+        if grouped:
+            r = products[grouped[0]].get(m) or {}
+            group_rows.append([m, kind, str(r.get("splat_surface_points", 0)),
+                               _len(r.get("splat_surface_accuracy_mean_m"), u),
+                               _num(r.get("splat_surface_completeness"), 3)])  # fmt: skip
+    header = ["material", "kind", *products]
+    tables = [
+        (f"Table 5 — per ground-truth material: F-score at τ = {tau} {u.value} (precision / recall)", header, f_rows),
+        (f"Table 5b — per ground-truth material: accuracy mean ({u.value}) · PSNR on held-out pixels (dB)", header,
+         geo_rows),
+    ]  # fmt: skip
+    if grouped:
+        p = grouped[0]
+        header_c = ["material", "kind", "points", f"accuracy ({u.value})", "completeness"]
+        tables.append((f"Table 5c — the splat-surface points of `{p}` alone, per ground-truth material", header_c,
+                       group_rows))  # fmt: skip
     return tables + _sigma_calibration_tables(per_material.get("sigma_calibration"), u)
 
 
@@ -464,6 +473,12 @@ def to_markdown(report: Mapping[str, Any]) -> str:
     ]
     if not report.get("manifest_found", True):
         lines += ["_No manifest.json found: stage timings are unavailable._", ""]
+    title, header, rows, findings = _summary(report)
+    if rows:
+        lines += [f"## {title}", "", *findings, ""] if findings else [f"## {title}", ""]
+        lines.append("| " + " | ".join(header) + " |")
+        lines.append("|" + "|".join("---" for _ in header) + "|")
+        lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
     for title, header, rows in _tables(report):
         lines += [f"## {title}", ""]
         if not rows:
@@ -488,6 +503,8 @@ table{border-collapse:collapse;margin:0.5em 0 1.5em}th,td{border:1px solid #ccc;
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left;font-weight:600}
 figure{display:inline-block;margin:0.5em;vertical-align:top}figcaption{font-size:0.85em;color:#555}
 img{max-width:100%;border:1px solid #ddd}.note{color:#777}svg{max-width:100%;height:auto}
+pre{white-space:pre-wrap;overflow-wrap:anywhere}table.grid td{padding:2px;text-align:center}
+table.grid img{max-width:200px}table.grid td:first-child{font-size:0.8em}
 """
 
 
@@ -593,6 +610,72 @@ def _sections_markdown(report: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _summary(report: Mapping[str, Any]) -> tuple[str, list[str], list[list[str]], list[str]]:
+    u = _report_units(report)
+    return summary_table(report, lambda v: _len(v, u), u.value)
+
+
+def _html_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A table; a cell written ``**text**`` (the best value of a summary column) is shown in bold."""
+    e = html.escape
+
+    def cell(c: str) -> str:
+        bold = len(c) > 4 and c.startswith("**") and c.endswith("**")
+        return f"<td><strong>{e(c[2:-2])}</strong></td>" if bold else f"<td>{e(c)}</td>"
+
+    parts = ["<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>"]
+    parts += ["<tr>" + "".join(cell(c) for c in row) + "</tr>" for row in rows]
+    return "\n".join(parts + ["</table>"])
+
+
+GRID_THUMBNAIL_SIDE = 300  # px, longer side of each picture of the grid (five to a row fit a 1280 px page)
+
+
+def _picture_grid(per_view: Mapping[str, list[Mapping[str, Any]]], eval_dir: Path, max_panels: int) -> list[str]:
+    """Per held-out view with a merged panel (the lowest-PSNR views first, at most ``max_panels``): the photo, the
+    renders of MVS only, the baseline and merged, and merged's error map, in one row."""
+    from core.io.images import read_image
+
+    e = html.escape
+    panels = {name: {str(v["view"]): (v.get("files") or {}).get("panel") for v in views}
+              for name, views in per_view.items()}  # fmt: skip
+    merged = {v: f for v, f in (panels.get("merged") or {}).items() if f}
+    chosen = [v for v in _panel_views({"merged": per_view.get("merged", [])}, max_panels) if v in merged]
+    if not chosen:
+        return []
+    columns = ["photo"] + [label for name, label in SUMMARY_PRODUCTS if panels.get(name)] + ["merged: error"]
+    head = "".join(f"<th>{e(c)}</th>" for c in ["view", *columns])
+    rows = []
+    for view in chosen:
+        cut = {}
+        for name, _ in SUMMARY_PRODUCTS:
+            path = eval_dir / str((panels.get(name) or {}).get(view) or "")
+            if path.is_file():
+                try:
+                    cut[name] = split_panel(read_image(path))
+                except (InputFileError, DataError, ValueError):
+                    continue
+        if "merged" not in cut:
+            continue
+        render, photo, error = cut["merged"]
+        pictures = [photo] + [cut[n][0] if n in cut else None for n, _ in SUMMARY_PRODUCTS if panels.get(n)]
+        pictures.append(error)
+        cells = [f"<td>{e(view)}</td>"]
+        for picture in pictures:
+            if picture is None:
+                cells.append("<td>–</td>")
+                continue
+            data = jpeg_thumbnail(np.ascontiguousarray(picture), max_side=GRID_THUMBNAIL_SIDE)
+            cells.append(f'<td><img src="{jpeg_data_uri(data)}" alt="{e(view)}"></td>')
+        rows.append("<tr>" + "".join(cells) + "</tr>")
+    if not rows:
+        return []
+    note = ("<p class='note'>Held-out views (never trained on), the lowest merged PSNR first; the error map is the "
+            "per-pixel RMS colour error of merged (viridis, 0–0.25).</p>")  # fmt: skip
+    return ["<h2>Held-out views: photo, products and merged's error</h2>", note,
+            "<table class='grid'><tr>" + head + "</tr>", *rows, "</table>"]  # fmt: skip
+
+
 def to_html(
     report: Mapping[str, Any],
     eval_dir: Path | None,
@@ -610,15 +693,21 @@ def to_html(
         f"<p>Project <code>{e(report['project'])}</code> · generated {e(report['generated_utc'])} · "
         f"total pipeline time {_num(report['timings']['total_seconds'], 1)} s · lengths in {e(u.value)}</p>",
     ]
+    title, header, rows, findings = _summary(report)
+    raw_products: Mapping[str, Any] = (metrics or {}).get("products", {})
+    per_view = _per_view(raw_products)
+    if rows:
+        parts.append(f"<h2>{e(title)}</h2>")
+        parts += [f"<p>{e(line)}</p>" for line in findings]
+        parts.append(_html_table(header, rows))
+    if eval_dir is not None:
+        parts += _picture_grid(per_view, eval_dir, max_panels)
     for title, header, rows in _tables(report):
         parts.append(f"<h2>{e(title)}</h2>")
         if not rows:
             parts.append("<p class='note'>none recorded</p>")
             continue
-        parts.append("<table><tr>" + "".join(f"<th>{e(h)}</th>" for h in header) + "</tr>")
-        parts += ["<tr>" + "".join(f"<td>{e(c)}</td>" for c in row) + "</tr>" for row in rows]
-        parts.append("</table>")
-    raw_products: Mapping[str, Any] = (metrics or {}).get("products", {})
+        parts.append(_html_table(header, rows))
     figs = []
     for name, raw in raw_products.items():
         c2c = (raw or {}).get("c2c")
@@ -635,7 +724,6 @@ def to_html(
                 figs.append(f"<figure style='max-width:900px'>{tag}<figcaption>{caption}</figcaption></figure>")
     if figs:
         parts += ["<h2>Distance distributions</h2>"] + figs
-    per_view = _per_view(raw_products)
     metric_figs = []
     for key in ("psnr", "ssim", "lpips"):
         labels, series = _metric_series(per_view, key)
