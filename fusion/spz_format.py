@@ -103,6 +103,12 @@ SPZ_READABLE_VERSIONS = (2, 3)
 SPZ_COLOR_SCALE = 0.15
 """SPZ stores the SH DC term as ``f_dc · 0.15 · 255 + 127.5`` (the reference's ``colorScale``)."""
 
+SPZ_F_DC_LIMIT = 127.5 / (SPZ_COLOR_SCALE * 255.0)
+"""|f_dc| SPZ's 8-bit colour code holds (3.33; colour −0.44 … 1.44): the codes 0 and 255."""
+
+SPZ_LOG_SCALE_RANGE = (-10.0, 255.0 / 16.0 - 10.0)
+"""log σ SPZ's 8-bit scale code ``(log σ + 10) · 16`` holds: σ from 45 µm to 379 m."""
+
 DEFAULT_FRACTIONAL_BITS = 12
 """The reference writer's fixed-point precision, 2^-12 m = 0.244 mm: below it we warn."""
 MAX_FRACTIONAL_BITS = 23
@@ -328,7 +334,7 @@ def encode_spz(
     header = SpzHeader(version=version, num_points=n, sh_degree=degree, fractional_bits=bits, flags=0)
 
     log_scales = np.asarray(gaussians.log_scales, np.float32)
-    scale_code = (log_scales + np.float32(10.0)) * np.float32(16.0)
+    scale_code = (log_scales - np.float32(SPZ_LOG_SCALE_RANGE[0])) * np.float32(16.0)
     _warn_codes_outside(name, "log-scale", scale_code, "[-10, 5.94] (σ 45 µm .. 379 m)")
     color_code = np.asarray(gaussians.sh_dc, np.float32) * np.float32(SPZ_COLOR_SCALE * 255.0) + np.float32(127.5)
     _warn_codes_outside(name, "colour (f_dc)", color_code, "[-3.33, 3.33]")

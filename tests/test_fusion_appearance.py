@@ -289,3 +289,31 @@ def test_a_merged_file_rebased_on_reading_still_finds_its_layers(tmp_path):
     np.testing.assert_array_equal(restored.means[:20], reference.means)  # bit for bit, in the survey's frame
     np.testing.assert_array_equal(restored.sh_dc[:20], reference.sh_dc)
     np.testing.assert_allclose(restored.sh_dc[20:], background.sh_dc, atol=1e-6)
+
+
+def test_trained_scales_and_colours_stay_inside_what_the_viewer_formats_hold(tmp_path):
+    """A fit that pushes colours past SPZ's code (white photos) from a set that starts outside both ranges ends
+    inside them — log σ in [−10, 5.94], |f_dc| ≤ 3.33 — and its SPZ file clips nothing (no warning)."""
+    import warnings
+
+    from fusion.spz_format import SPZ_F_DC_LIMIT, SPZ_LOG_SCALE_RANGE, write_spz
+    from fusion.train.trainer import train_splats
+
+    cameras, points = _ring(n=3), _ball(n=60)
+    gs = _set(points, np.full((60, 3), 0.5), 0.02, 2.0)
+    gs.log_scales[:20] = -12.0  # 6 µm: under SPZ's least σ
+    gs.log_scales[20:25] = 7.0  # 1.1 km: over its largest
+    gs.sh_dc[25:40] = 5.0  # colour 1.9: over its largest code
+    images = {v.name: np.full((36, 48, 3), 1.0, np.float32) for v in cameras}
+    fixed = DefaultStrategy(refine_start=0, refine_stop=0, reset_every=0)
+    training = TrainOptions(iterations=30, min_iterations=30, sh_degree=0, strategy=fixed, lr_sh_dc=0.05)
+    trained = train_splats(cameras, images, None, gs, None, training).splats
+    lo, hi = SPZ_LOG_SCALE_RANGE
+    assert lo == -10.0 and abs(hi - 5.9375) < 1e-12 and abs(SPZ_F_DC_LIMIT - 127.5 / 38.25) < 1e-12
+    assert trained.log_scales.min() >= lo and trained.log_scales.max() <= hi
+    assert np.abs(trained.sh_dc).max() <= SPZ_F_DC_LIMIT
+    assert np.isclose(trained.log_scales.min(), lo)  # the 6 µm Gaussians were held at the bound, not left under it
+    assert np.isclose(trained.sh_dc.max(), SPZ_F_DC_LIMIT, atol=1e-4)  # the white photos pushed colours to it
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_spz(tmp_path / "trained.spz", trained)

@@ -20,9 +20,26 @@ import numpy as np
 import torch
 
 from core.gaussians import GaussianSet, num_sh_bases
+from fusion.spz_format import SPZ_F_DC_LIMIT, SPZ_LOG_SCALE_RANGE
 from fusion.train.adam import FusedAdam
 
 PARAM_NAMES = ("means", "quats", "log_scales", "logit_opacities", "sh_dc", "sh_rest")
+
+VIEWER_LOG_SCALE_RANGE = SPZ_LOG_SCALE_RANGE
+"""log σ every trained Gaussian keeps (σ from 45 µm to 379 m): the range of SPZ's scale code, the narrowest of the
+viewer formats the merge writes (compressed PLY and SOG scale per chunk or table; the PLY holds floats), so that no
+export clips a trained scale. A σ under 45 µm is far below a pixel's footprint in any photo survey."""
+VIEWER_F_DC_LIMIT = SPZ_F_DC_LIMIT
+"""|f_dc| every trained Gaussian keeps (colour −0.44 … 1.44 before the SH rest): SPZ's colour code's range."""
+
+
+def clamp_to_viewer_range(params: dict[str, torch.Tensor]) -> None:
+    """Project the trainable ``log_scales`` and ``sh_dc`` onto what the viewer formats hold, in place
+    (:data:`VIEWER_LOG_SCALE_RANGE`, :data:`VIEWER_F_DC_LIMIT`): taken after every optimiser step, so the fit
+    works within the bounds instead of having an export clip its result."""
+    with torch.no_grad():
+        params["log_scales"].clamp_(*VIEWER_LOG_SCALE_RANGE)
+        params["sh_dc"].clamp_(-VIEWER_F_DC_LIMIT, VIEWER_F_DC_LIMIT)
 
 
 @dataclass

@@ -39,7 +39,7 @@ from core.gaussians import GaussianSet
 from fusion.render.projection import quat_to_rotmat
 from fusion.train.early_stop import Checkpoint, EarlyStop, EvalWindow
 from fusion.train.options import HardViewOptions, TrainOptions
-from fusion.train.params import set_from_tensors
+from fusion.train.params import clamp_to_viewer_range, set_from_tensors
 from fusion.train.perceptual import PerceptualNetwork
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState, initial_state, prepare_scene, scene_scale
@@ -191,6 +191,7 @@ def train_splats(
         index = state.sampler.next(state.step, schedule.mining_on(state.step))
         outcome = train_step(state, scene, schedule, opts, index, lpips)
         refine_after_step(state, scene, schedule)
+        clamp_to_viewer_range(state.params)
         if bounds is not None:
             _clamp_log_scales(state, bounds)
         _record(window, state, scene, outcome)
