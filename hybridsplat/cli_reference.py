@@ -145,15 +145,20 @@ def _cell(text: str) -> str:
     return " ".join(str(text).split()).replace("|", "\\|")
 
 
-def _config_cell(entry: Entry) -> str:
+def _what_cell(entry: Entry) -> str:
+    """The help line, then the values and the config.toml keys the option sets (with their defaults)."""
     import json
 
-    parts = []
+    parts = [_cell(entry.help)]
+    if entry.values == ("none",):
+        parts.append("values: a value, or `none`")
+    elif entry.values:
+        parts.append("values: " + " ".join(f"`{_cell(v)}`" for v in entry.values))
     for d in entry.declared:
         default = json.dumps(d.default, ensure_ascii=False)
-        sets = f", this flag sets {json.dumps(d.flag_value)}" if d.flag_value is not None else ""
-        parts.append(f"`[{d.stage}] {d.path}` (default `{default}`{sets})")
-    return "; ".join(parts)
+        sets = f", this flag sets `{json.dumps(d.flag_value)}`" if d.flag_value is not None else ""
+        parts.append(f"config.toml: `[{d.stage}] {d.path}`, default `{default}`{sets}")
+    return "<br>".join(parts)
 
 
 def _usage(path: tuple[str, ...], cmd: Any) -> str:
@@ -198,11 +203,7 @@ def render() -> str:
         own = rows.get(" ".join(path[1:]), [])
         if not own:
             continue
-        lines += ["| argument / option | what | values | config.toml |", "|---|---|---|---|"]
-        for e in own:
-            name = f"`{e.name}{' ' + e.metavar if e.metavar else ''}`"
-            values = " ".join(f"`{_cell(v)}`" for v in e.values)
-            values = "a value, or `none`" if e.values == ("none",) else values
-            lines.append(f"| {name} | {_cell(e.help)} | {values} | {_config_cell(e)} |")
+        lines += ["| argument / option | what |", "|---|---|"]
+        lines += [f"| `{e.name}{' ' + e.metavar if e.metavar else ''}` | {_what_cell(e)} |" for e in own]
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
