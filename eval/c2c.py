@@ -4,7 +4,8 @@ For every point of the *compared* cloud, the distance (metres) to the nearest po
 cloud. Both clouds are first expressed relative to ONE local origin in float64, so georeferenced data
 (UTM, national grids) keeps millimetres. Nearest neighbours come from scipy's ``cKDTree`` queried in
 chunks (bounded memory) on all cores, with the queries sorted along a Morton curve so that consecutive
-queries walk the same tree branches (about 1.5x faster on surface-like clouds than unsorted queries).
+queries walk the same tree branches (faster on surface-like clouds than unsorted queries; the timing:
+docs/experiments/2026-11-27-domain-defaults.md).
 
 Threshold scores follow Tanks and Temples / ETH3D: at a distance τ,
 ``precision = share of compared points with d(compared -> reference) < τ``,

@@ -25,15 +25,15 @@ Every spacing is clamped to [``min_spacing``, ``max_spacing``] before a log is t
 single point (no neighbour: ``fallback_spacing``), collinear points and huge or tiny spacings all give finite values;
 each clamp that changes values emits a :class:`ConversionWarning` with the count.
 
-Neighbour search (``neighbor_backend``): ``"grid"`` (default), the exact column-grid search of :mod:`core.knn`
-(numba kernels on ``numba.get_num_threads()`` Python threads, O(N) memory: a sorted copy of the points and a column
-table), 2–4× faster than the reference ``"kdtree"``: one ``scipy.spatial.cKDTree`` over all points queried in
-chunks of ``chunk_size`` points in the tree's leaf order (4× faster than input order; memory beyond the outputs
-O(chunk_size · k)). Both give identical distances (tested). Each mode computes only what it needs: ``paper`` the
-nearest distance of each point (for the global mean); ``adaptive`` with MVS normals everywhere the per-point
-median spacing straight from the search (no (N, k) arrays), and the (N, k) neighbours only when some points lack a
-normal (PCA of those points only); MVS normals become quaternions in one pass, and the spacing clamp, scales,
-confidence, density fade and logits are two threaded numba passes around the median (no float64 temporaries).
+Neighbour search (``neighbor_backend``): ``"grid"`` (default), the exact column-grid search of :mod:`core.knn` (numba
+kernels on ``numba.get_num_threads()`` Python threads, O(N) memory: a sorted copy of the points and a column table),
+faster than the reference ``"kdtree"``: one ``scipy.spatial.cKDTree`` over all points queried in chunks of
+``chunk_size`` points in the tree's leaf order (faster than input order; memory beyond the outputs O(chunk_size · k);
+the timings: docs/experiments/2026-11-27-domain-defaults.md). Both give identical distances (tested). Each mode computes
+only what it needs: ``paper`` the nearest distance of each point (for the global mean); ``adaptive`` with MVS normals
+everywhere the per-point median spacing straight from the search (no (N, k) arrays), and the (N, k) neighbours only when
+some points lack a normal (PCA of those points only); MVS normals become quaternions in one pass, and the spacing clamp,
+scales, confidence, density fade and logits are two threaded numba passes around the median (no float64 temporaries).
 """
 
 from __future__ import annotations
@@ -307,8 +307,8 @@ def knn_distances(
     """Distances (N, k) float64 (ascending, metres) from each point to its k nearest *other* points.
 
     ``positions``: (N, 3) float64, N > k. With ``return_index`` also the neighbour indices (N, k) int64, else None.
-    Exact duplicates appear as distance 0. ``backend``: ``"grid"`` (:func:`core.knn.knn_grid`, exact, ~2× faster
-    on 2 cores) or ``"kdtree"`` (scipy ``cKDTree`` queried in leaf order in chunks of ``chunk_size``).
+    Exact duplicates appear as distance 0. ``backend``: ``"grid"`` (:func:`core.knn.knn_grid`, exact, the faster)
+    or ``"kdtree"`` (scipy ``cKDTree`` queried in leaf order in chunks of ``chunk_size``).
     """
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     n = len(positions)

@@ -92,8 +92,8 @@ the set's origin, not the tile's centre) with the most fractional bits the primi
 (:func:`fusion.spz_format.finest_fractional_bits`): ±2^−(b+1) m per axis, i.e. ±3.8 µm within ±64 m, ±30 µm within
 ±512 m, ±0.12 mm within ±2 048 m, ±0.49 mm within ±8 192 m (fewer than 12 bits with a warning); α ±1/510, colour
 ±0.0131 (|f_dc| ≤ 3.33), σ ±3.2 %, rotation x, y, z ±1/255, SH rest ±0.035 / ±0.066 (see :mod:`fusion.spz_format`;
-values outside SPZ's ranges are clipped with a warning). On the demo's merged product (48 971 splats, SH degree 3)
-the tiles are 12× smaller: 0.95 MB against 11.8 MB.
+values outside SPZ's ranges are clipped with a warning). Sizes against float32 tiles:
+docs/experiments/2026-11-27-domain-defaults.md.
 
 Precision (float32): positions are float32 copies of the float64 input (< 0.5 ulp: 3e-5 m at 500 m); σ, α,
 quaternions and SH are float32. Reading back (:meth:`SplatPrimitive.to_gaussians`) gives log σ and logit α again;

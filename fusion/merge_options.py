@@ -48,7 +48,7 @@ class MergeOptions:
         (trusted or not) are left out: floaters of the fill layer render depths the views agree on (None: no test).
         2, chosen on the demo preset at seed 12 (no figure is scored on it; docs/experiments/2026-11-27-splat-
         surface.md, "seed 12 choice, seed 0 score"): the largest support at which every material whose filtered-MVS
-        accuracy mean is ≤ τ keeps its mean ≤ τ (no support keeps the overall mean ≤ the control's + 10 %).
+        accuracy mean is ≤ τ keeps its mean ≤ τ.
     memory_limit_mb (MiB; ``run --memory-limit``): None writes the survey points (merged_points.ply and .las) whole;
     a number writes them in chunks sized for about that peak memory (:func:`fusion.export_stream.export_chunk_points`:
     the same bytes; at least :data:`fusion.export_stream.BASE_MB` + :data:`fusion.export_stream.MIN_WORK_MB`, else

@@ -25,7 +25,8 @@ signed normal offsets δ_j = n · (X_j − X_ref) of the agreeing estimates (δ_
 (the other views sample it at their own pixel centres) do not count as disagreement. The sample standard
 deviation of those m offsets (m = 1 + agreeing views), floored at ``sigma_floor_px`` pixel footprints (depth /
 focal length) of the reference view, is its *spread*; the spread misses the bias that every view shares (they all
-render the same fill layer: ±2σ of the spread held only 28–36 % of the true errors on the demo), so its σ
+render the same fill layer: ±2σ of the spread held far fewer than 95 % of the true errors on the demo,
+docs/experiments/2026-11-27-splat-surface.md), so its σ
 (metres) is the spread widened by :func:`sigma_model` (footprint, local roughness, disagreement with the MVS
 surface along the normal); confidence = agreeing views / the other views in which the point
 lands on a valid rendered depth inside the mask (∈ (0, 1]).

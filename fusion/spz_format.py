@@ -60,8 +60,8 @@ Precision (decoded minus input; per component)
   (step 0.244 mm) within ±2048 m of the local origin. A set whose local coordinates do not fit gets fewer fractional
   bits (step doubled per bit, with a warning that states it); an explicit ``fractional_bits`` that does not fit is
   a :class:`FormatError`. Positions are never wrapped or clipped. ``hybridsplat export`` asks for the most bits
-  that fit (:func:`finest_fractional_bits`; 16 bits within ±128 m: ±7.6 µm): on the demo's merged product that
-  lifts the decoded renders from 39.8 to 40.2 dB against the PLY's (bench/bench_export_formats.py).
+  that fit (:func:`finest_fractional_bits`; 16 bits within ±128 m: ±7.6 µm), which brings the decoded renders
+  closer to the PLY's (bench/bench_export_formats.py; docs/experiments/2026-11-27-export-formats.md).
 - opacity α: ≤ 1/510.
 - colour (SH DC, ``f_dc``): ≤ 1 / (2 · 0.15 · 255) = 0.0131 (0.0037 in 0–1 colour) within |f_dc| ≤ 3.33.
 - log σ: ≤ 1/32 (σ within ±3.2 %) within log σ ∈ [−10, 5.94] (σ from 45 µm to 379 m).

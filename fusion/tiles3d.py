@@ -127,7 +127,7 @@ class TilesetOptions:
     ``placement``: ``exact`` or ``grid`` (ignored without a CRS). ``color_space``: the extension's ``colorSpace``.
     ``layer_tilesets``: also write ``<layer>/tileset.json`` per layer (same tiles, same transform).
     ``compression``: ``spz`` (default; ``KHR_gaussian_splatting_compression_spz_2``, the form CesiumJS draws as
-    splats, 12× smaller on the demo) or ``none`` (float32 attributes: exact to float32, drawn by CesiumJS as points).
+    splats, several times smaller) or ``none`` (float32 attributes: exact to float32, drawn by CesiumJS as points).
     """
 
     max_splats_per_tile: int = 100_000

@@ -1,6 +1,6 @@
 """config.toml of hybridsplat 0.2 → 0.3: the stage tables' old flat keys mapped to where the options live now.
 
-0.3 made each stage's options the domain's own options dataclass (README, "Migration notes"), so some keys moved
+0.3 made each stage's options the domain's own options dataclass (docs/migration.md), so some keys moved
 into sub-tables (``[train] iterations`` → ``[train.training] iterations``), and "a negative value turns a check
 off" became ``"none"``. :func:`migrate_table` rewrites an old stage table into the new form; it is applied to
 every table read from config.toml and to the options recorded in an old manifest, so that a finished 0.2 project

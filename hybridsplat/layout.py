@@ -1,7 +1,7 @@
 """The project folder: the one place that spells the paths under PROJECT/.
 
 Names are a contract with users and scripts (``docs/conventions.md``, section "The project folder", is checked
-against this class by ``tests/test_layout.py``); change them only with a migration note in the README. COLMAP's
+against this class by ``tests/test_layout.py``); change them only with a note in docs/migration.md. COLMAP's
 own names inside ``dense/`` belong to :class:`recon.workspace.DenseWorkspace`, which this layout hands out.
 """
 

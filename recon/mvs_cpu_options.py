@@ -6,22 +6,10 @@ keeping it apart lets the configuration be read and checked before torch is load
 Effort and resolution are two controls: ``MvsOptions.max_image_size`` (``--max-image-size``) sets the pixels, the
 ``quality`` preset (``--mvs-quality``) sets the hypotheses tried per pixel (sweep planes, refinement rounds, far
 propagation), so the time per view is about the pixels times the preset's cost per pixel; halving the image side
-quarters the time at any preset. Seconds per view (depth, normals and geometric filter; fusion apart) on 2 cores
-shared with other work (load 4–5; a quiet machine is about twice as fast), fused cloud of the demo scene against its
-GT LiDAR (C2C mean, completeness at 3 GSD):
-
-==========  ===============  ======================  ================  ===========================================
-quality     320×240 (demo)   demo C2C / complete      1000×666 photos   use
-==========  ===============  ======================  ================  ===========================================
-fast        0.50 s           2.36 mm / 0.653          3.7 s             previews, checks of a capture: 1/2 the time,
-                                                                        completeness −0.04
-balanced    0.99 s           2.54 mm / 0.697          6.9 s             the default: the effort of the torch MVS
-                                                                        before issue 32 (its accuracy, 3.4–5.5× faster)
-high        1.31 s           2.60 mm / 0.698          8.4 s             96 planes, 4 rounds a level (more effort than
-                                                                        before issue 32); no gain measured on the demo
-==========  ===============  ======================  ================  ===========================================
-
-Reproduce with ``bench/bench_mvs.py --quality Q`` (demo) and ``bench/bench_mvs_profile.py --quality Q`` (photos).
+quarters the time at any preset. ``fast``: previews and checks of a capture; ``balanced`` (the default): the effort of
+the torch MVS before issue 32; ``high``: 96 planes, 4 rounds a level. Seconds per view and accuracy of each preset:
+docs/experiments/2026-11-27-pipeline-defaults.md ("CPU MVS quality presets"); measure them with
+``bench/bench_mvs.py --quality Q`` (demo) and ``bench/bench_mvs_profile.py --quality Q`` (photos).
 """
 
 from __future__ import annotations

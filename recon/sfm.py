@@ -17,16 +17,15 @@ byte-identical models. What varied before, measured on the ``tiny`` preset (benc
 - two-view geometry RANSAC draws from thread-local generators when unseeded → its seed is set, and matching runs
   on one thread too: with two matching threads, one CI run (of many that passed) gave 167 points against 168 in
   the second of two identical runs in one process (not reproduced in 40 runs here, whole or stage by stage, so
-  the cause is not pinned down; one thread removes the last multi-threaded COLMAP step; about 1.4× the time of
-  features + matching on the demo scene);
+  the cause is not pinned down; one thread removes the last multi-threaded COLMAP step, at some cost in time:
+  docs/experiments/2026-11-27-pipeline-defaults.md, "SfM stage: determinism and the robust refinement");
 - the mapper's, the triangulator's and the global generator's seeds are set; the mapper and the bundle
   adjustments run on one thread. This last part is a precaution, not a measurement: Ceres multi-threads only
   problems above 50 000 residuals (``min_num_residuals_for_cpu_multi_threading``), which ``tiny`` never reaches,
   and its Schur-complement updates from several threads may sum in a different order run to run.
 
-Measured (bench/bench_sfm_determinism.py): ``tiny``, 3 full and 3 known-pose runs: identical with the defaults,
-different with ``deterministic=False``; fountain-P11 (11 photos at 1600 px), 2 full runs: identical (11 registered,
-15 263 points), about 143 s CPU per run on this 2-core machine.
+``bench/bench_sfm_determinism.py`` checks it (repeated full and known-pose runs on ``tiny`` and fountain-P11; what it
+found: docs/experiments/2026-11-27-pipeline-defaults.md, "SfM stage: determinism and the robust refinement").
 
 COLMAP's output goes to ``log_path`` (see :mod:`recon.colmap_log`) when given; its warnings land in
 ``SfmReport.warnings`` as one line each.
@@ -472,8 +471,8 @@ def _refine_model(rec, options: SfmOptions) -> None:
     The mapper's global BA uses a squared (non-robust) loss and keeps observations up to
     ``filter_max_reproj_error`` (4 px). Matches on view-dependent surfaces (mirror, glass, specular highlights)
     and on grazing, affinely distorted texture sit at 1-4 px; cameras that see few points (low, oblique rings)
-    are then pulled by them (measured on the tabletop scene: up to 1.5-2.6 mm centre error on ring 0, mean
-    observation error 0.9 px there vs 0.3 px on the top ring). A Cauchy loss of about 1 px downweights them,
+    are then pulled by them (the tabletop scene's figures: docs/experiments/2026-11-27-pipeline-defaults.md,
+    "SfM stage: determinism and the robust refinement"). A Cauchy loss of about 1 px downweights them,
     observations still above ``refine_filter_px`` are dropped, and a second robust BA settles the poses.
     """
     import pycolmap

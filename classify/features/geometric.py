@@ -39,8 +39,9 @@ class GeometricOptions:
     spacing_sample: points sampled (seeded) to estimate the median spacing. seed: that sample's seed.
     chunk_size: points per chunk of the k-d tree queries and of the eigen work.
     workers: threads for the k-d tree queries (-1: all cores; the grid search uses numba's thread count).
-    search: k-NN search: ``grid`` (default, :func:`core.knn.knn_grid`, exact, ~3× less CPU than the tree on
-        survey clouds) or ``kdtree`` (scipy's cKDTree queried in leaf order, the reference).
+    search: k-NN search: ``grid`` (default, :func:`core.knn.knn_grid`, exact, less CPU than the tree on survey
+        clouds: docs/experiments/2026-11-27-domain-defaults.md) or ``kdtree`` (scipy's cKDTree queried in leaf
+        order, the reference).
     """
 
     voxel_factors: tuple[float, ...] = (1.0, 4.0, 12.0)

@@ -1,10 +1,10 @@
 """The ``gsplat`` backend: gsplat's CUDA rasteriser, imported lazily and probed at run time (extra ``cuda``).
 
-Where it differs from the ``cpu`` and ``reference`` backends (measured with gsplat 1.5.3 on an H200; see
-``bench/bench_gpu_paths.py``): per-Gaussian alpha is clamped at :data:`GSPLAT_ALPHA_MAX` (0.999, not 0.99); a
-Gaussian's footprint is cut by its opacity-aware extent rather than 3σ (edges differ by up to ~0.012 in colour);
-``RenderResult.means2d`` is a view of the projected means that gsplat consumes, so it receives no gradient
-(densification on this backend reads none). On a trained product the two renderers agree to 56-58 dB PSNR.
+Where it differs from the ``cpu`` and ``reference`` backends (gsplat 1.5.3): per-Gaussian alpha is clamped at
+:data:`GSPLAT_ALPHA_MAX` (0.999, not 0.99); a Gaussian's footprint is cut by its opacity-aware extent rather than 3σ
+(so edges differ slightly in colour); ``RenderResult.means2d`` is a view of the projected means that gsplat
+consumes, so it receives no gradient (densification on this backend reads none). How far the two renderers agree,
+measured on an H200 with ``bench/bench_gpu_paths.py``: docs/experiments/2026-11-27-gpu-paths.md.
 """
 
 from __future__ import annotations

@@ -87,11 +87,10 @@ class GeometryOptions:
 
     depth: which rendered depth feeds the terms (:class:`GeometryDepth`; ``plane`` by default). start: share of the
     run before the first geometric step (2DGS and PGSR start at ~0.23 of theirs; 0 = from the first step). every:
-    cadence in steps (1 = every step). A geometric step costs ~1.4× a colour-only one on the CPU (8-feature
-    rasterisation forward and backward; the per-pixel terms are computed on the region's bounding box only), so
-    the default 2 keeps a run at ~1.2× its time without geometry at equal steps, within issue 31's 1.3×
-    (``bench/bench_train_geometry.py``, 2% and 9% of the image masked, load 2–5 on 2 cores: every step 1.33–1.50×,
-    every 2nd 1.14–1.30×, every 4th 1.05–1.17×; 4 is the choice when time matters more than the term's strength).
+    cadence in steps (1 = every step). A geometric step renders 8 features forward and backward (the per-pixel
+    terms on the region's bounding box only); the default 2 keeps a run within issue 31's time budget for the
+    geometric losses, 4 is the choice when time matters more than the term's strength (the costs measured:
+    docs/experiments/2026-11-27-pipeline-defaults.md, "Geometric losses: the cadence ``every``").
     """
 
     normal_consistency_weight: float = 0.05

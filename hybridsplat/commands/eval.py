@@ -205,7 +205,7 @@ def images(
     no_lpips: bool = typer.Option(False, "--no-lpips", help="Skip LPIPS (no weights needed)."),
     json_path: Path | None = typer.Option(None, "--json", help="Write per-view and aggregated metrics as JSON here."),
     panels: Path | None = typer.Option(
-        None, "--panels", help="Write side-by-side render | photo | error panels into this folder."
+        None, "--panels", help="Write side-by-side panels (render, photo, error) into this folder."
     ),
 ) -> None:
     """Image metrics of renders against photos: MSE, PSNR, SSIM, MS-SSIM, LPIPS, ΔE.
@@ -246,7 +246,7 @@ def render(
     no_lpips: bool = typer.Option(False, "--no-lpips", help="Skip LPIPS (no weights needed)."),
     json_path: Path | None = typer.Option(None, "--json", help="Write per-view and aggregated metrics as JSON here."),
     panels: Path | None = typer.Option(
-        None, "--panels", help="Write side-by-side render | photo | error panels into this folder."
+        None, "--panels", help="Write side-by-side panels (render, photo, error) into this folder."
     ),
 ) -> None:
     """Render a Gaussian set at held-out cameras and score the renders against the photos.

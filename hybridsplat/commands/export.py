@@ -39,16 +39,16 @@ def export(
     ),
     extra_fields: bool = typer.Option(False, help="Append per-Gaussian fields to 3DGS PLY outputs."),
     spz_version: int = typer.Option(
-        SPZ_VERSION, help="SPZ version of .spz outputs: 2 (every reader) or 3 (rotations exact near 180°)."
+        SPZ_VERSION, help="SPZ version of .spz outputs: 2 (every reader) | 3 (rotations exact near 180°)."
     ),
     gltf_compression: str = typer.Option(
         "spz",
         "--gltf-compression",
         help="glTF tiles of a tileset.json output: spz (KHR_gaussian_splatting_compression_spz_2, SPZ v2: what "
-        "CesiumJS draws as splats) or none (float32 KHR_gaussian_splatting attributes; CesiumJS shows points).",
+        "CesiumJS draws as splats) | none (float32 KHR_gaussian_splatting attributes; CesiumJS shows points).",
     ),
     layers: str | None = typer.Option(
-        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+        None, "--layers", help="Layers of a merged product to keep, comma-separated: survey | fill | background."
     ),
     survey_points: Path | None = typer.Option(
         None,

@@ -63,7 +63,9 @@ def render_command(
     cameras: Path = typer.Option(..., "--cameras", help="COLMAP sparse model folder (cameras/images .bin or .txt)."),
     out: Path = typer.Option(..., "--out", help="Output folder for <image>.png (created if missing)."),
     images: list[str] = typer.Option(None, "--images", help="Render only these image names (repeatable)."),
-    backend: str = typer.Option("auto", "--backend", help="auto (gsplat on CUDA, else cpu), cpu, reference, gsplat."),
+    backend: str = typer.Option(
+        "auto", "--backend", help="auto (gsplat on CUDA, else cpu) | cpu | reference | gsplat (needs CUDA)."
+    ),
     depth: bool = typer.Option(False, "--depth", help="Also write <image>.depth.png: 16-bit z-depth."),
     depth_scale: float = typer.Option(0.001, "--depth-scale", help="Metres per depth-PNG unit (0.001: millimetres)."),
     alpha: bool = typer.Option(False, "--alpha", help="Also write <image>.alpha.png: 8-bit accumulated opacity."),
@@ -73,7 +75,7 @@ def render_command(
         False, "--ignore-distortion", help="Render distorted cameras as their pinhole part instead of refusing."
     ),
     layers: str | None = typer.Option(
-        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+        None, "--layers", help="Layers of a merged product to keep, comma-separated: survey | fill | background."
     ),
 ) -> None:
     """Render a Gaussian PLY at the cameras of a COLMAP model and write PNGs (colour, optional depth/alpha)."""

@@ -73,8 +73,9 @@ def _value(tp: Any, given: Any, opt: Any) -> Any:
         return str(Path(given).resolve()) if str(given) else ""
     from hybridsplat.options import NONE_SPELLING, NONE_WORDS
 
-    if isinstance(given, str) and given.lower() in NONE_WORDS:
-        return NONE_SPELLING
+    optional = type(None) in typing.get_args(tp)
+    if optional and isinstance(given, str) and given.lower() in NONE_WORDS:
+        return NONE_SPELLING  # only an option that can be None: ``--tiles off`` is the value "off", not None
     inner = [a for a in typing.get_args(tp) if a is not type(None)]
     if isinstance(given, str) and inner and inner[0] in (int, float):
         from core.errors import ConfigError

@@ -14,8 +14,8 @@ def synth(
         "tiny",
         "--preset",
         "-p",
-        help="Scene preset: tiny, tabletop, demo, textured, aerial; random-object, random-aerial (layout drawn "
-        "from the seed; seeds 100-199 are for scoring, 0-99 for tuning).",
+        help="Scene preset: tiny | tabletop | demo | textured | aerial (fixed layouts) | random-object | random-aerial "
+        "(layouts drawn from the seed; seeds 100-199 are for scoring, 0-99 for tuning).",
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="Seed of every random choice (same seed, same bytes)."),
     views: int | None = typer.Option(None, "--views", min=1, help="Training views (default: the preset's)."),

@@ -20,7 +20,7 @@ def view_command(
     sigma_px: float = typer.Option(1.0, "--sigma-px", min=0.01, help="Default σ of a pick in pixels."),
     seconds: float = typer.Option(0.0, "--seconds", min=0.0, help="Stop after this many seconds (0: until Ctrl-C)."),
     layers: str | None = typer.Option(
-        None, "--layers", help="Layers of a merged product to keep: survey, fill, background (comma-separated)."
+        None, "--layers", help="Layers of a merged product to keep, comma-separated: survey | fill | background."
     ),
 ) -> None:
     """Open the merged splats, MVS cloud, mesh and cameras in the browser; pick points, see error ellipsoids."""

@@ -28,7 +28,7 @@ class ClassifyStage(Stage):
         "Classify the dense cloud into PROJECT/classify/points.ply (classification, probability, needs_splats)."
     )
     command_options = (
-        CliOption("model", help="default | none (no-model fallback) | path of a .skops model."),
+        CliOption("model", help="default | none (no-model fallback) | PATH (a .skops model)."),
         CliOption("threshold", help="Needs-splats probability threshold (default: the model's)."),
     )
     run_options = (CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),)
