@@ -16,6 +16,9 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
 - ``geometry_priors``: ``geometry`` and the MVS depth / normal priors at their defaults (``[train.training.priors]``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
+- ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
+  (weight 0.2 from 80 % of the steps), SmoothL1 + MS-SSIM instead of L1 + SSIM, hard-view mining, or MCMC
+  densification (its window and cap as the default strategy's), each at its defaults otherwise.
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -49,7 +52,17 @@ PROCEDURAL_SIZE = ("--views", "24", "--test-views", "4", "--width", "320", "--he
 """The procedural layouts at the demo's size (24 training + 4 held-out views of 320×240)."""
 
 DEFAULT_LAYOUTS = "random-object:120-125,random-aerial:120-125,demo:0"
-VARIANTS = ("oracle", "splat_surface", "geometry", "geometry_priors", "hole_region")
+VARIANTS = (
+    "oracle",
+    "splat_surface",
+    "geometry",
+    "geometry_priors",
+    "hole_region",
+    "lpips_loss",
+    "msssim_loss",
+    "hard_views",
+    "mcmc",
+)
 DISTANCE_BINS_TAU = (0.0, 1.0, 2.0, 4.0, np.inf)
 """Bins of a misclassified point's distance to the nearest true surface, in τ (the truth's threshold)."""
 
@@ -178,6 +191,27 @@ def variant_config(config, variant: str):
         return config.with_stage_options("train", replace(train, training=training))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
+    if variant in ("lpips_loss", "msssim_loss", "hard_views", "mcmc"):
+        from fusion.train.options import HardViewOptions, Photometric
+        from fusion.train.strategy import MCMCStrategy
+
+        train = config.stages["train"]
+        training = train.training
+        if variant == "lpips_loss":
+            training = replace(training, lpips_weight=0.2)
+        elif variant == "msssim_loss":
+            training = replace(training, photometric=Photometric.SMOOTHL1_MSSSIM)
+        elif variant == "hard_views":
+            training = replace(training, hard_views=HardViewOptions())
+        else:
+            s = training.strategy
+            training = replace(
+                training,
+                strategy=MCMCStrategy(
+                    cap=s.cap, refine_start=s.refine_start, refine_stop=s.refine_stop, refine_every=s.refine_every
+                ),
+            )
+        return config.with_stage_options("train", replace(train, training=training))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
 
 
