@@ -16,6 +16,7 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
 - ``geometry_priors``: ``geometry`` and the MVS depth / normal priors at their defaults (``[train.training.priors]``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
+- ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
 - ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
   (weight 0.2 from 80 % of the steps), SmoothL1 + MS-SSIM instead of L1 + SSIM, hard-view mining, or MCMC
   densification (its window and cap as the default strategy's), each at its defaults otherwise.
@@ -176,9 +177,13 @@ def point_truth(cloud, scene, classes):
 
 
 def variant_config(config, variant: str):
-    """The shipped project's configuration with ``variant``'s one change."""
+    """The shipped project's configuration with ``variant``'s one change (``a+b``: both changes)."""
     from fusion.train.options import GeometryOptions, PriorOptions
 
+    if "+" in variant:
+        for part in variant.split("+"):
+            config = variant_config(config, part)
+        return config
     if variant == "oracle":
         return config
     if variant == "splat_surface":
@@ -222,13 +227,13 @@ def rerun_variant(project: Path, variant: str) -> None:
     from hybridsplat.terminal import Terminal
 
     config = variant_config(load_config(project), variant)
-    stages = [oracle_classify_stage() if (variant == "oracle" and s.name == "classify") else s
-              for s in registered_stages()]  # fmt: skip
+    oracle = "oracle" in variant.split("+")
+    stages = [oracle_classify_stage() if (oracle and s.name == "classify") else s for s in registered_stages()]
     run_pipeline(project, config, stages=stages, terminal=Terminal(quiet=False))
 
 
 def make_variant(shipped: Path, variant: str) -> Path:
-    project = shipped.parent / variant
+    project = shipped.parent / variant.replace("+", "_and_")
     if (project / "report" / "report.json").is_file():
         return project
     if project.exists():
@@ -382,7 +387,7 @@ def main() -> None:
         ap = argparse.ArgumentParser(prog="bench_regret.py rerun")
         ap.add_argument("rerun")
         ap.add_argument("project", type=Path)
-        ap.add_argument("--variant", required=True, choices=VARIANTS)
+        ap.add_argument("--variant", required=True)
         a = ap.parse_args()
         rerun_variant(a.project, a.variant)
         return
@@ -394,8 +399,8 @@ def main() -> None:
     a = ap.parse_args()
     variants = [v for v in a.variants.split(",") if v]
     for v in variants:
-        if v not in VARIANTS:
-            ap.error(f"unknown variant {v!r}; choose from {', '.join(VARIANTS)}")
+        if any(part not in VARIANTS for part in v.split("+")):
+            ap.error(f"unknown variant {v!r}; choose from {', '.join(VARIANTS)} (or a+b)")
     out: dict[str, Any] = {"date": time.strftime("%Y-%m-%d %H:%M"), "load_before": load(), "variants": variants,
                            "layouts": {}}  # fmt: skip
     tp = fp = fn = 0
