@@ -275,6 +275,7 @@ def product_scores(project: Path) -> dict[str, Any]:
         "survey_points": c2c.get("count"),
         "seconds_after_mvs": seconds,
     }
+    out["sigma_by_class"] = sigma_by_class(project)
     per_material = project / "eval" / "per_material.json"
     if per_material.is_file():
         table = json.loads(per_material.read_text())
@@ -283,6 +284,51 @@ def product_scores(project: Path) -> dict[str, Any]:
             for m, r in (table.get("products", {}).get("merged") or {}).items()
         }
     return out
+
+
+def sigma_by_class(project: Path) -> dict[str, Any] | None:
+    """The σ calibration (:func:`eval.sigma_calibration.calibration_row`) of the survey product's splat-surface points
+    (``source`` 4) per predicted class (that of the nearest ``needs_splats`` MVS point, the rule of
+    :func:`fusion.survey.classes_of_points` with which the merge counts them),
+    against the eval stage's reference cloud; None without such points."""
+    from core.io import read_point_cloud
+    from core.io.gaussian_ply import read_gaussian_ply
+    from eval.sigma_calibration import calibration_row, local_plane_distances
+    from fusion.convert_options import Source
+    from hybridsplat import project_io
+    from hybridsplat.layout import ProjectLayout
+
+    layout = ProjectLayout(project)
+    points = read_point_cloud(layout.merged_points_ply)
+    if "sigma" not in points.fields:
+        return None
+    added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
+    if not added.any():
+        return None
+    metrics = json.loads((project / "eval" / "metrics.json").read_text())["products"]["merged"]["c2c"]
+    reference = read_point_cloud(metrics["reference"])
+    anchor = reference.world_positions[0]
+    world = points.world_positions[added]
+    distances, _ = local_plane_distances(world - anchor, reference.world_positions - anchor)
+    sigma = np.asarray(points.fields["sigma"], np.float64)[added]
+    mvs = read_gaussian_ply(layout.mvs_gaussians)
+    needs = project_io.needs_splats_per_gaussian(layout, mvs)
+    codes = project_io.read_needs_splats_class_codes(layout)
+    predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
+    _, nearest = _nearest_needs(mvs, needs, world)
+    cls = predicted[needs][nearest]
+    names = {code: name for name, code in codes.items()}
+    out = {"all": calibration_row(distances, sigma)}
+    for code in sorted(set(cls.tolist())):
+        out[names.get(code, str(code))] = calibration_row(distances[cls == code], sigma[cls == code])
+    return out
+
+
+def _nearest_needs(mvs, needs: np.ndarray, world: np.ndarray):
+    from scipy.spatial import cKDTree
+
+    anchor = mvs.world_means[needs][0] if needs.any() else np.zeros(3)
+    return cKDTree(mvs.world_means[needs] - anchor).query(world - anchor, k=1)
 
 
 def classifier_scores(shipped: Path) -> dict[str, Any]:
