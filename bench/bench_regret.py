@@ -49,6 +49,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 
+from hybridsplat.layout import ProjectLayout  # noqa: E402
+
 PROCEDURAL_SIZE = ("--views", "24", "--test-views", "4", "--width", "320", "--height", "240")
 """The procedural layouts at the demo's size (24 training + 4 held-out views of 320×240)."""
 
@@ -117,7 +119,7 @@ def make_scene(root: Path, preset: str, seed: int) -> Path:
 def make_shipped(root: Path, preset: str, seed: int) -> Path:
     scene = make_scene(root, preset, seed)
     project = scene.parent / "shipped"
-    if not (project / "report" / "report.json").is_file():
+    if not ProjectLayout(project).report_json.is_file():
         cli("run", str(scene), "--out", str(project), "--mesh", "0", "--quiet", log=scene.parent / "log.txt")
     return project
 
@@ -234,7 +236,7 @@ def rerun_variant(project: Path, variant: str) -> None:
 
 def make_variant(shipped: Path, variant: str) -> Path:
     project = shipped.parent / variant.replace("+", "_and_")
-    if (project / "report" / "report.json").is_file():
+    if ProjectLayout(project).report_json.is_file():
         return project
     if project.exists():
         shutil.rmtree(project)
@@ -254,12 +256,13 @@ def make_variant(shipped: Path, variant: str) -> Path:
 def product_scores(project: Path) -> dict[str, Any]:
     """The merged product's figures from the eval stage: held-out PSNR / LPIPS (whole, masked) and the survey
     product's P / R / F at τ and C2C mean; the stages' seconds after MVS."""
-    metrics = json.loads((project / "eval" / "metrics.json").read_text())["products"]
+    layout = ProjectLayout(project)
+    metrics = json.loads(layout.metrics_json.read_text())["products"]
     merged = metrics["merged"]
     c2c = merged.get("c2c") or {}
     full = (merged.get("images") or {}).get("full") or {}
     masked = (merged.get("images") or {}).get("masked") or {}
-    manifest = json.loads((project / "manifest.json").read_text())["stages"]
+    manifest = json.loads(layout.manifest.read_text())["stages"]
     after_mvs = ("classify", "masks", "convert", "train", "clean", "background", "appearance", "merge")
     seconds = sum(float((manifest.get(s) or {}).get("seconds") or 0.0) for s in after_mvs)
     out = {
@@ -276,7 +279,7 @@ def product_scores(project: Path) -> dict[str, Any]:
         "seconds_after_mvs": seconds,
     }
     out["sigma_by_class"] = sigma_by_class(project)
-    per_material = project / "eval" / "per_material.json"
+    per_material = layout.per_material_json
     if per_material.is_file():
         table = json.loads(per_material.read_text())
         out["per_material"] = {
@@ -296,7 +299,6 @@ def sigma_by_class(project: Path) -> dict[str, Any] | None:
     from eval.sigma_calibration import calibration_row, local_plane_distances
     from fusion.convert_options import Source
     from hybridsplat import project_io
-    from hybridsplat.layout import ProjectLayout
 
     layout = ProjectLayout(project)
     points = read_point_cloud(layout.merged_points_ply)
@@ -305,7 +307,7 @@ def sigma_by_class(project: Path) -> dict[str, Any] | None:
     added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
     if not added.any():
         return None
-    metrics = json.loads((project / "eval" / "metrics.json").read_text())["products"]["merged"]["c2c"]
+    metrics = json.loads(layout.metrics_json.read_text())["products"]["merged"]["c2c"]
     reference = read_point_cloud(metrics["reference"])
     anchor = reference.world_positions[0]
     world = points.world_positions[added]
@@ -337,7 +339,6 @@ def classifier_scores(shipped: Path) -> dict[str, Any]:
     from classify.classes import load_classes
     from core.io import read_point_cloud
     from data_synth import load_scene
-    from hybridsplat.layout import ProjectLayout
     from hybridsplat.pipeline import load_config
     from recon.workspace import read_fused
 

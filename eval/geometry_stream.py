@@ -185,13 +185,8 @@ def geometry_per_material_streamed(
         del reverse, near
     out: dict[int, MaterialGeometry] = {}
     for m in sorted(totals):
-        on_m = owner == m if owner is not None else np.zeros(0, bool)
-        out[m] = MaterialGeometry(
-            accuracy_mean=float(d_acc[on_m].mean()) if on_m.any() else None,  # type: ignore[index]
-            accuracy_points=int(on_m.sum()),
-            completeness=hits[m] / totals[m],
-            reference_points=totals[m],
-        )
+        on_m = d_acc[owner == m] if owner is not None else np.zeros(0)  # type: ignore[index]
+        out[m] = MaterialGeometry.of(on_m, hits[m] / totals[m], totals[m], tau)
     return out
 
 

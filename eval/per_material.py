@@ -34,6 +34,21 @@ class MaterialGeometry:
     precision: float | None = None
     fscore: float | None = None
 
+    @classmethod
+    def of(cls, distances: np.ndarray, completeness: float, reference_points: int, tau: float) -> MaterialGeometry:
+        """The scores of one material from the distances (metres) of the product points on it to the reference, its
+        completeness at ``tau`` and its reference point count."""
+        d = np.asarray(distances, np.float64)
+        precision = float((d <= tau).mean()) if len(d) else None
+        return cls(
+            accuracy_mean=float(d.mean()) if len(d) else None,
+            accuracy_points=int(len(d)),
+            completeness=completeness,
+            reference_points=int(reference_points),
+            precision=precision,
+            fscore=_fscore(precision or 0.0, completeness),
+        )
+
 
 @dataclass(frozen=True)
 class MaterialImage:
@@ -70,18 +85,9 @@ def geometry_per_material(
         d_acc, owner = np.zeros(0), np.zeros(0, np.int64)
         d_cmp = np.full(len(ref), np.inf)
     for m in np.unique(materials):
-        on_m = owner == m
         of_m = materials == m
         completeness = float((d_cmp[of_m] <= tau).mean())
-        precision = float((d_acc[on_m] <= tau).mean()) if on_m.any() else None
-        out[int(m)] = MaterialGeometry(
-            accuracy_mean=float(d_acc[on_m].mean()) if on_m.any() else None,
-            accuracy_points=int(on_m.sum()),
-            completeness=completeness,
-            reference_points=int(of_m.sum()),
-            precision=precision,
-            fscore=_fscore(precision or 0.0, completeness),
-        )
+        out[int(m)] = MaterialGeometry.of(d_acc[owner == m], completeness, int(of_m.sum()), tau)
     return out
 
 

@@ -676,6 +676,26 @@ def _picture_grid(per_view: Mapping[str, list[Mapping[str, Any]]], eval_dir: Pat
             "<table class='grid'><tr>" + head + "</tr>", *rows, "</table>"]  # fmt: skip
 
 
+def _distance_figures(raw_products: Mapping[str, Any], eval_dir: Path | None, u: Units) -> list[str]:
+    """Per product with C2C distances: their histogram and, from its distance cloud, the colour-mapped views."""
+    e = html.escape
+    figs = []
+    for name, raw in raw_products.items():
+        c2c = (raw or {}).get("c2c")
+        if not c2c:
+            continue
+        hist = c2c.get("histogram") or {}
+        if hist.get("edges") and hist.get("counts"):
+            title = f"{(c2c.get('method') or 'c2c').upper()} distances: {name}"
+            figs.append(f"<figure>{svg_histogram(hist['edges'], hist['counts'], title, units=u)}</figure>")
+        if eval_dir is not None:
+            tag = _c2c_views_tag(eval_dir, name, c2c, u)
+            if tag:
+                caption = f"{e(name)}: distance to the reference, colour-mapped (viridis, 0 to P95, {e(u.value)})"
+                figs.append(f"<figure style='max-width:900px'>{tag}<figcaption>{caption}</figcaption></figure>")
+    return figs
+
+
 def to_html(
     report: Mapping[str, Any],
     eval_dir: Path | None,
@@ -708,20 +728,7 @@ def to_html(
             parts.append("<p class='note'>none recorded</p>")
             continue
         parts.append(_html_table(header, rows))
-    figs = []
-    for name, raw in raw_products.items():
-        c2c = (raw or {}).get("c2c")
-        if not c2c:
-            continue
-        hist = c2c.get("histogram") or {}
-        if hist.get("edges") and hist.get("counts"):
-            title = f"{(c2c.get('method') or 'c2c').upper()} distances: {name}"
-            figs.append(f"<figure>{svg_histogram(hist['edges'], hist['counts'], title, units=u)}</figure>")
-        if eval_dir is not None:
-            tag = _c2c_views_tag(eval_dir, name, c2c, u)
-            if tag:
-                caption = f"{e(name)}: distance to the reference, colour-mapped (viridis, 0 to P95, {e(u.value)})"
-                figs.append(f"<figure style='max-width:900px'>{tag}<figcaption>{caption}</figcaption></figure>")
+    figs = _distance_figures(raw_products, eval_dir, u)
     if figs:
         parts += ["<h2>Distance distributions</h2>"] + figs
     metric_figs = []
