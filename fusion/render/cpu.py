@@ -255,9 +255,9 @@ _T_MEDIAN = np.float32(0.5)
 def _item(typingctx, tup, idx):  # noqa: ANN001, ANN202 - a numba intrinsic
     """``tup[idx]`` of a homogeneous tuple, idx in range (not checked), through a stack copy of the tuple.
 
-    numba's own ``tup[idx]`` branches to an IndexError for an index it cannot prove in range; inside the
-    16-pixel loop that branch made LLVM peel the loop instead of vectorising it (for up to 5 channels, 3-6x
-    slower); once the channel loop is unrolled this load has a constant index and lives in a register.
+    For the written-out channel lines of :func:`_accumulate` and its kin: the lines past the tuple's length are
+    dead code, removed by LLVM, but must still compile, and numba's ``tup[k]`` refuses such an index; with a
+    constant index this load lives in a register.
     """
     if not isinstance(tup, types.UniTuple) or not isinstance(idx, types.Integer):
         return None
@@ -291,7 +291,8 @@ _MAX_CHANNELS = 8
 def _accumulate(acc, h, p, i, w, fv):  # pragma: no cover - numba
     """acc[f, h, p, i] += w fv[f] for each channel f of the tuple fv (up to 8). Written out, each line behind a
     test on the tuple's length that is constant at compile time: a loop over the channels here, even of constant
-    length, kept LLVM from vectorising the 16-pixel loop around it for fewer than 6 channels (3-6x slower)."""
+    length, kept LLVM from vectorising the 16-pixel loop around it for fewer than 6 channels (several times
+    slower)."""
     n = len(fv)
     if n > 0:
         acc[0, h, p, i] += w * _item(fv, 0)
@@ -372,10 +373,11 @@ def _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha):  # pragma
 def forward_kernel(n_features: int, track_median: bool):  # noqa: ANN201 - a numba dispatcher
     """The forward kernel for ``n_features`` channels, with or without the median (compiled on first use).
 
-    The channel count and the median flag are compile-time constants of the kernel (closure variables), so that
-    the channel loops unroll inside the 16-pixel loop, which LLVM then vectorises as it did the hand-written
-    4- and 8-channel kernels this factory replaced (a runtime channel count, or one 16-pixel loop per channel,
-    ran 1.4-2.4x slower); numba caches each variant on disk, keyed by these constants.
+    The channel count and the median flag are compile-time constants of the kernel (closure variables): the
+    channels are a tuple of that length, composited by written-out lines (:func:`_accumulate`) of which LLVM keeps
+    those the tuple has, so that it vectorises the 16-pixel loop as it did the hand-written 4- and 8-channel
+    kernels this factory replaced (a runtime channel count, or one 16-pixel loop per channel, ran markedly
+    slower); numba caches each variant on disk, keyed by these constants.
     """
     nf = int(n_features)
     track = bool(track_median)
