@@ -24,7 +24,7 @@ this module does the per-pixel work:
    context, whose gradients nobody reads) are only peeled off the remainders and the transmittance.
 
 Colour (RGB, z) and geometry (RGB, z, normal, plane distance, and each pixel's median Gaussian) are channels of
-one kernel pair: :func:`forward_kernel` and :func:`backward_kernel` compile a variant per channel count (1-8) and
+one kernel pair: :func:`_forward_kernel` and :func:`_backward_kernel` compile a variant per channel count (1-8) and
 median flag, both compile-time constants, as gsplat's rasteriser takes any number of channels.
 
 Training renders only the pixels its loss reads (``pixels``): the others start as finished, so a unit or tile
@@ -41,7 +41,6 @@ a busy 2-core machine; later processes load the cache in ~3 s).
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -49,8 +48,8 @@ import numpy as np
 import torch
 from numba import njit, types
 from numba.core import cgutils
+from numba.cpython.unsafe.tuple import tuple_setitem
 from numba.extending import intrinsic
-from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from core.errors import ConfigError
 from fusion.render.threads import run_chunks, run_threads, timed
@@ -288,6 +287,20 @@ _MAX_CHANNELS = 8
 
 
 @njit(inline="always", cache=True)
+def _row(channels, features, g):  # pragma: no cover - numba
+    """features[g] as a tuple of the type of ``channels`` (its length: the channel count)."""
+    fv = channels
+    for f in range(len(channels)):
+        fv = tuple_setitem(fv, f, features[g, f])
+    return fv
+
+
+def _channel_tuple(n: int, dtype: np.dtype) -> tuple:
+    """The kernels' ``channels`` argument: n zeros of ``dtype``, whose tuple type tells numba the channel count."""
+    return tuple(np.zeros(n, dtype))
+
+
+@njit(inline="always", cache=True)
 def _accumulate(acc, h, p, i, w, fv):  # pragma: no cover - numba
     """acc[f, h, p, i] += w fv[f] for each channel f of the tuple fv (up to 8). Written out, each line behind a
     test on the tuple's length that is constant at compile time: a loop over the channels here, even of constant
@@ -369,295 +382,333 @@ def _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha):  # pragma
     return g_alpha
 
 
-@functools.cache
-def forward_kernel(n_features: int, track_median: bool):  # noqa: ANN201 - a numba dispatcher
-    """The forward kernel for ``n_features`` channels, with or without the median (compiled on first use).
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
+def _forward_kernel(
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    j0,
+    j1,
+    channels,
+    median_flag,
+    live,
+    out,
+    n_used,
+    median,
+):  # pragma: no cover - numba
+    """Tiles order[j0:j1] of features (N, nf) into out (H, W, nf + 1) and n_used (H, W) (disjoint per tile);
+    pixels where ``live`` (H, W) is 0 are not composited (features 0, alpha 0, n_used 0). With the median:
+    median (H, W) int32, the list position (1-based, within the tile) of the first composited entry after
+    which the transmittance is below 0.5, 0 where there is none (else median is not touched).
 
-    The channel count and the median flag are compile-time constants of the kernel (closure variables): the
-    channels are a tuple of that length, composited by written-out lines (:func:`_accumulate`) of which LLVM keeps
-    those the tuple has, so that it vectorises the 16-pixel loop as it did the hand-written 4- and 8-channel
-    kernels this factory replaced (a runtime channel count, or one 16-pixel loop per channel, ran markedly
-    slower); numba caches each variant on disk, keyed by these constants.
+    Tile state is kept in units of 2 rows × 8 columns, [half h, row pair p, i] with pixel (row 2p + i // 8,
+    column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop
+    each; a box in one half of the columns costs half a row loop), and units whose 16 pixels have all
+    stopped are skipped.
+
+    The channel count and the median flag are compile-time constants, carried by the types of two arguments
+    (numba compiles, and caches on disk, one variant per pair, and dispatches on them as fast as on arrays):
+    ``channels``, a tuple of C zeros in the float type (:func:`_channel_tuple`), and ``median_flag``, ``()`` or
+    ``(0,)``. Each Gaussian's channels are a tuple of that length, composited by written-out lines
+    (:func:`_accumulate`) of which LLVM keeps those the tuple has, so that it vectorises the 16-pixel loop as it
+    did the hand-written 4- and 8-channel kernels this one replaced (a runtime channel count, or one 16-pixel loop
+    per channel, ran markedly slower).
     """
-    nf = int(n_features)
-    track = bool(track_median)
-
-    @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-    def kernel(
-        means2d,
-        conics,
-        opacities,
-        features,
-        extents,
-        offsets,
-        ids,
-        order,
-        width,
-        height,
-        tiles_x,
-        j0,
-        j1,
-        live,
-        out,
-        n_used,
-        median,
-    ):  # pragma: no cover - numba
-        """Tiles order[j0:j1] of features (N, nf) into out (H, W, nf + 1) and n_used (H, W) (disjoint per tile);
-        pixels where ``live`` (H, W) is 0 are not composited (features 0, alpha 0, n_used 0). With the median:
-        median (H, W) int32, the list position (1-based, within the tile) of the first composited entry after
-        which the transmittance is below 0.5, 0 where there is none (else median is not touched).
-
-        Tile state is kept in units of 2 rows × 8 columns, [half h, row pair p, i] with pixel (row 2p + i // 8,
-        column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop
-        each; a box in one half of the columns costs half a row loop), and units whose 16 pixels have all
-        stopped are skipped.
-        """
-        ts = _TS
-        dt = means2d.dtype
-        n_tiles = offsets.shape[0] - 1
-        T = np.empty((2, _PAIRS, 16), dt)
-        acc = np.empty((nf, 2, _PAIRS, 16), dt)
-        used = np.empty((2, _PAIRS, 16), np.int32)
-        med = np.empty((2, _PAIRS, 16), np.int32)
-        alive = np.empty((2, _PAIRS), np.int32)  # pixels of each unit still compositing
-        xu = np.empty((2, 16), dt)  # pixel centres of a unit
-        yu = np.empty((_PAIRS, 16), dt)
-        for j in range(j0, min(j1, n_tiles)):
-            t = order[j]
-            x0 = (t % tiles_x) * ts
-            y0 = (t // tiles_x) * ts
-            x1 = min(x0 + ts, width)
-            y1 = min(y0 + ts, height)
-            # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
-            # image start stopped.
-            n_done = 0
+    nf = len(channels)
+    track = len(median_flag) > 0
+    ts = _TS
+    dt = means2d.dtype
+    n_tiles = offsets.shape[0] - 1
+    T = np.empty((2, _PAIRS, 16), dt)
+    acc = np.empty((nf, 2, _PAIRS, 16), dt)
+    used = np.empty((2, _PAIRS, 16), np.int32)
+    med = np.empty((2, _PAIRS, 16), np.int32)
+    alive = np.empty((2, _PAIRS), np.int32)  # pixels of each unit still compositing
+    xu = np.empty((2, 16), dt)  # pixel centres of a unit
+    yu = np.empty((_PAIRS, 16), dt)
+    for j in range(j0, min(j1, n_tiles)):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
+        # image start stopped.
+        n_done = 0
+        for h in range(2):
+            for p in range(_PAIRS):
+                alive[h, p] = 0
+                for i in range(16):
+                    px = x0 + h * _HALF + i % _HALF
+                    py = y0 + 2 * p + i // _HALF
+                    inside = (px < width) and (py < height)
+                    if inside:
+                        inside = live[py, px] != 0
+                    T[h, p, i] = 1.0 if inside else -1.0
+                    n_done += 0 if inside else 1
+                    alive[h, p] += 1 if inside else 0
+        acc[:] = 0.0
+        used[:] = 0
+        med[:] = 0
+        for i in range(16):
             for h in range(2):
-                for p in range(_PAIRS):
-                    alive[h, p] = 0
+                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+            for p in range(_PAIRS):
+                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        zero = xu[0, 0] - xu[0, 0]
+        one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
+        start = offsets[t]
+        stop_k = offsets[t + 1] if n_done < ts * ts else start  # a tile without a live pixel composites nothing
+        for k in range(start, stop_k):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            fv = _row(channels, features, g)  # scalars: a load in the pixel loop blocked vectorisation
+            kk = np.int32(k - start + 1)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            for p in range(r0 // 2, (r1 + 1) // 2):
+                for h in range(h0, h1):
+                    if alive[h, p] == 0:
+                        continue
+                    stops = zero
                     for i in range(16):
-                        px = x0 + h * _HALF + i % _HALF
-                        py = y0 + 2 * p + i // _HALF
-                        inside = (px < width) and (py < height)
-                        if inside:
-                            inside = live[py, px] != 0
-                        T[h, p, i] = 1.0 if inside else -1.0
-                        n_done += 0 if inside else 1
-                        alive[h, p] += 1 if inside else 0
-            acc[:] = 0.0
-            used[:] = 0
-            med[:] = 0
-            for i in range(16):
-                for h in range(2):
-                    xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-                for p in range(_PAIRS):
-                    yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
-            zero = xu[0, 0] - xu[0, 0]
-            one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
-            start = offsets[t]
-            stop_k = offsets[t + 1] if n_done < ts * ts else start  # a tile without a live pixel composites nothing
-            for k in range(start, stop_k):
-                g = ids[k]
-                mx = means2d[g, 0]
-                my = means2d[g, 1]
-                a = conics[g, 0]
-                b = conics[g, 1]
-                cc = conics[g, 2]
-                op = opacities[g]
-                fv = to_fixed_tuple(features[g], nf)  # scalars: a load in the pixel loop blocked vectorisation
-                kk = np.int32(k - start + 1)
-                r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-                h0, h1 = _box_halves(mx, extents[g, 0], x0)
-                for p in range(r0 // 2, (r1 + 1) // 2):
-                    for h in range(h0, h1):
-                        if alive[h, p] == 0:
-                            continue
-                        stops = zero
-                        for i in range(16):
-                            dx = xu[h, i] - mx
-                            dy = yu[p, i] - my
-                            power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                            alpha = min(_ALPHA_MAX, op * _exp_neg(power))
-                            tp = T[h, p, i]
-                            # Bitwise & (no short-circuit branches) keeps the loop vectorisable.
-                            ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
-                            test_t = tp * (np.float32(1.0) - alpha)
-                            stop = ok & (test_t < _T_MIN)
-                            draw = ok & (test_t >= _T_MIN)
-                            w = alpha * tp if draw else zero
-                            _accumulate(acc, h, p, i, w, fv)
-                            T[h, p, i] = -tp if stop else (test_t if draw else tp)
-                            u = used[h, p, i]  # load first: a select on the store target blocks vectorisation
-                            used[h, p, i] = kk if draw else u
-                            if track:
-                                md = med[h, p, i]
-                                med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
-                            stops += one if stop else zero
-                        n_stops = np.int32(stops)
-                        n_done += n_stops
-                        alive[h, p] -= n_stops
-                if n_done == ts * ts:
-                    break
-            for r in range(y1 - y0):
-                for c in range(x1 - x0):
-                    h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                    for f in range(nf):
-                        out[y0 + r, x0 + c, f] = acc[f, h, p, i]
-                    out[y0 + r, x0 + c, nf] = 1.0 - abs(T[h, p, i])
-                    n_used[y0 + r, x0 + c] = used[h, p, i]
-                    if track:
-                        median[y0 + r, x0 + c] = med[h, p, i]
-
-    return kernel
+                        dx = xu[h, i] - mx
+                        dy = yu[p, i] - my
+                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+                        alpha = min(_ALPHA_MAX, op * _exp_neg(power))
+                        tp = T[h, p, i]
+                        # Bitwise & (no short-circuit branches) keeps the loop vectorisable.
+                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
+                        test_t = tp * (np.float32(1.0) - alpha)
+                        stop = ok & (test_t < _T_MIN)
+                        draw = ok & (test_t >= _T_MIN)
+                        w = alpha * tp if draw else zero
+                        _accumulate(acc, h, p, i, w, fv)
+                        T[h, p, i] = -tp if stop else (test_t if draw else tp)
+                        u = used[h, p, i]  # load first: a select on the store target blocks vectorisation
+                        used[h, p, i] = kk if draw else u
+                        if track:
+                            md = med[h, p, i]
+                            med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
+                        stops += one if stop else zero
+                    n_stops = np.int32(stops)
+                    n_done += n_stops
+                    alive[h, p] -= n_stops
+            if n_done == ts * ts:
+                break
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
+                for f in range(nf):
+                    out[y0 + r, x0 + c, f] = acc[f, h, p, i]
+                out[y0 + r, x0 + c, nf] = 1.0 - abs(T[h, p, i])
+                n_used[y0 + r, x0 + c] = used[h, p, i]
+                if track:
+                    median[y0 + r, x0 + c] = med[h, p, i]
 
 
-@functools.cache
-def backward_kernel(n_features: int):  # noqa: ANN201 - a numba dispatcher
-    """The backward kernel for ``n_features`` channels (a compile-time constant, as in :func:`forward_kernel`)."""
-    nf = int(n_features)
+@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
+def _backward_kernel(
+    means2d,
+    conics,
+    opacities,
+    features,
+    extents,
+    offsets,
+    ids,
+    order,
+    width,
+    height,
+    tiles_x,
+    j0,
+    j1,
+    channels,
+    out,
+    n_used,
+    grad_out,
+    slot_of,
+    frozen,
+    g_isect,
+):  # pragma: no cover - numba
+    """Tiles order[j0:j1]; writes g_isect (n_isect, 6 + nf) rows ``slot_of[k]`` of their list entries k:
+    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..nf-1). Same unit layout as the forward kernel.
+    Entries of Gaussians with ``frozen[g]`` != 0 only update what lies behind them (their rows are zeros).
 
-    @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-    def kernel(
-        means2d,
-        conics,
-        opacities,
-        features,
-        extents,
-        offsets,
-        ids,
-        order,
-        width,
-        height,
-        tiles_x,
-        j0,
-        j1,
-        out,
-        n_used,
-        grad_out,
-        slot_of,
-        frozen,
-        g_isect,
-    ):  # pragma: no cover - numba
-        """Tiles order[j0:j1]; writes g_isect (n_isect, 6 + nf) rows ``slot_of[k]`` of their list entries k:
-        d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..nf-1). Same unit layout as the forward kernel.
-        Entries of Gaussians with ``frozen[g]`` != 0 only update what lies behind them (their rows are zeros)."""
-        ts = _TS
-        dt = means2d.dtype
-        n_tiles = offsets.shape[0] - 1
-        ng = nf + 6
-        T = np.empty((2, _PAIRS, 16), dt)
-        rest = np.empty((nf + 1, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
-        go = np.empty((nf + 1, 2, _PAIRS, 16), dt)
-        used = np.empty((2, _PAIRS, 16), np.int32)
-        unit_used = np.empty((2, _PAIRS), np.int32)  # list entries the slowest pixel of each unit composited
-        xu = np.empty((2, 16), dt)
-        yu = np.empty((_PAIRS, 16), dt)
-        lanes = np.empty((ng, 16), dt)  # per-lane sums of one list entry over its units, reduced once per entry
-        sums = np.empty(ng, dt)
-        for j in range(j0, min(j1, n_tiles)):
-            t = order[j]
-            x0 = (t % tiles_x) * ts
-            y0 = (t // tiles_x) * ts
-            x1 = min(x0 + ts, width)
-            y1 = min(y0 + ts, height)
-            for i in range(16):
-                for h in range(2):
-                    xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-                for p in range(_PAIRS):
-                    yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
-            zero = xu[0, 0] - xu[0, 0]
-            T[:] = 1.0
-            rest[:] = 0.0
-            go[:] = 0.0
-            used[:] = 0
-            unit_used[:] = 0
-            max_used = 0
-            for r in range(y1 - y0):
-                for c in range(x1 - x0):
-                    h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                    u = n_used[y0 + r, x0 + c]
-                    used[h, p, i] = u
-                    unit_used[h, p] = max(unit_used[h, p], u)
-                    max_used = max(max_used, u)
-                    for f in range(nf + 1):
-                        rest[f, h, p, i] = out[y0 + r, x0 + c, f]
-                        go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
-            start = offsets[t]
-            for k in range(start, start + max_used):
-                g = ids[k]
-                mx = means2d[g, 0]
-                my = means2d[g, 1]
-                a = conics[g, 0]
-                b = conics[g, 1]
-                cc = conics[g, 2]
-                op = opacities[g]
-                fv = to_fixed_tuple(features[g], nf)
-                kk = np.int32(k - start)
-                r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-                h0, h1 = _box_halves(mx, extents[g, 0], x0)
-                m = slot_of[k]
-                if frozen[g] != 0:
-                    # No gradient wanted: peel the entry off the pixels' remainders and transmittance only.
-                    for p in range(r0 // 2, (r1 + 1) // 2):
-                        for h in range(h0, h1):
-                            if kk >= unit_used[h, p]:
-                                continue
-                            for i in range(16):
-                                _, _, alpha, ok = _splat_alpha(xu[h, i] - mx, yu[p, i] - my, a, b, cc, op)
-                                ok = ok & (kk < used[h, p, i])
-                                tp = T[h, p, i]
-                                w = alpha * tp if ok else zero
-                                _peel(rest, h, p, i, w, fv)
-                                rest[nf, h, p, i] -= w
-                                T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                    for f in range(ng):
-                        g_isect[m, f] = zero
-                    continue
-                lanes[:] = 0.0
+    The channel count is a compile-time constant, the length of the ``channels`` tuple, as in
+    :func:`_forward_kernel`.
+    """
+    nf = len(channels)
+    ts = _TS
+    dt = means2d.dtype
+    n_tiles = offsets.shape[0] - 1
+    ng = nf + 6
+    T = np.empty((2, _PAIRS, 16), dt)
+    rest = np.empty((nf + 1, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
+    go = np.empty((nf + 1, 2, _PAIRS, 16), dt)
+    used = np.empty((2, _PAIRS, 16), np.int32)
+    unit_used = np.empty((2, _PAIRS), np.int32)  # list entries the slowest pixel of each unit composited
+    xu = np.empty((2, 16), dt)
+    yu = np.empty((_PAIRS, 16), dt)
+    lanes = np.empty((ng, 16), dt)  # per-lane sums of one list entry over its units, reduced once per entry
+    sums = np.empty(8, dt)
+    for j in range(j0, min(j1, n_tiles)):
+        t = order[j]
+        x0 = (t % tiles_x) * ts
+        y0 = (t // tiles_x) * ts
+        x1 = min(x0 + ts, width)
+        y1 = min(y0 + ts, height)
+        for i in range(16):
+            for h in range(2):
+                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+            for p in range(_PAIRS):
+                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        zero = xu[0, 0] - xu[0, 0]
+        T[:] = 1.0
+        rest[:] = 0.0
+        go[:] = 0.0
+        used[:] = 0
+        unit_used[:] = 0
+        max_used = 0
+        for r in range(y1 - y0):
+            for c in range(x1 - x0):
+                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
+                u = n_used[y0 + r, x0 + c]
+                used[h, p, i] = u
+                unit_used[h, p] = max(unit_used[h, p], u)
+                max_used = max(max_used, u)
+                for f in range(nf + 1):
+                    rest[f, h, p, i] = out[y0 + r, x0 + c, f]
+                    go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
+        start = offsets[t]
+        for k in range(start, start + max_used):
+            g = ids[k]
+            mx = means2d[g, 0]
+            my = means2d[g, 1]
+            a = conics[g, 0]
+            b = conics[g, 1]
+            cc = conics[g, 2]
+            op = opacities[g]
+            fv = _row(channels, features, g)
+            kk = np.int32(k - start)
+            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
+            h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            m = slot_of[k]
+            if frozen[g] != 0:
+                # No gradient wanted: peel the entry off the pixels' remainders and transmittance only.
                 for p in range(r0 // 2, (r1 + 1) // 2):
                     for h in range(h0, h1):
                         if kk >= unit_used[h, p]:
                             continue
                         for i in range(16):
-                            dx = xu[h, i] - mx
-                            dy = yu[p, i] - my
-                            gauss, raw, alpha, ok = _splat_alpha(dx, dy, a, b, cc, op)
+                            _, _, alpha, ok = _splat_alpha(xu[h, i] - mx, yu[p, i] - my, a, b, cc, op)
                             ok = ok & (kk < used[h, p, i])
                             tp = T[h, p, i]
                             w = alpha * tp if ok else zero
-                            inv = np.float32(1.0) / (np.float32(1.0) - alpha)
-                            # dC/dalpha summed over the channels, the alpha channel (value 1) first
-                            r_a = rest[nf, h, p, i] - w
-                            rest[nf, h, p, i] = r_a
-                            g_alpha = go[nf, h, p, i] * (tp - r_a * inv)
-                            g_alpha = _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha)
+                            _peel(rest, h, p, i, w, fv)
+                            rest[nf, h, p, i] -= w
                             T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                            g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
-                            lanes[5, i] += g_alpha * gauss
-                            g_pow = g_alpha * alpha
-                            # the conic is constant per entry: sum g_pow·(dx, dy, dx², dx·dy, dy²), combine once
-                            gx = g_pow * dx
-                            gy = g_pow * dy
-                            lanes[0, i] += gx
-                            lanes[1, i] += gy
-                            lanes[2, i] += gx * dx
-                            lanes[3, i] += gx * dy
-                            lanes[4, i] += gy * dy
-                sums[:] = 0.0
                 for f in range(ng):
+                    g_isect[m, f] = zero
+                continue
+            lanes[:] = 0.0
+            for p in range(r0 // 2, (r1 + 1) // 2):
+                for h in range(h0, h1):
+                    if kk >= unit_used[h, p]:
+                        continue
                     for i in range(16):
-                        sums[f] += lanes[f, i]
-                g_isect[m, 0] = a * sums[0] + b * sums[1]
-                g_isect[m, 1] = cc * sums[1] + b * sums[0]
-                g_isect[m, 2] = np.float32(-0.5) * sums[2]
-                g_isect[m, 3] = -sums[3]
-                g_isect[m, 4] = np.float32(-0.5) * sums[4]
-                for f in range(5, ng):
-                    g_isect[m, f] = sums[f]
-            for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
-                for f in range(ng):
-                    g_isect[slot_of[k], f] = zero
-
-    return kernel
+                        dx = xu[h, i] - mx
+                        dy = yu[p, i] - my
+                        gauss, raw, alpha, ok = _splat_alpha(dx, dy, a, b, cc, op)
+                        ok = ok & (kk < used[h, p, i])
+                        tp = T[h, p, i]
+                        w = alpha * tp if ok else zero
+                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
+                        # dC/dalpha summed over the channels, the alpha channel (value 1) first
+                        r_a = rest[nf, h, p, i] - w
+                        rest[nf, h, p, i] = r_a
+                        g_alpha = go[nf, h, p, i] * (tp - r_a * inv)
+                        g_alpha = _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha)
+                        T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
+                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
+                        lanes[5, i] += g_alpha * gauss
+                        g_pow = g_alpha * alpha
+                        # the conic is constant per entry: sum g_pow·(dx, dy, dx², dx·dy, dy²), combine once
+                        gx = g_pow * dx
+                        gy = g_pow * dy
+                        lanes[0, i] += gx
+                        lanes[1, i] += gy
+                        lanes[2, i] += gx * dx
+                        lanes[3, i] += gx * dy
+                        lanes[4, i] += gy * dy
+            sx = zero
+            sy = zero
+            sxx = zero
+            sxy = zero
+            syy = zero
+            s_op = zero
+            s0 = zero
+            s1 = zero
+            s2 = zero
+            s3 = zero
+            s4 = zero
+            s5 = zero
+            s6 = zero
+            s7 = zero
+            for i in range(16):
+                sx += lanes[0, i]
+                sy += lanes[1, i]
+                sxx += lanes[2, i]
+                sxy += lanes[3, i]
+                syy += lanes[4, i]
+                s_op += lanes[5, i]
+                if nf > 0:
+                    s0 += lanes[6, i]
+                if nf > 1:
+                    s1 += lanes[7, i]
+                if nf > 2:
+                    s2 += lanes[8, i]
+                if nf > 3:
+                    s3 += lanes[9, i]
+                if nf > 4:
+                    s4 += lanes[10, i]
+                if nf > 5:
+                    s5 += lanes[11, i]
+                if nf > 6:
+                    s6 += lanes[12, i]
+                if nf > 7:
+                    s7 += lanes[13, i]
+            g_isect[m, 0] = a * sx + b * sy
+            g_isect[m, 1] = cc * sy + b * sx
+            g_isect[m, 2] = np.float32(-0.5) * sxx
+            g_isect[m, 3] = -sxy
+            g_isect[m, 4] = np.float32(-0.5) * syy
+            g_isect[m, 5] = s_op
+            sums[0] = s0
+            sums[1] = s1
+            sums[2] = s2
+            sums[3] = s3
+            sums[4] = s4
+            sums[5] = s5
+            sums[6] = s6
+            sums[7] = s7
+            for f in range(nf):
+                g_isect[m, 6 + f] = sums[f]
+        for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
+            for f in range(ng):
+                g_isect[slot_of[k], f] = zero
 
 
 @njit(nogil=True, cache=True)
@@ -699,8 +750,9 @@ class _RasterizeCPU(torch.autograd.Function):
         out = np.zeros((height, width, features.shape[1] + 1), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
         median = np.zeros((height, width) if track_median else (0, 0), np.int32)
-        kernel = forward_kernel(features.shape[1], track_median)
-        run_chunks(kernel, args, (live, out, n_used, median), len(bins.order), "raster fwd")
+        flag = (np.int8(0),) if track_median else ()
+        tail = (_channel_tuple(features.shape[1], m2.dtype), flag, live, out, n_used, median)
+        run_chunks(_forward_kernel, args, tail, len(bins.order), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins, ctx.frozen = args, out, n_used, bins, frozen
         median_id = _median_ids(median, bins, width, height) if track_median else torch.empty(0, dtype=torch.int64)
         ctx.mark_non_differentiable(median_id)
@@ -712,8 +764,8 @@ class _RasterizeCPU(torch.autograd.Function):
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         n, nf, dt = args[0].shape[0], args[3].shape[1], args[0].dtype
         g_isect = np.empty((len(args[6]), 6 + nf), dt)  # every entry is written (zeros past a tile's last use)
-        tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
-        run_chunks(backward_kernel(nf), args, tail, len(ctx.bins.order), "raster bwd")
+        tail = (_channel_tuple(nf, dt), ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
+        run_chunks(_backward_kernel, args, tail, len(ctx.bins.order), "raster bwd")
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, nf), dt))
         bins = ctx.bins
         run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
