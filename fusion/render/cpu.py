@@ -271,6 +271,24 @@ def _item(typingctx, tup, idx):  # noqa: ANN001, ANN202 - a numba intrinsic
     return tup.dtype(tup, idx), codegen
 
 
+@njit(inline="always", cache=True)
+def _tile_box(t, tiles_x, width, height):  # pragma: no cover - numba
+    """Pixel box [x0, x1) × [y0, y1) of tile t (row-major tiles, clipped to the image)."""
+    x0 = (t % tiles_x) * _TS
+    y0 = (t // tiles_x) * _TS
+    return x0, y0, min(x0 + _TS, width), min(y0 + _TS, height)
+
+
+@njit(inline="always", cache=True)
+def _unit_centres(xu, yu, x0, y0):  # pragma: no cover - numba
+    """Pixel centres of the units of the tile at (x0, y0): xu[h, i] columns (2, 16), yu[p, i] rows (_PAIRS, 16)."""
+    for i in range(16):
+        for h in range(2):
+            xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+        for p in range(_PAIRS):
+            yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+
+
 @njit(fastmath=True, inline="always", cache=True)
 def _splat_alpha(dx, dy, a, b, cc, op):  # pragma: no cover - numba
     """Gaussian value, raw and clamped alpha, and whether it composites (power in range, alpha >= 1/255), at
@@ -436,10 +454,7 @@ def _forward_kernel(
     yu = np.empty((_PAIRS, 16), dt)
     for j in range(j0, min(j1, n_tiles)):
         t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
+        x0, y0, x1, y1 = _tile_box(t, tiles_x, width, height)
         # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
         # image start stopped.
         n_done = 0
@@ -458,23 +473,14 @@ def _forward_kernel(
         acc[:] = 0.0
         used[:] = 0
         med[:] = 0
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        _unit_centres(xu, yu, x0, y0)
         zero = xu[0, 0] - xu[0, 0]
         one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
         start = offsets[t]
         stop_k = offsets[t + 1] if n_done < ts * ts else start  # a tile without a live pixel composites nothing
         for k in range(start, stop_k):
             g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
+            mx, my, a, b, cc, op = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
             fv = _row(channels, features, g)  # scalars: a load in the pixel loop blocked vectorisation
             kk = np.int32(k - start + 1)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
@@ -551,7 +557,6 @@ def _backward_kernel(
     :func:`_forward_kernel`.
     """
     nf = len(channels)
-    ts = _TS
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
     ng = nf + 6
@@ -566,15 +571,8 @@ def _backward_kernel(
     sums = np.empty(8, dt)
     for j in range(j0, min(j1, n_tiles)):
         t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        x0, y0, x1, y1 = _tile_box(t, tiles_x, width, height)
+        _unit_centres(xu, yu, x0, y0)
         zero = xu[0, 0] - xu[0, 0]
         T[:] = 1.0
         rest[:] = 0.0
@@ -595,12 +593,7 @@ def _backward_kernel(
         start = offsets[t]
         for k in range(start, start + max_used):
             g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
+            mx, my, a, b, cc, op = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
             fv = _row(channels, features, g)
             kk = np.int32(k - start)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
