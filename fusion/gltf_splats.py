@@ -19,7 +19,7 @@ Spec followed, and where it was learnt
   primitive is drawn there as the spec's fallback point cloud (``COLOR_0``). Its transform chain (tile transform ·
   y-up→z-up · glTF node matrix) is the 3D Tiles one.
 - The SH basis and signs are the spec's Appendix A (real SH with the Condon–Shortley phase); they equal the ones
-  our renderer uses (:mod:`fusion.render.sh`, graphdeco's), so coefficients are copied, not converted.
+  our renderer uses (:mod:`fusion.render.sh_basis`, graphdeco's), so coefficients are copied, not converted.
 - Cross-checked (``scripts/check_gltf_tiles.sh``) against a second writer, PlayCanvas splat-transform 3.7.0's
   ``.glb`` output for the same splats: identical attributes once its 180° turn about z (it reads a 3DGS PLY as
   y-down) is applied; its ``COLOR_0`` keeps sRGB values where the spec asks for linear ones (ours are decoded).
@@ -116,6 +116,7 @@ import numpy as np
 
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import SH_C0, GaussianSet, logit, sigmoid
+from fusion.render.sh_basis import sh_basis_into
 from fusion.sphere_lattice import fibonacci_sphere
 
 EXTENSION = "KHR_gaussian_splatting"
@@ -186,31 +187,12 @@ def srgb_to_linear(c: np.ndarray) -> np.ndarray:
 
 
 def sh_basis(dirs: np.ndarray, degree: int) -> np.ndarray:
-    """Real SH basis values (M, (degree+1)²) at unit directions ``dirs`` (M, 3), the spec's Appendix A formulas."""
-    x, y, z = (np.asarray(dirs, np.float64)[:, i] for i in range(3))
-    out = [np.full_like(x, SH_C0)]
-    if degree >= 1:
-        c1 = 0.4886025119029199
-        out += [-c1 * y, c1 * z, -c1 * x]
-    if degree >= 2:
-        out += [
-            1.092548430592079 * x * y,
-            -1.092548430592079 * y * z,
-            0.31539156525252 * (2 * z * z - x * x - y * y),
-            -1.092548430592079 * x * z,
-            0.5462742152960395 * (x * x - y * y),
-        ]
-    if degree >= 3:
-        out += [
-            -0.5900435899266435 * y * (3 * x * x - y * y),
-            2.890611442640554 * x * y * z,
-            -0.4570457994644657 * y * (4 * z * z - x * x - y * y),
-            0.3731763325901154 * z * (2 * z * z - 3 * x * x - 3 * y * y),
-            -0.4570457994644657 * x * (4 * z * z - x * x - y * y),
-            1.445305721320277 * z * (x * x - y * y),
-            -0.5900435899266435 * x * (x * x - 3 * y * y),
-        ]
-    return np.stack(out, axis=1)
+    """Real SH basis values (M, (degree+1)²) at unit directions ``dirs`` (M, 3), the spec's Appendix A formulas
+    (the renderer's basis, :mod:`fusion.render.sh_basis`)."""
+    d = np.asarray(dirs, np.float64)
+    out = np.empty(((degree + 1) ** 2, len(d)))
+    sh_basis_into(degree, d[:, 0], d[:, 1], d[:, 2], out)
+    return np.ascontiguousarray(out.T)
 
 
 def rotate_sh_rest(sh_rest: np.ndarray, rotation: np.ndarray) -> np.ndarray:

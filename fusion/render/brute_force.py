@@ -1,7 +1,8 @@
 """An obvious per-pixel renderer in float64 numpy: the oracle for tests on tiny scenes (no torch, no tiles).
 
 Written independently of the backends (quaternions through scipy, covariance inverse through numpy, every
-Gaussian tested against every pixel), following the same conventions (see :mod:`fusion.render.types`).
+Gaussian tested against every pixel; only the SH basis is shared, :mod:`fusion.render.sh_basis`, itself tested
+against scipy), following the same conventions (see :mod:`fusion.render.types`).
 Cost is O(N · H · W); use it for a few hundred Gaussians on images of a few thousand pixels.
 """
 
@@ -10,37 +11,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from fusion.render.sh_basis import sh_basis_into
 from fusion.render.types import ALPHA_MAX, ALPHA_MIN, EPS2D, EXTENT_SIGMA, NEAR_PLANE, T_MIN
-
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
 
 
 def _sh_rgb(coeffs: np.ndarray, d: np.ndarray, degree: int) -> np.ndarray:
-    """RGB (3,) from coefficients (K, 3) along unit direction d (3,), graphdeco's real SH basis."""
-    x, y, z = d
-    basis = [_C0]
-    if degree >= 1:
-        basis += [-_C1 * y, _C1 * z, -_C1 * x]
-    if degree >= 2:
-        basis += [
-            1.0925484305920792 * x * y,
-            -1.0925484305920792 * y * z,
-            0.31539156525252005 * (2 * z * z - x * x - y * y),
-            -1.0925484305920792 * x * z,
-            0.5462742152960396 * (x * x - y * y),
-        ]
-    if degree >= 3:
-        basis += [
-            -0.5900435899266435 * y * (3 * x * x - y * y),
-            2.890611442640554 * x * y * z,
-            -0.4570457994644658 * y * (4 * z * z - x * x - y * y),
-            0.3731763325901154 * z * (2 * z * z - 3 * x * x - 3 * y * y),
-            -0.4570457994644658 * x * (4 * z * z - x * x - y * y),
-            1.445305721320277 * z * (x * x - y * y),
-            -0.5900435899266435 * x * (x * x - 3 * y * y),
-        ]
-    rgb = np.asarray(basis) @ coeffs[: len(basis)]
+    """RGB (3,) from coefficients (K, 3) along unit direction d (3,), graphdeco's real SH basis
+    (:mod:`fusion.render.sh_basis`, tested there against scipy's spherical harmonics)."""
+    basis = np.empty((degree + 1) ** 2)
+    sh_basis_into(degree, float(d[0]), float(d[1]), float(d[2]), basis)
+    rgb = basis @ coeffs[: len(basis)]
     return np.maximum(rgb + 0.5, 0.0)
 
 

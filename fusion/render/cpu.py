@@ -23,6 +23,10 @@ this module does the per-pixel work:
    sum in list-entry order: results do not depend on the thread count). Entries of frozen Gaussians (training's
    context, whose gradients nobody reads) are only peeled off the remainders and the transmittance.
 
+Colour (RGB, z) and geometry (RGB, z, normal, plane distance, and each pixel's median Gaussian) are channels of
+one kernel pair: :func:`_forward_kernel` and :func:`_backward_kernel` compile a variant per channel count (1-8) and
+median flag, both compile-time constants, as gsplat's rasteriser takes any number of channels.
+
 Training renders only the pixels its loss reads (``pixels``): the others start as finished, so a unit or tile
 without one costs nothing in either pass.
 
@@ -42,7 +46,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils
+from numba.cpython.unsafe.tuple import tuple_setitem
+from numba.extending import intrinsic
 
 from core.errors import ConfigError
 from fusion.render.threads import run_chunks, run_threads, timed
@@ -240,6 +247,159 @@ def _row_span(m, e, y0, y1):  # pragma: no cover - numba
     return r0 - y0, r1 - y0
 
 
+_T_MEDIAN = np.float32(0.5)
+
+
+@intrinsic
+def _item(typingctx, tup, idx):  # noqa: ANN001, ANN202 - a numba intrinsic
+    """``tup[idx]`` of a homogeneous tuple, idx in range (not checked), through a stack copy of the tuple.
+
+    For the written-out channel lines of :func:`_accumulate` and its kin: the lines past the tuple's length are
+    dead code, removed by LLVM, but must still compile, and numba's ``tup[k]`` refuses such an index; with a
+    constant index this load lives in a register.
+    """
+    if not isinstance(tup, types.UniTuple) or not isinstance(idx, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):  # noqa: ANN001, ANN202
+        value, index = args
+        slot = cgutils.alloca_once_value(builder, value)
+        zero = context.get_constant(types.intp, 0)
+        index = context.cast(builder, index, signature.args[1], types.intp)
+        return builder.load(builder.gep(slot, [zero, index], inbounds=True))
+
+    return tup.dtype(tup, idx), codegen
+
+
+@njit(inline="always", cache=True)
+def _tile_box(t, tiles_x, width, height):  # pragma: no cover - numba
+    """Pixel box [x0, x1) × [y0, y1) of tile t (row-major tiles, clipped to the image)."""
+    x0 = (t % tiles_x) * _TS
+    y0 = (t // tiles_x) * _TS
+    return x0, y0, min(x0 + _TS, width), min(y0 + _TS, height)
+
+
+@njit(inline="always", cache=True)
+def _unit_centres(xu, yu, x0, y0):  # pragma: no cover - numba
+    """Pixel centres of the units of the tile at (x0, y0): xu[h, i] columns (2, 16), yu[p, i] rows (_PAIRS, 16)."""
+    for i in range(16):
+        for h in range(2):
+            xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
+        for p in range(_PAIRS):
+            yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+
+
+@njit(fastmath=True, inline="always", cache=True)
+def _splat_alpha(dx, dy, a, b, cc, op):  # pragma: no cover - numba
+    """Gaussian value, raw and clamped alpha, and whether it composites (power in range, alpha >= 1/255), at
+    offset (dx, dy) px from the mean; branch-free (bitwise &) so that the 16-pixel loops vectorise."""
+    power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
+    gauss = _exp_neg(power)
+    raw = op * gauss
+    alpha = min(_ALPHA_MAX, raw)
+    ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN)
+    return gauss, raw, alpha, ok
+
+
+_MAX_CHANNELS = 8
+
+
+@njit(inline="always", cache=True)
+def _row(channels, features, g):  # pragma: no cover - numba
+    """features[g] as a tuple of the type of ``channels`` (its length: the channel count)."""
+    fv = channels
+    for f in range(len(channels)):
+        fv = tuple_setitem(fv, f, features[g, f])
+    return fv
+
+
+def _channel_tuple(n: int, dtype: np.dtype) -> tuple:
+    """The kernels' ``channels`` argument: n zeros of ``dtype``, whose tuple type tells numba the channel count."""
+    return tuple(np.zeros(n, dtype))
+
+
+@njit(inline="always", cache=True)
+def _accumulate(acc, h, p, i, w, fv):  # pragma: no cover - numba
+    """acc[f, h, p, i] += w fv[f] for each channel f of the tuple fv (up to 8). Written out, each line behind a
+    test on the tuple's length that is constant at compile time: a loop over the channels here, even of constant
+    length, kept LLVM from vectorising the 16-pixel loop around it for fewer than 6 channels (several times
+    slower)."""
+    n = len(fv)
+    if n > 0:
+        acc[0, h, p, i] += w * _item(fv, 0)
+    if n > 1:
+        acc[1, h, p, i] += w * _item(fv, 1)
+    if n > 2:
+        acc[2, h, p, i] += w * _item(fv, 2)
+    if n > 3:
+        acc[3, h, p, i] += w * _item(fv, 3)
+    if n > 4:
+        acc[4, h, p, i] += w * _item(fv, 4)
+    if n > 5:
+        acc[5, h, p, i] += w * _item(fv, 5)
+    if n > 6:
+        acc[6, h, p, i] += w * _item(fv, 6)
+    if n > 7:
+        acc[7, h, p, i] += w * _item(fv, 7)
+
+
+@njit(inline="always", cache=True)
+def _peel(rest, h, p, i, w, fv):  # pragma: no cover - numba
+    """rest[f, h, p, i] -= w fv[f] for each channel f of fv (written out as :func:`_accumulate`)."""
+    n = len(fv)
+    if n > 0:
+        rest[0, h, p, i] -= w * _item(fv, 0)
+    if n > 1:
+        rest[1, h, p, i] -= w * _item(fv, 1)
+    if n > 2:
+        rest[2, h, p, i] -= w * _item(fv, 2)
+    if n > 3:
+        rest[3, h, p, i] -= w * _item(fv, 3)
+    if n > 4:
+        rest[4, h, p, i] -= w * _item(fv, 4)
+    if n > 5:
+        rest[5, h, p, i] -= w * _item(fv, 5)
+    if n > 6:
+        rest[6, h, p, i] -= w * _item(fv, 6)
+    if n > 7:
+        rest[7, h, p, i] -= w * _item(fv, 7)
+
+
+@njit(inline="always", cache=True)
+def _grad_channel(f, rest, go, lanes, h, p, i, w, tp, inv, v, g_alpha):  # pragma: no cover - numba
+    """Channel f (value v) at one pixel in the backward: peel the entry (weight w) off what lies behind it, add
+    w · dL/dC_f to the feature's lane sum, and return g_alpha plus dC_f/dalpha · dL/dC_f, where
+    dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i) (tp = T_i, inv = 1 / (1 - alpha_i))."""
+    r = rest[f, h, p, i] - w * v
+    rest[f, h, p, i] = r
+    g = go[f, h, p, i]
+    lanes[6 + f, i] += w * g
+    return g_alpha + g * (v * tp - r * inv)
+
+
+@njit(inline="always", cache=True)
+def _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha):  # pragma: no cover - numba
+    """:func:`_grad_channel` for each channel of fv in order (written out as :func:`_accumulate`)."""
+    n = len(fv)
+    if n > 0:
+        g_alpha = _grad_channel(0, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 0), g_alpha)
+    if n > 1:
+        g_alpha = _grad_channel(1, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 1), g_alpha)
+    if n > 2:
+        g_alpha = _grad_channel(2, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 2), g_alpha)
+    if n > 3:
+        g_alpha = _grad_channel(3, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 3), g_alpha)
+    if n > 4:
+        g_alpha = _grad_channel(4, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 4), g_alpha)
+    if n > 5:
+        g_alpha = _grad_channel(5, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 5), g_alpha)
+    if n > 6:
+        g_alpha = _grad_channel(6, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 6), g_alpha)
+    if n > 7:
+        g_alpha = _grad_channel(7, rest, go, lanes, h, p, i, w, tp, inv, _item(fv, 7), g_alpha)
+    return g_alpha
+
+
 @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
 def _forward_kernel(
     means2d,
@@ -255,32 +415,46 @@ def _forward_kernel(
     tiles_x,
     j0,
     j1,
+    channels,
+    median_flag,
     live,
     out,
     n_used,
+    median,
 ):  # pragma: no cover - numba
-    """Tiles order[j0:j1] into out (H, W, 5) and n_used (H, W) (disjoint per tile); pixels where ``live`` (H, W)
-    is 0 are not composited (features 0, alpha 0, n_used 0).
+    """Tiles order[j0:j1] of features (N, nf) into out (H, W, nf + 1) and n_used (H, W) (disjoint per tile);
+    pixels where ``live`` (H, W) is 0 are not composited (features 0, alpha 0, n_used 0). With the median:
+    median (H, W) int32, the list position (1-based, within the tile) of the first composited entry after
+    which the transmittance is below 0.5, 0 where there is none (else median is not touched).
 
     Tile state is kept in units of 2 rows × 8 columns, [half h, row pair p, i] with pixel (row 2p + i // 8,
-    column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop each; a
-    box in one half of the columns costs half a row loop), and units whose 16 pixels have all stopped are skipped.
+    column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop
+    each; a box in one half of the columns costs half a row loop), and units whose 16 pixels have all
+    stopped are skipped.
+
+    The channel count and the median flag are compile-time constants, carried by the types of two arguments
+    (numba compiles, and caches on disk, one variant per pair, and dispatches on them as fast as on arrays):
+    ``channels``, a tuple of C zeros in the float type (:func:`_channel_tuple`), and ``median_flag``, ``()`` or
+    ``(0,)``. Each Gaussian's channels are a tuple of that length, composited by written-out lines
+    (:func:`_accumulate`) of which LLVM keeps those the tuple has, so that it vectorises the 16-pixel loop as it
+    did the hand-written 4- and 8-channel kernels this one replaced (a runtime channel count, or one 16-pixel loop
+    per channel, ran markedly slower).
     """
+    nf = len(channels)
+    track = len(median_flag) > 0
     ts = _TS
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
     T = np.empty((2, _PAIRS, 16), dt)
-    acc = np.empty((4, 2, _PAIRS, 16), dt)
+    acc = np.empty((nf, 2, _PAIRS, 16), dt)
     used = np.empty((2, _PAIRS, 16), np.int32)
+    med = np.empty((2, _PAIRS, 16), np.int32)
     alive = np.empty((2, _PAIRS), np.int32)  # pixels of each unit still compositing
     xu = np.empty((2, 16), dt)  # pixel centres of a unit
     yu = np.empty((_PAIRS, 16), dt)
     for j in range(j0, min(j1, n_tiles)):
         t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
+        x0, y0, x1, y1 = _tile_box(t, tiles_x, width, height)
         # A stopped pixel keeps -T (sign = done flag, magnitude = final transmittance); pixels outside the
         # image start stopped.
         n_done = 0
@@ -298,27 +472,16 @@ def _forward_kernel(
                     alive[h, p] += 1 if inside else 0
         acc[:] = 0.0
         used[:] = 0
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        med[:] = 0
+        _unit_centres(xu, yu, x0, y0)
         zero = xu[0, 0] - xu[0, 0]
         one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
         start = offsets[t]
         stop_k = offsets[t + 1] if n_done < ts * ts else start  # a tile without a live pixel composites nothing
         for k in range(start, stop_k):
             g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
-            f0 = features[g, 0]
-            f1 = features[g, 1]
-            f2 = features[g, 2]
-            f3 = features[g, 3]
+            mx, my, a, b, cc, op = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+            fv = _row(channels, features, g)  # scalars: a load in the pixel loop blocked vectorisation
             kk = np.int32(k - start + 1)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
@@ -339,13 +502,13 @@ def _forward_kernel(
                         stop = ok & (test_t < _T_MIN)
                         draw = ok & (test_t >= _T_MIN)
                         w = alpha * tp if draw else zero
-                        acc[0, h, p, i] += w * f0
-                        acc[1, h, p, i] += w * f1
-                        acc[2, h, p, i] += w * f2
-                        acc[3, h, p, i] += w * f3
+                        _accumulate(acc, h, p, i, w, fv)
                         T[h, p, i] = -tp if stop else (test_t if draw else tp)
                         u = used[h, p, i]  # load first: a select on the store target blocks vectorisation
                         used[h, p, i] = kk if draw else u
+                        if track:
+                            md = med[h, p, i]
+                            med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
                         stops += one if stop else zero
                     n_stops = np.int32(stops)
                     n_done += n_stops
@@ -355,10 +518,12 @@ def _forward_kernel(
         for r in range(y1 - y0):
             for c in range(x1 - x0):
                 h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                for f in range(4):
+                for f in range(nf):
                     out[y0 + r, x0 + c, f] = acc[f, h, p, i]
-                out[y0 + r, x0 + c, 4] = 1.0 - abs(T[h, p, i])
+                out[y0 + r, x0 + c, nf] = 1.0 - abs(T[h, p, i])
                 n_used[y0 + r, x0 + c] = used[h, p, i]
+                if track:
+                    median[y0 + r, x0 + c] = med[h, p, i]
 
 
 @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
@@ -376,6 +541,7 @@ def _backward_kernel(
     tiles_x,
     j0,
     j1,
+    channels,
     out,
     n_used,
     grad_out,
@@ -383,31 +549,30 @@ def _backward_kernel(
     frozen,
     g_isect,
 ):  # pragma: no cover - numba
-    """Tiles order[j0:j1]; writes g_isect (n_isect, 10) rows ``slot_of[k]`` of their list entries k:
-    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..3). Same unit layout as the forward kernel.
-    Entries of Gaussians with ``frozen[g]`` != 0 only update what lies behind them (their rows are zeros)."""
-    ts = _TS
+    """Tiles order[j0:j1]; writes g_isect (n_isect, 6 + nf) rows ``slot_of[k]`` of their list entries k:
+    d/d(mx, my), d/d(a, b, c), d/d(opacity), d/d(features 0..nf-1). Same unit layout as the forward kernel.
+    Entries of Gaussians with ``frozen[g]`` != 0 only update what lies behind them (their rows are zeros).
+
+    The channel count is a compile-time constant, the length of the ``channels`` tuple, as in
+    :func:`_forward_kernel`.
+    """
+    nf = len(channels)
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
+    ng = nf + 6
     T = np.empty((2, _PAIRS, 16), dt)
-    rest = np.empty((5, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
-    go = np.empty((5, 2, _PAIRS, 16), dt)
+    rest = np.empty((nf + 1, 2, _PAIRS, 16), dt)  # what is still to be composited behind the current entry
+    go = np.empty((nf + 1, 2, _PAIRS, 16), dt)
     used = np.empty((2, _PAIRS, 16), np.int32)
     unit_used = np.empty((2, _PAIRS), np.int32)  # list entries the slowest pixel of each unit composited
     xu = np.empty((2, 16), dt)
     yu = np.empty((_PAIRS, 16), dt)
-    lanes = np.empty((10, 16), dt)  # per-lane sums of one list entry over its units, reduced once per entry
+    lanes = np.empty((ng, 16), dt)  # per-lane sums of one list entry over its units, reduced once per entry
+    sums = np.empty(8, dt)
     for j in range(j0, min(j1, n_tiles)):
         t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
+        x0, y0, x1, y1 = _tile_box(t, tiles_x, width, height)
+        _unit_centres(xu, yu, x0, y0)
         zero = xu[0, 0] - xu[0, 0]
         T[:] = 1.0
         rest[:] = 0.0
@@ -422,25 +587,18 @@ def _backward_kernel(
                 used[h, p, i] = u
                 unit_used[h, p] = max(unit_used[h, p], u)
                 max_used = max(max_used, u)
-                for f in range(5):
+                for f in range(nf + 1):
                     rest[f, h, p, i] = out[y0 + r, x0 + c, f]
                     go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
         start = offsets[t]
         for k in range(start, start + max_used):
             g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
-            f0 = features[g, 0]
-            f1 = features[g, 1]
-            f2 = features[g, 2]
-            f3 = features[g, 3]
+            mx, my, a, b, cc, op = means2d[g, 0], means2d[g, 1], conics[g, 0], conics[g, 1], conics[g, 2], opacities[g]
+            fv = _row(channels, features, g)
             kk = np.int32(k - start)
             r0, r1 = _row_span(my, extents[g, 1], y0, y1)
             h0, h1 = _box_halves(mx, extents[g, 0], x0)
+            m = slot_of[k]
             if frozen[g] != 0:
                 # No gradient wanted: peel the entry off the pixels' remainders and transmittance only.
                 for p in range(r0 // 2, (r1 + 1) // 2):
@@ -448,21 +606,14 @@ def _backward_kernel(
                         if kk >= unit_used[h, p]:
                             continue
                         for i in range(16):
-                            dx = xu[h, i] - mx
-                            dy = yu[p, i] - my
-                            power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                            alpha = min(_ALPHA_MAX, op * _exp_neg(power))
-                            ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
+                            _, _, alpha, ok = _splat_alpha(xu[h, i] - mx, yu[p, i] - my, a, b, cc, op)
+                            ok = ok & (kk < used[h, p, i])
                             tp = T[h, p, i]
                             w = alpha * tp if ok else zero
-                            rest[0, h, p, i] -= w * f0
-                            rest[1, h, p, i] -= w * f1
-                            rest[2, h, p, i] -= w * f2
-                            rest[3, h, p, i] -= w * f3
-                            rest[4, h, p, i] -= w
+                            _peel(rest, h, p, i, w, fv)
+                            rest[nf, h, p, i] -= w
                             T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                m = slot_of[k]
-                for f in range(10):
+                for f in range(ng):
                     g_isect[m, f] = zero
                 continue
             lanes[:] = 0.0
@@ -473,41 +624,16 @@ def _backward_kernel(
                     for i in range(16):
                         dx = xu[h, i] - mx
                         dy = yu[p, i] - my
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        gauss = _exp_neg(power)
-                        raw = op * gauss
-                        alpha = min(_ALPHA_MAX, raw)
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
+                        gauss, raw, alpha, ok = _splat_alpha(dx, dy, a, b, cc, op)
+                        ok = ok & (kk < used[h, p, i])
                         tp = T[h, p, i]
                         w = alpha * tp if ok else zero
                         inv = np.float32(1.0) / (np.float32(1.0) - alpha)
-                        r_0 = rest[0, h, p, i] - w * f0
-                        r_1 = rest[1, h, p, i] - w * f1
-                        r_2 = rest[2, h, p, i] - w * f2
-                        r_3 = rest[3, h, p, i] - w * f3
-                        r_4 = rest[4, h, p, i] - w
-                        rest[0, h, p, i] = r_0
-                        rest[1, h, p, i] = r_1
-                        rest[2, h, p, i] = r_2
-                        rest[3, h, p, i] = r_3
-                        rest[4, h, p, i] = r_4
-                        go0 = go[0, h, p, i]
-                        go1 = go[1, h, p, i]
-                        go2 = go[2, h, p, i]
-                        go3 = go[3, h, p, i]
-                        go4 = go[4, h, p, i]
-                        lanes[6, i] += w * go0
-                        lanes[7, i] += w * go1
-                        lanes[8, i] += w * go2
-                        lanes[9, i] += w * go3
-                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
-                        g_alpha = (
-                            go0 * (f0 * tp - r_0 * inv)
-                            + go1 * (f1 * tp - r_1 * inv)
-                            + go2 * (f2 * tp - r_2 * inv)
-                            + go3 * (f3 * tp - r_3 * inv)
-                            + go4 * (tp - r_4 * inv)
-                        )
+                        # dC/dalpha summed over the channels, the alpha channel (value 1) first
+                        r_a = rest[nf, h, p, i] - w
+                        rest[nf, h, p, i] = r_a
+                        g_alpha = go[nf, h, p, i] * (tp - r_a * inv)
+                        g_alpha = _grad_channels(rest, go, lanes, h, p, i, w, tp, inv, fv, g_alpha)
                         T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
                         g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
                         lanes[5, i] += g_alpha * gauss
@@ -525,404 +651,63 @@ def _backward_kernel(
             sxx = zero
             sxy = zero
             syy = zero
-            g_op = zero
-            g_f0 = zero
-            g_f1 = zero
-            g_f2 = zero
-            g_f3 = zero
+            s_op = zero
+            s0 = zero
+            s1 = zero
+            s2 = zero
+            s3 = zero
+            s4 = zero
+            s5 = zero
+            s6 = zero
+            s7 = zero
             for i in range(16):
                 sx += lanes[0, i]
                 sy += lanes[1, i]
                 sxx += lanes[2, i]
                 sxy += lanes[3, i]
                 syy += lanes[4, i]
-                g_op += lanes[5, i]
-                g_f0 += lanes[6, i]
-                g_f1 += lanes[7, i]
-                g_f2 += lanes[8, i]
-                g_f3 += lanes[9, i]
-            m = slot_of[k]
+                s_op += lanes[5, i]
+                if nf > 0:
+                    s0 += lanes[6, i]
+                if nf > 1:
+                    s1 += lanes[7, i]
+                if nf > 2:
+                    s2 += lanes[8, i]
+                if nf > 3:
+                    s3 += lanes[9, i]
+                if nf > 4:
+                    s4 += lanes[10, i]
+                if nf > 5:
+                    s5 += lanes[11, i]
+                if nf > 6:
+                    s6 += lanes[12, i]
+                if nf > 7:
+                    s7 += lanes[13, i]
             g_isect[m, 0] = a * sx + b * sy
             g_isect[m, 1] = cc * sy + b * sx
             g_isect[m, 2] = np.float32(-0.5) * sxx
             g_isect[m, 3] = -sxy
             g_isect[m, 4] = np.float32(-0.5) * syy
-            g_isect[m, 5] = g_op
-            g_isect[m, 6] = g_f0
-            g_isect[m, 7] = g_f1
-            g_isect[m, 8] = g_f2
-            g_isect[m, 9] = g_f3
+            g_isect[m, 5] = s_op
+            sums[0] = s0
+            sums[1] = s1
+            sums[2] = s2
+            sums[3] = s3
+            sums[4] = s4
+            sums[5] = s5
+            sums[6] = s6
+            sums[7] = s7
+            for f in range(nf):
+                g_isect[m, 6 + f] = sums[f]
         for k in range(start + max_used, offsets[t + 1]):  # entries no pixel composited
-            for f in range(10):
+            for f in range(ng):
                 g_isect[slot_of[k], f] = zero
 
 
 @njit(nogil=True, cache=True)
 def _sum_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
-    """Per-Gaussian sums (float64, in list-entry order) of g_isect rows (Gaussian-major), Gaussians split over
-    threads."""
-    n = sorted_ids.shape[0]
-    acc = np.empty(10, np.float64)
-    for p in range(n * th // n_threads, n * (th + 1) // n_threads):
-        acc[:] = 0.0
-        for m in range(g_offsets[p], g_offsets[p + 1]):
-            for j in range(10):
-                acc[j] += g_isect[m, j]
-        g = sorted_ids[p]
-        g_m2[g, 0] = acc[0]
-        g_m2[g, 1] = acc[1]
-        g_con[g, 0] = acc[2]
-        g_con[g, 1] = acc[3]
-        g_con[g, 2] = acc[4]
-        g_op[g] = acc[5]
-        for j in range(4):
-            g_feat[g, j] = acc[6 + j]
-
-
-# ---- geometry variant: 8 features (RGB, z, normal xyz, plane distance) and the median Gaussian per pixel ----
-# A copy of the 4-feature kernels above with four more channels written out (a loop over channels inside the
-# 16-pixel loop blocked vectorisation in the 4-feature kernels, see the module docstring); the 4-feature kernels
-# stay as they are so that colour-only rendering costs what it did.
-
-_GF = 8  # features of the geometry kernels
-_T_MEDIAN = np.float32(0.5)
-
-
-@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-def _forward_geometry_kernel(
-    means2d,
-    conics,
-    opacities,
-    features,
-    extents,
-    offsets,
-    ids,
-    order,
-    width,
-    height,
-    tiles_x,
-    j0,
-    j1,
-    live,
-    out,
-    n_used,
-    median,
-):  # pragma: no cover - numba
-    """:func:`_forward_kernel` for features (N, 8) into out (H, W, 9), plus median (H, W) int32: the list position
-    (1-based, within the tile) of the first composited entry after which the transmittance is below 0.5, 0 where
-    there is none."""
-    ts = _TS
-    dt = means2d.dtype
-    n_tiles = offsets.shape[0] - 1
-    T = np.empty((2, _PAIRS, 16), dt)
-    acc = np.empty((_GF, 2, _PAIRS, 16), dt)
-    used = np.empty((2, _PAIRS, 16), np.int32)
-    med = np.empty((2, _PAIRS, 16), np.int32)
-    alive = np.empty((2, _PAIRS), np.int32)
-    xu = np.empty((2, 16), dt)
-    yu = np.empty((_PAIRS, 16), dt)
-    for j in range(j0, min(j1, n_tiles)):
-        t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
-        n_done = 0
-        for h in range(2):
-            for p in range(_PAIRS):
-                alive[h, p] = 0
-                for i in range(16):
-                    px = x0 + h * _HALF + i % _HALF
-                    py = y0 + 2 * p + i // _HALF
-                    inside = (px < width) and (py < height)
-                    if inside:
-                        inside = live[py, px] != 0
-                    T[h, p, i] = 1.0 if inside else -1.0
-                    n_done += 0 if inside else 1
-                    alive[h, p] += 1 if inside else 0
-        acc[:] = 0.0
-        used[:] = 0
-        med[:] = 0
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
-        zero = xu[0, 0] - xu[0, 0]
-        one = xu[0, 1] - xu[0, 0]
-        start = offsets[t]
-        stop_k = offsets[t + 1] if n_done < ts * ts else start
-        for k in range(start, stop_k):
-            g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
-            f0 = features[g, 0]
-            f1 = features[g, 1]
-            f2 = features[g, 2]
-            f3 = features[g, 3]
-            f4 = features[g, 4]
-            f5 = features[g, 5]
-            f6 = features[g, 6]
-            f7 = features[g, 7]
-            kk = np.int32(k - start + 1)
-            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-            h0, h1 = _box_halves(mx, extents[g, 0], x0)
-            for p in range(r0 // 2, (r1 + 1) // 2):
-                for h in range(h0, h1):
-                    if alive[h, p] == 0:
-                        continue
-                    stops = zero
-                    for i in range(16):
-                        dx = xu[h, i] - mx
-                        dy = yu[p, i] - my
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        alpha = min(_ALPHA_MAX, op * _exp_neg(power))
-                        tp = T[h, p, i]
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (tp > 0.0)
-                        test_t = tp * (np.float32(1.0) - alpha)
-                        stop = ok & (test_t < _T_MIN)
-                        draw = ok & (test_t >= _T_MIN)
-                        w = alpha * tp if draw else zero
-                        acc[0, h, p, i] += w * f0
-                        acc[1, h, p, i] += w * f1
-                        acc[2, h, p, i] += w * f2
-                        acc[3, h, p, i] += w * f3
-                        acc[4, h, p, i] += w * f4
-                        acc[5, h, p, i] += w * f5
-                        acc[6, h, p, i] += w * f6
-                        acc[7, h, p, i] += w * f7
-                        T[h, p, i] = -tp if stop else (test_t if draw else tp)
-                        u = used[h, p, i]
-                        used[h, p, i] = kk if draw else u
-                        md = med[h, p, i]
-                        med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
-                        stops += one if stop else zero
-                    n_stops = np.int32(stops)
-                    n_done += n_stops
-                    alive[h, p] -= n_stops
-            if n_done == ts * ts:
-                break
-        for r in range(y1 - y0):
-            for c in range(x1 - x0):
-                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                for f in range(_GF):
-                    out[y0 + r, x0 + c, f] = acc[f, h, p, i]
-                out[y0 + r, x0 + c, _GF] = 1.0 - abs(T[h, p, i])
-                n_used[y0 + r, x0 + c] = used[h, p, i]
-                median[y0 + r, x0 + c] = med[h, p, i]
-
-
-@njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
-def _backward_geometry_kernel(
-    means2d,
-    conics,
-    opacities,
-    features,
-    extents,
-    offsets,
-    ids,
-    order,
-    width,
-    height,
-    tiles_x,
-    j0,
-    j1,
-    out,
-    n_used,
-    grad_out,
-    slot_of,
-    frozen,
-    g_isect,
-):  # pragma: no cover - numba
-    """:func:`_backward_kernel` for features (N, 8): g_isect (n_isect, 14) rows d/d(mx, my), d/d(a, b, c),
-    d/d(opacity), d/d(features 0..7)."""
-    ts = _TS
-    dt = means2d.dtype
-    n_tiles = offsets.shape[0] - 1
-    nc = _GF + 1
-    ng = _GF + 6
-    T = np.empty((2, _PAIRS, 16), dt)
-    rest = np.empty((nc, 2, _PAIRS, 16), dt)
-    go = np.empty((nc, 2, _PAIRS, 16), dt)
-    used = np.empty((2, _PAIRS, 16), np.int32)
-    unit_used = np.empty((2, _PAIRS), np.int32)
-    xu = np.empty((2, 16), dt)
-    yu = np.empty((_PAIRS, 16), dt)
-    lanes = np.empty((ng, 16), dt)
-    sums = np.empty(ng, dt)
-    for j in range(j0, min(j1, n_tiles)):
-        t = order[j]
-        x0 = (t % tiles_x) * ts
-        y0 = (t // tiles_x) * ts
-        x1 = min(x0 + ts, width)
-        y1 = min(y0 + ts, height)
-        for i in range(16):
-            for h in range(2):
-                xu[h, i] = x0 + h * _HALF + i % _HALF + 0.5
-            for p in range(_PAIRS):
-                yu[p, i] = y0 + 2 * p + i // _HALF + 0.5
-        zero = xu[0, 0] - xu[0, 0]
-        T[:] = 1.0
-        rest[:] = 0.0
-        go[:] = 0.0
-        used[:] = 0
-        unit_used[:] = 0
-        max_used = 0
-        for r in range(y1 - y0):
-            for c in range(x1 - x0):
-                h, p, i = c // _HALF, r // 2, (r % 2) * _HALF + c % _HALF
-                u = n_used[y0 + r, x0 + c]
-                used[h, p, i] = u
-                unit_used[h, p] = max(unit_used[h, p], u)
-                max_used = max(max_used, u)
-                for f in range(nc):
-                    rest[f, h, p, i] = out[y0 + r, x0 + c, f]
-                    go[f, h, p, i] = grad_out[y0 + r, x0 + c, f]
-        start = offsets[t]
-        for k in range(start, start + max_used):
-            g = ids[k]
-            mx = means2d[g, 0]
-            my = means2d[g, 1]
-            a = conics[g, 0]
-            b = conics[g, 1]
-            cc = conics[g, 2]
-            op = opacities[g]
-            f0 = features[g, 0]
-            f1 = features[g, 1]
-            f2 = features[g, 2]
-            f3 = features[g, 3]
-            f4 = features[g, 4]
-            f5 = features[g, 5]
-            f6 = features[g, 6]
-            f7 = features[g, 7]
-            kk = np.int32(k - start)
-            r0, r1 = _row_span(my, extents[g, 1], y0, y1)
-            h0, h1 = _box_halves(mx, extents[g, 0], x0)
-            if frozen[g] != 0:
-                for p in range(r0 // 2, (r1 + 1) // 2):
-                    for h in range(h0, h1):
-                        if kk >= unit_used[h, p]:
-                            continue
-                        for i in range(16):
-                            dx = xu[h, i] - mx
-                            dy = yu[p, i] - my
-                            power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                            alpha = min(_ALPHA_MAX, op * _exp_neg(power))
-                            ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
-                            tp = T[h, p, i]
-                            w = alpha * tp if ok else zero
-                            rest[0, h, p, i] -= w * f0
-                            rest[1, h, p, i] -= w * f1
-                            rest[2, h, p, i] -= w * f2
-                            rest[3, h, p, i] -= w * f3
-                            rest[4, h, p, i] -= w * f4
-                            rest[5, h, p, i] -= w * f5
-                            rest[6, h, p, i] -= w * f6
-                            rest[7, h, p, i] -= w * f7
-                            rest[_GF, h, p, i] -= w
-                            T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                m = slot_of[k]
-                for f in range(ng):
-                    g_isect[m, f] = zero
-                continue
-            lanes[:] = 0.0
-            for p in range(r0 // 2, (r1 + 1) // 2):
-                for h in range(h0, h1):
-                    if kk >= unit_used[h, p]:
-                        continue
-                    for i in range(16):
-                        dx = xu[h, i] - mx
-                        dy = yu[p, i] - my
-                        power = np.float32(-0.5) * (a * dx * dx + cc * dy * dy) - b * dx * dy
-                        gauss = _exp_neg(power)
-                        raw = op * gauss
-                        alpha = min(_ALPHA_MAX, raw)
-                        ok = (power <= 0.0) & (power >= _POWER_MIN) & (alpha >= _ALPHA_MIN) & (kk < used[h, p, i])
-                        tp = T[h, p, i]
-                        w = alpha * tp if ok else zero
-                        inv = np.float32(1.0) / (np.float32(1.0) - alpha)
-                        r_0 = rest[0, h, p, i] - w * f0
-                        r_1 = rest[1, h, p, i] - w * f1
-                        r_2 = rest[2, h, p, i] - w * f2
-                        r_3 = rest[3, h, p, i] - w * f3
-                        r_4 = rest[4, h, p, i] - w * f4
-                        r_5 = rest[5, h, p, i] - w * f5
-                        r_6 = rest[6, h, p, i] - w * f6
-                        r_7 = rest[7, h, p, i] - w * f7
-                        r_a = rest[_GF, h, p, i] - w
-                        rest[0, h, p, i] = r_0
-                        rest[1, h, p, i] = r_1
-                        rest[2, h, p, i] = r_2
-                        rest[3, h, p, i] = r_3
-                        rest[4, h, p, i] = r_4
-                        rest[5, h, p, i] = r_5
-                        rest[6, h, p, i] = r_6
-                        rest[7, h, p, i] = r_7
-                        rest[_GF, h, p, i] = r_a
-                        go0 = go[0, h, p, i]
-                        go1 = go[1, h, p, i]
-                        go2 = go[2, h, p, i]
-                        go3 = go[3, h, p, i]
-                        go4 = go[4, h, p, i]
-                        go5 = go[5, h, p, i]
-                        go6 = go[6, h, p, i]
-                        go7 = go[7, h, p, i]
-                        go_a = go[_GF, h, p, i]
-                        lanes[6, i] += w * go0
-                        lanes[7, i] += w * go1
-                        lanes[8, i] += w * go2
-                        lanes[9, i] += w * go3
-                        lanes[10, i] += w * go4
-                        lanes[11, i] += w * go5
-                        lanes[12, i] += w * go6
-                        lanes[13, i] += w * go7
-                        # dC/dalpha_i = f_i T_i - (what lies behind i) / (1 - alpha_i), per channel.
-                        g_alpha = (
-                            go0 * (f0 * tp - r_0 * inv)
-                            + go1 * (f1 * tp - r_1 * inv)
-                            + go2 * (f2 * tp - r_2 * inv)
-                            + go3 * (f3 * tp - r_3 * inv)
-                            + go4 * (f4 * tp - r_4 * inv)
-                            + go5 * (f5 * tp - r_5 * inv)
-                            + go6 * (f6 * tp - r_6 * inv)
-                            + go7 * (f7 * tp - r_7 * inv)
-                            + go_a * (tp - r_a * inv)
-                        )
-                        T[h, p, i] = tp * (np.float32(1.0) - alpha) if ok else tp
-                        g_alpha = g_alpha if (ok & (raw <= _ALPHA_MAX)) else zero
-                        lanes[5, i] += g_alpha * gauss
-                        g_pow = g_alpha * alpha
-                        gx = g_pow * dx
-                        gy = g_pow * dy
-                        lanes[0, i] += gx
-                        lanes[1, i] += gy
-                        lanes[2, i] += gx * dx
-                        lanes[3, i] += gx * dy
-                        lanes[4, i] += gy * dy
-            sums[:] = 0.0
-            for f in range(ng):
-                for i in range(16):
-                    sums[f] += lanes[f, i]
-            m = slot_of[k]
-            g_isect[m, 0] = a * sums[0] + b * sums[1]
-            g_isect[m, 1] = cc * sums[1] + b * sums[0]
-            g_isect[m, 2] = np.float32(-0.5) * sums[2]
-            g_isect[m, 3] = -sums[3]
-            g_isect[m, 4] = np.float32(-0.5) * sums[4]
-            for f in range(5, ng):
-                g_isect[m, f] = sums[f]
-        for k in range(start + max_used, offsets[t + 1]):
-            for f in range(ng):
-                g_isect[slot_of[k], f] = zero
-
-
-@njit(nogil=True, cache=True)
-def _sum_geometry_kernel(g_isect, sorted_ids, g_offsets, th, n_threads, g_m2, g_con, g_op, g_feat):  # pragma: no cover
-    """:func:`_sum_kernel` for rows of 6 + F columns (F = g_feat.shape[1] features)."""
+    """Per-Gaussian sums (float64, in list-entry order) of g_isect rows (Gaussian-major) of 6 + C columns
+    (C = g_feat.shape[1] features), Gaussians split over threads."""
     n = sorted_ids.shape[0]
     nf = g_feat.shape[1]
     acc = np.empty(6 + nf, np.float64)
@@ -947,32 +732,37 @@ def _np(t: torch.Tensor) -> np.ndarray:
 
 
 class _RasterizeCPU(torch.autograd.Function):
-    """Composite 4 features front to back; differentiable w.r.t. means2d, conics, opacities and features."""
+    """Composite C features front to back, and with ``track_median`` find each pixel's median entry;
+    differentiable w.r.t. means2d, conics, opacities and features (the median index is not)."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen, track_median):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
         args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
-        out = np.zeros((height, width, 5), m2.dtype)
+        out = np.zeros((height, width, features.shape[1] + 1), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
-        run_chunks(_forward_kernel, args, (live, out, n_used), len(bins.order), "raster fwd")
+        median = np.zeros((height, width) if track_median else (0, 0), np.int32)
+        flag = (np.int8(0),) if track_median else ()
+        tail = (_channel_tuple(features.shape[1], m2.dtype), flag, live, out, n_used, median)
+        run_chunks(_forward_kernel, args, tail, len(bins.order), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins, ctx.frozen = args, out, n_used, bins, frozen
-        return torch.from_numpy(out)
+        median_id = _median_ids(median, bins, width, height) if track_median else torch.empty(0, dtype=torch.int64)
+        ctx.mark_non_differentiable(median_id)
+        return torch.from_numpy(out), median_id
 
     @staticmethod
-    def backward(ctx, grad_out):  # type: ignore[override]
+    def backward(ctx, grad_out, _grad_median):  # type: ignore[override]
         args = ctx.args
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
-        ids = args[6]
-        g_isect = np.empty((len(ids), 10), args[0].dtype)  # every entry is written (zeros past a tile's last use)
-        tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
+        n, nf, dt = args[0].shape[0], args[3].shape[1], args[0].dtype
+        g_isect = np.empty((len(args[6]), 6 + nf), dt)  # every entry is written (zeros past a tile's last use)
+        tail = (_channel_tuple(nf, dt), ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
         run_chunks(_backward_kernel, args, tail, len(ctx.bins.order), "raster bwd")
-        n, dt = args[0].shape[0], args[0].dtype
-        outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, 4), dt))
+        outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, nf), dt))
         bins = ctx.bins
         run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
-        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None)
+        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None, None)
 
 
 def rasterize_cpu(
@@ -989,23 +779,64 @@ def rasterize_cpu(
     pixels: np.ndarray | None = None,
     frozen: np.ndarray | None = None,
 ) -> torch.Tensor:
-    """Front-to-back composite of per-Gaussian features (N, 4) into an (H, W, 5) image with the numba kernels.
+    """Front-to-back composite of per-Gaussian features (N, C) into an (H, W, C + 1) image with the numba kernels.
 
     Inputs as :class:`fusion.render.projection.Projection` plus opacities (N,) in (0, 1). Output channels are the
-    4 composited features (Σ wᵢ fᵢ) and the accumulated alpha (1 - T_final). No background: the caller blends it
-    with the alpha channel. Gradients flow to means2d, conics, opacities and features.
+    C composited features (Σ wᵢ fᵢ; the renderer's are RGB and z, plus normal and plane distance with geometry)
+    and the accumulated alpha (1 - T_final). No background: the caller blends it with the alpha channel.
+    Gradients flow to means2d, conics, opacities and features.
     pixels: (H, W) bool, the pixels to composite (training renders only the pixels its loss reads); the others
     come out empty (0 everywhere) and cost nothing. None = every pixel.
     frozen: (N,) bool, Gaussians whose gradients nobody reads (training's frozen context): their backward only
     composites, and their gradient rows come back zero. None = none.
+    Twin of :func:`fusion.render.reference.rasterize_reference`.
     """
+    image, _ = _rasterize(means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size,
+                          pixels, frozen, track_median=False)  # fmt: skip
+    return image
+
+
+def rasterize_geometry_cpu(
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    features: torch.Tensor,
+    extents: torch.Tensor,
+    depths: torch.Tensor,
+    visible: torch.Tensor,
+    width: int,
+    height: int,
+    tile_size: int = TILE_SIZE,
+    pixels: np.ndarray | None = None,
+    frozen: np.ndarray | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`rasterize_cpu` (the same kernels and gradients) plus each pixel's median Gaussian: (H, W) int64
+    index of the first composited Gaussian after which the transmittance is below 0.5 (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)),
+    -1 where there is none (not differentiable). The renderer's geometry outputs composite 8 features (RGB, z,
+    normal, plane distance) through it. Twin of :func:`fusion.render.reference.rasterize_reference_geometry`.
+    """
+    return _rasterize(means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size,
+                      pixels, frozen, track_median=True)  # fmt: skip
+
+
+def _rasterize(
+    means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, pixels, frozen,
+    track_median: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Checks, binning and the autograd function shared by :func:`rasterize_cpu` and
+    :func:`rasterize_geometry_cpu`."""
     if tile_size != TILE_SIZE:
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
-    if features.shape[1] != 4:
-        raise ValueError(f"the cpu rasteriser composites exactly 4 features per Gaussian, got {features.shape[1]}")
+    if features.dim() != 2 or features.shape[0] != means2d.shape[0] or not 1 <= features.shape[1] <= _MAX_CHANNELS:
+        raise ValueError(
+            f"features must be (N, C) with N = {means2d.shape[0]} and 1 <= C <= {_MAX_CHANNELS} (the channels the "
+            f"cpu kernels are written out for), got {tuple(features.shape)}"
+        )
     live, frozen_u8 = _live_and_frozen(pixels, frozen, int(means2d.shape[0]), width, height)
     bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
-    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8)
+    return _RasterizeCPU.apply(
+        means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8, track_median
+    )
 
 
 def _live_and_frozen(
@@ -1027,38 +858,6 @@ def _live_and_frozen(
     return live, frozen_u8
 
 
-class _RasterizeGeometryCPU(torch.autograd.Function):
-    """Composite 8 features front to back and find each pixel's median entry; differentiable w.r.t. means2d,
-    conics, opacities and features (the median index is not)."""
-
-    @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen):  # type: ignore[override]
-        m2 = _np(means2d)
-        args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
-        args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
-        out = np.zeros((height, width, _GF + 1), m2.dtype)
-        n_used = np.zeros((height, width), np.int32)
-        median = np.zeros((height, width), np.int32)
-        run_chunks(_forward_geometry_kernel, args, (live, out, n_used, median), len(bins.order), "raster geo fwd")
-        ctx.args, ctx.out, ctx.n_used, ctx.bins, ctx.frozen = args, out, n_used, bins, frozen
-        median_id = _median_ids(median, bins, width, height)
-        ctx.mark_non_differentiable(median_id)
-        return torch.from_numpy(out), median_id
-
-    @staticmethod
-    def backward(ctx, grad_out, _grad_median):  # type: ignore[override]
-        args = ctx.args
-        go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
-        g_isect = np.empty((len(args[6]), _GF + 6), args[0].dtype)
-        tail = (ctx.out, ctx.n_used, go, ctx.bins.slot_of, ctx.frozen, g_isect)
-        run_chunks(_backward_geometry_kernel, args, tail, len(ctx.bins.order), "raster geo bwd")
-        n, dt = args[0].shape[0], args[0].dtype
-        outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, _GF), dt))
-        bins = ctx.bins
-        run_threads(_sum_geometry_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
-        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None)
-
-
 def _median_ids(median: np.ndarray, bins: TileBins, width: int, height: int) -> torch.Tensor:
     """(H, W) int64 Gaussian ids from the kernel's 1-based per-tile list positions (0 = none -> -1)."""
     rows, cols = np.divmod(np.arange(height * width), width)
@@ -1068,34 +867,3 @@ def _median_ids(median: np.ndarray, bins: TileBins, width: int, height: int) -> 
     ids = np.full(height * width, -1, np.int64)
     ids[found] = bins.ids[bins.offsets[tile[found]] + pos[found] - 1]
     return torch.from_numpy(ids.reshape(height, width))
-
-
-def rasterize_geometry_cpu(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    features: torch.Tensor,
-    extents: torch.Tensor,
-    depths: torch.Tensor,
-    visible: torch.Tensor,
-    width: int,
-    height: int,
-    tile_size: int = TILE_SIZE,
-    pixels: np.ndarray | None = None,
-    frozen: np.ndarray | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`rasterize_cpu` for 8 features per Gaussian (RGB, z, normal, plane distance in the renderer) into an
-    (H, W, 9) image, plus each pixel's median Gaussian: (H, W) int64 index of the first composited Gaussian after
-    which the transmittance is below 0.5 (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)), -1 where there is none (not
-    differentiable). Same arguments and gradients as :func:`rasterize_cpu`; twin of
-    :func:`fusion.render.reference.rasterize_reference_geometry`.
-    """
-    if tile_size != TILE_SIZE:
-        raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
-    if features.shape[1] != _GF:
-        raise ValueError(f"the cpu geometry rasteriser composites exactly {_GF} features, got {features.shape[1]}")
-    live, frozen_u8 = _live_and_frozen(pixels, frozen, int(means2d.shape[0]), width, height)
-    bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
-    return _RasterizeGeometryCPU.apply(
-        means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8
-    )

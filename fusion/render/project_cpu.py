@@ -21,12 +21,9 @@ import torch
 from numba import njit
 from torch.autograd.function import once_differentiable
 
-from fusion.render.sh import SH_C0, SH_C1, SH_C2, SH_C3
+from fusion.render.sh_basis import sh_basis_grad, sh_basis_into
 from fusion.render.threads import run_threads
 from fusion.render.types import EPS2D, EXTENT_SIGMA, NEAR_PLANE
-
-_C2_0, _C2_1, _C2_2, _C2_3, _C2_4 = SH_C2
-_C3_0, _C3_1, _C3_2, _C3_3, _C3_4, _C3_5, _C3_6 = SH_C3
 
 
 @dataclass(frozen=True)
@@ -74,75 +71,9 @@ def _rotation(qw, qx, qy, qz):  # pragma: no cover - numba
     )  # fmt: skip
 
 
-@njit(inline="always", cache=True)
-def _sh_basis(degree, x, y, z, out):  # pragma: no cover - numba
-    """Real SH basis values of unit direction (x, y, z) into out[0 : (degree + 1)²] (graphdeco's signs)."""
-    out[0] = SH_C0
-    if degree >= 1:
-        out[1] = -SH_C1 * y
-        out[2] = SH_C1 * z
-        out[3] = -SH_C1 * x
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        out[4] = _C2_0 * x * y
-        out[5] = _C2_1 * y * z
-        out[6] = _C2_2 * (2.0 * zz - xx - yy)
-        out[7] = _C2_3 * x * z
-        out[8] = _C2_4 * (xx - yy)
-        if degree >= 3:
-            out[9] = _C3_0 * y * (3.0 * xx - yy)
-            out[10] = _C3_1 * x * y * z
-            out[11] = _C3_2 * y * (4.0 * zz - xx - yy)
-            out[12] = _C3_3 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy)
-            out[13] = _C3_4 * x * (4.0 * zz - xx - yy)
-            out[14] = _C3_5 * z * (xx - yy)
-            out[15] = _C3_6 * x * (xx - 3.0 * yy)
-
-
-@njit(inline="always", cache=True)
-def _sh_basis_grad(degree, x, y, z, w):  # pragma: no cover - numba
-    """Σ_k w[k] ∇Y_k at (x, y, z) (the gradient w.r.t. the unit direction, components held independent)."""
-    gx = 0.0
-    gy = 0.0
-    gz = 0.0
-    if degree >= 1:
-        gy -= SH_C1 * w[1]
-        gz += SH_C1 * w[2]
-        gx -= SH_C1 * w[3]
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        gx += _C2_0 * y * w[4]
-        gy += _C2_0 * x * w[4]
-        gy += _C2_1 * z * w[5]
-        gz += _C2_1 * y * w[5]
-        gx -= 2.0 * _C2_2 * x * w[6]
-        gy -= 2.0 * _C2_2 * y * w[6]
-        gz += 4.0 * _C2_2 * z * w[6]
-        gx += _C2_3 * z * w[7]
-        gz += _C2_3 * x * w[7]
-        gx += 2.0 * _C2_4 * x * w[8]
-        gy -= 2.0 * _C2_4 * y * w[8]
-        if degree >= 3:
-            gx += _C3_0 * 6.0 * x * y * w[9]
-            gy += _C3_0 * (3.0 * xx - 3.0 * yy) * w[9]
-            gx += _C3_1 * y * z * w[10]
-            gy += _C3_1 * x * z * w[10]
-            gz += _C3_1 * x * y * w[10]
-            gx -= _C3_2 * 2.0 * x * y * w[11]
-            gy += _C3_2 * (4.0 * zz - xx - 3.0 * yy) * w[11]
-            gz += _C3_2 * 8.0 * y * z * w[11]
-            gx -= _C3_3 * 6.0 * x * z * w[12]
-            gy -= _C3_3 * 6.0 * y * z * w[12]
-            gz += _C3_3 * (6.0 * zz - 3.0 * xx - 3.0 * yy) * w[12]
-            gx += _C3_4 * (4.0 * zz - 3.0 * xx - yy) * w[13]
-            gy -= _C3_4 * 2.0 * x * y * w[13]
-            gz += _C3_4 * 8.0 * x * z * w[13]
-            gx += _C3_5 * 2.0 * x * z * w[14]
-            gy -= _C3_5 * 2.0 * y * z * w[14]
-            gz += _C3_5 * (xx - yy) * w[14]
-            gx += _C3_6 * (3.0 * xx - 3.0 * yy) * w[15]
-            gy -= _C3_6 * 6.0 * x * y * w[15]
-    return gx, gy, gz
+# The one SH basis (fusion/render/sh_basis.py), compiled for scalars.
+_sh_basis = njit(inline="always", cache=True)(sh_basis_into)
+_sh_basis_grad = njit(inline="always", cache=True)(sh_basis_grad)
 
 
 @njit(nogil=True, cache=True)

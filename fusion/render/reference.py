@@ -65,8 +65,8 @@ def rasterize_reference(
 ) -> torch.Tensor:
     """Front-to-back composite of features (N, C) into an (H, W, C + 1) image, accumulated alpha last.
 
-    Same contract as :func:`fusion.render.cpu.rasterize_cpu` (which fixes C = 4), ``pixels`` included: the pixels
-    outside it are rendered and then zeroed.
+    Same contract as :func:`fusion.render.cpu.rasterize_cpu` (which takes C from 1 to 8), ``pixels`` included:
+    the pixels outside it are rendered and then zeroed.
     """
     args = (means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, chunk)
     return _composite(*args, pixels, track_median=False)[0]

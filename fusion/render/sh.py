@@ -8,47 +8,19 @@ from __future__ import annotations
 
 import torch
 
-SH_C0 = 0.28209479177387814
-SH_C1 = 0.4886025119029199
-SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-SH_C3 = (
-    -0.5900435899266435,
-    2.890611442640554,
-    -0.4570457994644658,
-    0.3731763325901154,
-    -0.4570457994644658,
-    1.445305721320277,
-    -0.5900435899266435,
-)
+from fusion.render.sh_basis import SH_C0, SH_C1, SH_C2, SH_C3, sh_basis_into
+
+__all__ = ["SH_C0", "SH_C1", "SH_C2", "SH_C3", "sh_basis", "sh_to_colour"]
 
 
 def sh_basis(degree: int, dirs: torch.Tensor) -> torch.Tensor:
-    """SH basis values (N, (degree+1)²) for unit directions ``dirs`` (N, 3)."""
+    """SH basis values (N, (degree+1)²) for unit directions ``dirs`` (N, 3) (:mod:`fusion.render.sh_basis`)."""
     if not 0 <= degree <= 3:
         raise ValueError(f"SH degree must be 0..3, got {degree}")
     x, y, z = dirs.unbind(-1)
-    basis = [torch.full_like(x, SH_C0)]
-    if degree >= 1:
-        basis += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
-    if degree >= 2:
-        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
-        basis += [
-            SH_C2[0] * xy,
-            SH_C2[1] * yz,
-            SH_C2[2] * (2 * zz - xx - yy),
-            SH_C2[3] * xz,
-            SH_C2[4] * (xx - yy),
-        ]
-    if degree >= 3:
-        basis += [
-            SH_C3[0] * y * (3 * xx - yy),
-            SH_C3[1] * xy * z,
-            SH_C3[2] * y * (4 * zz - xx - yy),
-            SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy),
-            SH_C3[4] * x * (4 * zz - xx - yy),
-            SH_C3[5] * z * (xx - yy),
-            SH_C3[6] * x * (xx - 3 * yy),
-        ]
+    basis: list = [None] * (degree + 1) ** 2
+    sh_basis_into(degree, x, y, z, basis)
+    basis[0] = torch.full_like(x, SH_C0)
     return torch.stack(basis, dim=-1)
 
 
