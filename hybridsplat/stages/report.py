@@ -1,7 +1,9 @@
 """Stage ``report``: report/report.{json,md,html} from the manifest and eval/metrics.json, see eval.report.
 
 Besides the evaluation's tables, every stage that declares a :meth:`~hybridsplat.stages.base.Stage.report_section`
-gets its section, made from the counts it recorded in the manifest.
+gets its section, made from the result it recorded in the manifest, and the notes beside the products' figures
+(their training steps, the renderer) come from the train, baseline, background, appearance and eval stages' results
+(:func:`run_notes`).
 """
 
 from __future__ import annotations
