@@ -701,9 +701,7 @@ def to_html(
     max_panels: int = DEFAULT_MAX_PANELS,
     run: RunNotes = RunNotes(),
 ) -> str:
-    """A self-contained HTML page: tables, C2C histograms and colour-mapped views, per-view metric bars, stage
-    time/memory bars and render panels (JPEG thumbnails, at most ``max_panels`` views per product); ``run``: how
-    the products were made (the notes beside their figures)."""
+    """A self-contained HTML page: tables, C2C plots and views, metric and stage bars, render panels (max_panels)."""
     e = html.escape
     u = _report_units(report)
     parts = [

@@ -315,7 +315,7 @@ class EvalStage(Stage):
         a memory limit, None without."""
         from core.io.json_io import write_json_atomic
         from eval.cache import files_in
-        from eval.evaluate import ImageInputs, evaluate_product
+        from eval.evaluate import evaluate_product
         from eval.geometry import GeometryOptions
         from eval.metrics_io import read_metrics, record_product
 
@@ -323,13 +323,7 @@ class EvalStage(Stage):
         layout, spec = ctx.layout, ctx.source.spec
         reference = self._reference(ctx)
         tau = opts.tau_m if opts.tau_m is not None else (opts.tau_gsd * spec.gsd_m if spec.gsd_m else None)
-        images = None
-        held_out = self._held_out(ctx)
-        if held_out is not None:
-            cameras, _ = read_model_at(held_out.model, held_out.origin)
-            views = [v for v in cameras if held_out.names is None or v.name in held_out.names]
-            masks = self._truth_masks(ctx) if held_out.names is None else None
-            images = ImageInputs(cameras, views, held_out.photos, masks)
+        images = self._image_inputs(ctx)
         lpips_model = _lpips_or_none(opts.lpips_weights or None)
         products = self._products(ctx)
         cache = self._cache(ctx, reference, tau, images, lpips_model) if opts.cache else None
@@ -339,7 +333,6 @@ class EvalStage(Stage):
 
             renderer = resolve_backend("auto").value  # what rendered the held-out views (the report says)
         headlines: dict[str, ProductHeadline] = {}
-        reused = 0
         measured: dict[str, tuple[Any, Any]] = {}
         stored_tables: dict[str, Any] = {}
         keys: dict[str, str] = {}
@@ -355,7 +348,6 @@ class EvalStage(Stage):
                 if stored is not None:
                     record_product(layout.metrics_json, name, stored.metrics)
                     stored_tables[name] = stored.per_material  # {"rows": ..., "sigma_calibration": ...}
-                    reused += 1
                     headlines[name] = _headline(stored.metrics)
                     continue
             before = files_in(layout.eval_dir)
@@ -392,9 +384,22 @@ class EvalStage(Stage):
             views=len(images.views) if images else 0,
             renderer=renderer,
             products=headlines,
-            reused=reused or None,
+            reused=len(stored_tables) or None,  # the products restored from the cache
             per_material=len(per_material["materials"]) if per_material is not None else None,
         )
+
+    def _image_inputs(self, ctx: StageContext) -> Any:
+        """The held-out views to render (an :class:`eval.evaluate.ImageInputs`), None without any: their cameras,
+        photos and (a data_synth scene's own test views) the masks of their true non-collaborative materials."""
+        from eval.evaluate import ImageInputs
+
+        held_out = self._held_out(ctx)
+        if held_out is None:
+            return None
+        cameras, _ = read_model_at(held_out.model, held_out.origin)
+        views = [v for v in cameras if held_out.names is None or v.name in held_out.names]
+        masks = self._truth_masks(ctx) if held_out.names is None else None
+        return ImageInputs(cameras, views, held_out.photos, masks)
 
     def _cache(self, ctx: StageContext, reference: Path | None, tau: float | None, images: Any, lpips: Any) -> Any:
         """The project's store of measurements, keyed by what every product's measurement depends on."""
