@@ -33,7 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hybridsplat.layout import ProjectLayout  # noqa: E402
 from hybridsplat.options import with_option  # noqa: E402
 from hybridsplat.pipeline import load_config, run_pipeline  # noqa: E402
+from hybridsplat.project_io import stage_result  # noqa: E402
 from hybridsplat.stages import stage_options_types  # noqa: E402
+from hybridsplat.stages.evaluate import EvalStage  # noqa: E402
 
 
 def _load() -> str:
@@ -55,7 +57,7 @@ def _eval(project: Path, cache: bool, force: bool = True, train: dict[str, objec
     record = stages["eval"]
     metrics = json.loads(ProjectLayout(project).metrics_json.read_text())["products"]
     measured = sum(not p["skipped"] for p in metrics.values())
-    reused = int(record.counts.get("reused", 0))
+    reused = stage_result(ProjectLayout(project), EvalStage).reused or 0
     return {"seconds": record.seconds, "measured": measured - reused, "reused": reused, "metrics": metrics}
 
 

@@ -190,22 +190,26 @@ def points_of(scene: str, variant: str, project: Path, manifest: dict[str, Any])
         peak = max((float(stages[s]["peak_mb"]) for s in needed if s in stages), default=0.0)
         out.append(Point(scene, variant, product, sum(secs.values()), secs, peak, **scores_of(m),
                          extra={"load_after_run": load()}))  # fmt: skip
-    if variant == "base":
-        out += checkpoint_points(scene, stages.get("baseline") or {}, metrics)
+    if variant == "base" and "baseline" in stages:
+        out += checkpoint_points(scene, layout, float(stages["baseline"]["peak_mb"]), metrics)
     return out
 
 
-def checkpoint_points(scene: str, record: dict[str, Any], metrics: dict[str, Any]) -> list[Point]:
+def checkpoint_points(scene: str, layout: Any, peak_mb: float, metrics: dict[str, Any]) -> list[Point]:
     """The baseline's checkpoints (eval products ``baseline_<step>``) as points ``baseline<step>``: time = the
-    baseline stage's seconds until that step."""
-    seconds = (record.get("counts") or {}).get("checkpoints") or {}
+    baseline stage's seconds until that step (its result's ``checkpoints``); ``peak_mb``: the stage's peak."""
+    from hybridsplat.project_io import stage_result
+    from hybridsplat.stages.baseline import BaselineStage
+
+    baseline = stage_result(layout, BaselineStage)
+    seconds = baseline.checkpoints if baseline is not None else {}
     out = []
     for step, secs in sorted(seconds.items(), key=lambda kv: int(kv[0])):
         m = metrics.get(f"baseline_{step}") or {}
         if not m or m.get("skipped"):
             continue
         out.append(Point(scene, f"baseline{step}", "baseline", float(secs), {"baseline": float(secs)},
-                         float(record["peak_mb"]), **scores_of(m), extra={"checkpoint_of": "base"}))  # fmt: skip
+                         peak_mb, **scores_of(m), extra={"checkpoint_of": "base"}))  # fmt: skip
     return out
 
 
@@ -253,7 +257,10 @@ def bench_scene(scene: str, plan: Plan, out: Path, seed: int, lpips: str) -> dic
     manifest = run_project(scene_dir, base, base_opts, seed)
     points = points_of(scene, "base", base, manifest)
     skipped = {n: r["reason"] for n, r in manifest["stages"].items() if r.get("skipped")}
-    train_counts = manifest["stages"]["train"].get("counts") or {}
+    from hybridsplat.project_io import stage_result
+    from hybridsplat.stages.train import TrainStage
+
+    train = stage_result(ProjectLayout(base), TrainStage)
     sweeps: list[tuple[str, dict[str, dict[str, Any]]]] = []
     if SCENE_BASELINE[scene]:  # textured only checks whether training is skipped
         if "train" not in skipped:
@@ -274,7 +281,9 @@ def bench_scene(scene: str, plan: Plan, out: Path, seed: int, lpips: str) -> dic
         "generate_seconds": gen_seconds,
         "points": [vars(p) for p in points],
         "skipped": skipped,
-        "train": {k: train_counts.get(k) for k in ("views_used", "views_without_mask", "mask_pixels", "iterations")},
+        "train": {
+            k: getattr(train, k, None) for k in ("views_used", "views_without_mask", "mask_pixels", "iterations")
+        },
         "stages": {
             n: {"seconds": r["seconds"], "peak_mb": r["peak_mb"], "skipped": r["skipped"]}
             for n, r in manifest["stages"].items()

@@ -132,7 +132,7 @@ def oracle_classify_stage():
     stage's own); only the prediction written to classify/points.ply is replaced: classification = the truth's
     class, needs_splats = the truth's, probability 1.
     """
-    from hybridsplat.stages.classify import ClassifyStage
+    from hybridsplat.stages.classify import ClassifyResult, ClassifyStage
 
     class OracleClassifyStage(ClassifyStage):
         def inputs(self, ctx):
@@ -162,9 +162,10 @@ def oracle_classify_stage():
             report = result.report()
             write_json_atomic(ctx.layout.classify_report, report)
             figures = write_classify_figures(result, ctx.layout.classes_figure, None)
-            counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
-            counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
-            return counts
+            return ClassifyResult(points=report["points"], needs_splats=report["needs_splats"], model=report["model"],
+                                  per_class=report["per_class"], spacing_m=report["spacing_m"],
+                                  seconds=report["seconds"],
+                                  figures=tuple(str(f.relative_to(ctx.layout.root)) for f in figures))  # fmt: skip
 
         def outputs(self, ctx):
             return [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.classes_figure]

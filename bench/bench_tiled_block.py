@@ -30,6 +30,8 @@ import numpy as np
 import psutil
 
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.project_io import stage_result
+from hybridsplat.stages.convert import ConvertStage
 
 
 def _tree_rss_mb(process: psutil.Process) -> float:
@@ -78,7 +80,7 @@ def products(project: Path) -> dict[str, float]:
     out["merged PSNR whole (dB)"] = images["full"]["psnr"]
     out["merged PSNR masked (dB)"] = images["masked"]["psnr"]
     manifest = json.loads(layout.manifest.read_text())["stages"]
-    out["fused points"] = manifest["convert"]["counts"]["gaussians"]
+    out["fused points"] = stage_result(layout, ConvertStage).gaussians
     appearance = manifest.get("appearance") or {}
     out["appearance stage (s)"] = float(appearance.get("seconds") or 0.0)  # tiled: tile by tile
     return out

@@ -33,6 +33,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from hybridsplat.layout import ProjectLayout  # noqa: E402
+from hybridsplat.project_io import stage_result  # noqa: E402
+from hybridsplat.stages.appearance import AppearanceStage  # noqa: E402
+from hybridsplat.stages.baseline import BaselineStage  # noqa: E402
 
 #: the hybrid's stages after SfM whose seconds the copies do not change (appearance and merge are rerun)
 UPSTREAM = ("mvs", "classify", "masks", "convert", "train", "clean", "background")
@@ -95,11 +98,11 @@ def main() -> None:
         sys.exit(f"{project}: no baseline trained and scored in this project (run it with the baseline on)")
     baseline_s, target = seconds["baseline"], scores["baseline"]["psnr"]
     upstream = sum(seconds.get(name, 0.0) for name in UPSTREAM)
-    counts = json.loads(ProjectLayout(project).manifest.read_text())["stages"]["baseline"]["counts"]
-    print(f"{project.name}: baseline {counts.get('iterations')} steps, {baseline_s:.1f} s, held-out "
+    baseline = stage_result(ProjectLayout(project), BaselineStage)
+    print(f"{project.name}: baseline {baseline.iterations} steps, {baseline_s:.1f} s, held-out "
           f"{target:.2f} dB / SSIM {scores['baseline']['ssim']:.3f} / LPIPS {scores['baseline']['lpips']:.3f}, "
           f"masked {_fmt(scores['baseline']['masked_psnr'], 2)} dB")  # fmt: skip
-    for step, t in sorted((int(k), v) for k, v in counts.get("checkpoints", {}).items()):
+    for step, t in sorted((int(k), v) for k, v in baseline.checkpoints.items()):
         row = scores.get(f"baseline_{step}")
         if row:
             share = t / baseline_s
@@ -113,8 +116,8 @@ def main() -> None:
         s = _stage_seconds(copy)
         rows.append((budget, s.get("appearance", 0.0), s.get("merge", 0.0), _image_scores(copy).get("merged"), copy))
     for budget, appear, merge, row, where in rows:
-        stages = json.loads(ProjectLayout(where).manifest.read_text())["stages"]
-        steps = (stages["appearance"].get("counts") or {}).get("iterations", 0) if budget != 0 else 0
+        appearance = stage_result(ProjectLayout(where), AppearanceStage)
+        steps = appearance.iterations if appearance is not None and budget != 0 else 0
         total = upstream + appear + merge
         label = "default" if budget is None else str(budget)
         psnr = row["psnr"] if row else None

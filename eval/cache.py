@@ -21,6 +21,7 @@ import json
 import shutil
 import uuid
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,16 @@ def files_in(folder: Path) -> dict[str, int]:
     return {str(p.relative_to(folder)): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
 
 
+@dataclass(frozen=True)
+class StoredMeasurement:
+    """A restored entry: the files it copied back into the eval folder (paths relative to it), the product's
+    ``metrics.json`` entry and its per-material table as stored (the eval stage's; None without)."""
+
+    files: tuple[str, ...]
+    metrics: dict[str, Any]
+    per_material: Any
+
+
 class ProductCache:
     """Stored measurements under ``root``, keyed by :meth:`key`.
 
@@ -64,9 +75,9 @@ class ProductCache:
         digest.update(json.dumps([name, list(file_hashes)]).encode())
         return digest.hexdigest()
 
-    def restore(self, key: str, eval_dir: Path) -> dict[str, Any] | None:
-        """Copy entry ``key``'s files into ``eval_dir`` and return its content ({"metrics": ..., "per_material":
-        ...}), or None when there is no complete entry."""
+    def restore(self, key: str, eval_dir: Path) -> StoredMeasurement | None:
+        """Copy entry ``key``'s files into ``eval_dir`` and return what it holds, or None when there is no complete
+        entry."""
         entry = self.root / key
         if not (entry / ENTRY).is_file():
             return None
@@ -74,13 +85,16 @@ class ProductCache:
             content = read_json(entry / ENTRY)
             if not (isinstance(content, dict) and {"files", "metrics", "per_material"} <= content.keys()):
                 return None
-            for rel in content["files"]:
+            files, metrics = content["files"], content["metrics"]
+            if not (isinstance(files, list) and all(isinstance(f, str) for f in files) and isinstance(metrics, dict)):
+                return None
+            for rel in files:
                 target = eval_dir / rel
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(entry / "files" / rel, target)
         except (HybridSplatError, OSError, TypeError):
             return None  # a damaged entry (edited, truncated, files deleted) is measured again, then replaced
-        return content
+        return StoredMeasurement(tuple(files), metrics, content["per_material"])
 
     def store(
         self, key: str, eval_dir: Path, written: Iterable[str], metrics: Mapping[str, Any], per_material: Any

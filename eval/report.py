@@ -269,30 +269,48 @@ def _pm(block: Mapping[str, Any] | None, key: str) -> str:
     return _num(block[key], digits, sci) + ("" if std is None else f" ± {_num(std, digits, sci)}")
 
 
-def _training_note(counts: Mapping[str, Any], what: str) -> str:
-    steps = counts.get("iterations")
-    if not isinstance(steps, int):
+@dataclass(frozen=True)
+class TrainingRun:
+    """How a product's training ended: its ``steps`` and whether its early stop ended it (else its whole budget)."""
+
+    steps: int
+    stopped_early: bool
+
+
+@dataclass(frozen=True)
+class RunNotes:
+    """What the report tells of how the products were made, beside their figures (the pipeline fills it from the
+    stages' results, :func:`hybridsplat.stages.report.run_notes`): the fill splats' masked training (``fill``: of
+    ``merged`` and ``splats``) and the whole-scene baseline's (None: not trained), the background and survey
+    appearance fits' steps (0: none), and the rasteriser that rendered the held-out views (``renderer``: a key of
+    :data:`RENDERER_NAMES`; None: not said, as in an older project)."""
+
+    fill: TrainingRun | None = None
+    baseline: TrainingRun | None = None
+    background_steps: int = 0
+    appearance_steps: int = 0
+    renderer: str | None = None
+
+
+def _training_note(run: TrainingRun | None, what: str) -> str:
+    if run is None:
         return ""
-    end = "ended by its early stop" if counts.get("stopped_early") else "its whole step budget"
-    return f"{what}: {steps} steps ({end})"
+    end = "ended by its early stop" if run.stopped_early else "its whole step budget"
+    return f"{what}: {run.steps} steps ({end})"
 
 
-def _budget_notes(report: Mapping[str, Any]) -> dict[str, str]:
+def _budget_notes(report: Mapping[str, Any], run: RunNotes) -> dict[str, str]:
     """What each product's figures cost in training, for the note column: a product trained for fewer steps is
     not compared as if it had plateaued."""
-    stages = report.get("stages") or {}
-    train = (stages.get("train") or {}).get("counts") or {}
-    baseline = (stages.get("baseline") or {}).get("counts") or {}
     notes = {
         "mvs": "no training",
         "mvs_filtered": "control: the MVS part of merged alone (no splats)",
         "merged_no_background": "control: merged without its background layer",
         "merged_unrefined": "control: merged with every layer as before the appearance stage (no refinement)",
     }
-    notes["baseline"] = _training_note(baseline, "whole scene")
-    notes["merged"] = notes["splats"] = _training_note(train, "splats in the masks")
-    for stage, what in (("background", "background"), ("appearance", "survey appearance")):
-        steps = ((stages.get(stage) or {}).get("counts") or {}).get("iterations")
+    notes["baseline"] = _training_note(run.baseline, "whole scene")
+    notes["merged"] = notes["splats"] = _training_note(run.fill, "splats in the masks")
+    for steps, what in ((run.background_steps, "background"), (run.appearance_steps, "survey appearance")):
         if steps:
             notes["merged"] += f"; {what}: {steps} steps"
     for name in report.get("products") or {}:
@@ -309,17 +327,16 @@ RENDERER_NAMES = {
 }
 
 
-def _renderer_note(report: Mapping[str, Any]) -> str:
+def _renderer_note(run: RunNotes) -> str:
     """The image tables' title suffix " (rendered with …)": which rasteriser the eval stage rendered the held-out
     views with (gsplat on a GPU, the CPU rasteriser elsewhere; compared in docs/experiments/2026-11-27-gpu-paths.md);
     empty when the eval record does not say (an older project)."""
-    counts = ((report.get("stages") or {}).get("eval") or {}).get("counts") or {}
-    renderer = counts.get("renderer")
+    renderer = run.renderer
     return f" (rendered with {RENDERER_NAMES.get(renderer, str(renderer))})" if renderer else ""
 
 
-def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[str]]]]:
-    """(title, header, rows) of every table, shared by Markdown and HTML."""
+def _tables(report: Mapping[str, Any], run: RunNotes = RunNotes()) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(title, header, rows) of every table, shared by Markdown and HTML; ``run``: how the products were made."""
     products = report["products"]
     u = _report_units(report)
     unit_name = "metres" if u is Units.M else u.value
@@ -347,13 +364,13 @@ def _tables(report: Mapping[str, Any]) -> list[tuple[str, list[str], list[list[s
             c2c_rows,
         )
     ]  # fmt: skip
-    rendered = _renderer_note(report)
+    rendered = _renderer_note(run)
     for part, title in (
         ("full", f"Table 3 — image metrics, whole image{rendered}"),
         ("masked", f"Table 4 — image metrics, non-collaborative mask{rendered}"),
     ):
         rows = []
-        notes = _budget_notes(report)
+        notes = _budget_notes(report, run)
         for name, p in products.items():
             block = p["images"][part]
             if block is None:
@@ -462,8 +479,9 @@ def _sigma_calibration_tables(calibration: Mapping[str, Any] | None, u: Units) -
     return [(title, header, rows)]
 
 
-def to_markdown(report: Mapping[str, Any]) -> str:
-    """The report as Markdown (tables like the paper's Tables 2–4, stage timings, versions)."""
+def to_markdown(report: Mapping[str, Any], run: RunNotes = RunNotes()) -> str:
+    """The report as Markdown (tables like the paper's Tables 2–4, stage timings, versions); ``run``: how the
+    products were made (the notes beside their figures)."""
     lines = [
         "# hybridsplat evaluation report",
         "",
@@ -479,7 +497,7 @@ def to_markdown(report: Mapping[str, Any]) -> str:
         lines.append("| " + " | ".join(header) + " |")
         lines.append("|" + "|".join("---" for _ in header) + "|")
         lines += ["| " + " | ".join(row) + " |" for row in rows] + [""]
-    for title, header, rows in _tables(report):
+    for title, header, rows in _tables(report, run):
         lines += [f"## {title}", ""]
         if not rows:
             lines += ["_none recorded_", ""]
@@ -701,9 +719,9 @@ def to_html(
     eval_dir: Path | None,
     metrics: Mapping[str, Any] | None,
     max_panels: int = DEFAULT_MAX_PANELS,
+    run: RunNotes = RunNotes(),
 ) -> str:
-    """A self-contained HTML page: tables, C2C histograms and colour-mapped views, per-view metric bars, stage
-    time/memory bars and render panels (JPEG thumbnails, at most ``max_panels`` views per product)."""
+    """A self-contained HTML page: tables, C2C plots and views, metric and stage bars, render panels (max_panels)."""
     e = html.escape
     u = _report_units(report)
     parts = [
@@ -722,7 +740,7 @@ def to_html(
         parts.append(_html_table(header, rows))
     if eval_dir is not None:
         parts += _picture_grid(per_view, eval_dir, max_panels)
-    for title, header, rows in _tables(report):
+    for title, header, rows in _tables(report, run):
         parts.append(f"<h2>{e(title)}</h2>")
         if not rows:
             parts.append("<p class='note'>none recorded</p>")
@@ -776,11 +794,13 @@ def write_report(
     units: Units | str | None = None,
     per_material_file: str | PathLike[str] | None = None,
     sections: Sequence[Mapping[str, Any]] = (),
+    notes: RunNotes = RunNotes(),
 ) -> ReportPaths:
     """Build and write the report's JSON, Markdown and HTML files (``paths``) atomically.
 
     sections: what the pipeline's stages show of themselves (``{"title", "lines", "figures": [[path, caption]]}``
-    each, paths relative to the project), in pipeline order.
+    each, paths relative to the project), in pipeline order. notes: how the products were made (the training
+    steps and renderer told beside their figures).
 
     Renders and plots referenced by the metrics lie next to ``metrics_file``. max_panels: render panels shown per
     product (the lowest-PSNR views). units: the unit lengths are printed in (default: as recorded in the metrics
@@ -794,6 +814,6 @@ def write_report(
     strict = to_jsonable(json.loads(json.dumps(report, default=str)))  # NaN/inf -> null: report.json stays JSON
     with output_transaction():  # the three files appear together or not at all
         write_json_atomic(paths.json, strict)
-        write_text_atomic(paths.markdown, to_markdown(report))
-        write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels))
+        write_text_atomic(paths.markdown, to_markdown(report, notes))
+        write_text_atomic(paths.html, to_html(report, eval_dir, metrics, max_panels, notes))
     return paths

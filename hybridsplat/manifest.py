@@ -13,13 +13,18 @@ import threading
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import psutil
 
 from core.errors import FormatError
 from core.io.json_io import read_json, to_jsonable, write_json_atomic
 from hybridsplat import __version__
+
+if TYPE_CHECKING:
+    from hybridsplat.records import TypedRecord
+
+R = TypeVar("R", bound="TypedRecord")
 
 
 @dataclass
@@ -55,6 +60,13 @@ class StageRecord:
             and all((project / o).exists() for o in self.outputs)
         )
 
+    def result(self, result_type: type[R], where: Path | None = None) -> R:
+        """The counts as the stage's typed result (its ``Stage.Result``), read tolerantly
+        (:meth:`hybridsplat.records.TypedRecord.from_json`); a :class:`FormatError` naming ``where`` (the manifest
+        file) and the key when a value has the wrong type. Other code reads results through
+        :func:`hybridsplat.project_io.stage_result`."""
+        return result_type.from_json(self.counts, where, f"stages.{self.name}.counts")
+
     def content(self) -> dict[str, Any]:
         """The record without what changes when nothing ran (the cached flag and its reason), nor the byte counts
         (recorded since 0.3.1: leaving them out keeps the digests of earlier projects' records)."""
@@ -76,7 +88,8 @@ class Manifest:
         if self.path.exists():
             payload = read_json(self.path)
             try:
-                self.stages = {name: StageRecord(**rec) for name, rec in payload.get("stages", {}).items()}
+                stages = payload.get("stages", {}).items()
+                self.stages = {name: StageRecord(**{"name": name, **rec}) for name, rec in stages}
             except (AttributeError, TypeError) as err:
                 raise FormatError(f"not a manifest of this version ({err}); delete it to rerun", self.path) from err
 
@@ -87,6 +100,14 @@ class Manifest:
             "stages": {name: asdict(rec) for name, rec in self.stages.items()},
         }
         write_json_atomic(self.path, payload)
+
+    def result(self, name: str, result_type: type[R]) -> R | None:
+        """Stage ``name``'s typed result as recorded (see :meth:`StageRecord.result`); None when it has no record
+        or was skipped."""
+        record = self.stages.get(name)
+        if record is None or record.skipped:
+            return None
+        return record.result(result_type, self.path)
 
     def relative(self, path: Path) -> str:
         """``path`` relative to the project (absolute when outside it), as recorded."""

@@ -1,9 +1,10 @@
 """Typed reading of what the stages leave in a project folder, over :class:`hybridsplat.layout.ProjectLayout`.
 
-Stages read each other's products here, never through string keys of JSON records or by spelling paths: the
-model's origin (the sfm stage's record), the COLMAP models in world coordinates, the region and training masks
-with their per-photo record (the masks stage's), and per-point fields of the classified cloud matched to a set of
-Gaussians. Every reader names the file it found wrong in its error.
+Stages read each other's products here, never through string keys of JSON records or by spelling paths: any
+stage's typed result as the manifest recorded it (:func:`stage_result`), the model's origin (the sfm stage's
+record), the COLMAP models in world coordinates, the region and training masks with their per-photo record (the
+masks stage's), and per-point fields of the classified cloud matched to a set of Gaussians. Every reader names the
+file it found wrong in its error.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Collection
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +20,28 @@ from core.cameras import Cameras
 from core.errors import DataError, FormatError
 from core.pointcloud import PointCloud
 from hybridsplat.layout import ProjectLayout
+
+if TYPE_CHECKING:
+    from hybridsplat.manifest import Manifest
+    from hybridsplat.stages.base import Stage
+
+# ------------------------------------------------------------------------------------ every stage: its result
+
+
+def stage_result(project: ProjectLayout | Manifest, stage: Stage | type[Stage]) -> Any:
+    """What ``stage`` (a stage class or instance) recorded in the project's manifest at its last run, as its typed
+    ``Result`` (:class:`hybridsplat.stages.base.StageResult`; a record of an earlier version reads with defaults for
+    what it lacks); None when the stage has no record or was skipped. ``project``: a project's layout, or its
+    :class:`~hybridsplat.manifest.Manifest` already loaded. The one way code reads another stage's counts::
+
+        train = stage_result(layout, TrainStage)
+        steps = train.iterations if train is not None else 0
+    """
+    from hybridsplat.manifest import Manifest
+
+    manifest = project if isinstance(project, Manifest) else Manifest(project.manifest)
+    return manifest.result(stage.name, stage.Result)
+
 
 # ------------------------------------------------------------------------------------------------- sfm: the origin
 

@@ -10,7 +10,7 @@ the status is read under a shared lock, so no stage changes while it is read.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from os import PathLike
 from pathlib import Path
 from typing import Any
@@ -18,8 +18,9 @@ from typing import Any
 from core.errors import HybridSplatError, InputFileError
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest, StageRecord, hash_path
+from hybridsplat.project_io import stage_result
 from hybridsplat.project_lock import LockHolder, ProjectLock, read_holder
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, StageResult
 
 CURRENT, STALE, SKIPPED, NOT_RUN, RUNNING, QUEUED = "current", "stale", "skipped", "not run", "running", "queued"
 UNKNOWN = "unknown"  # the project's input cannot be read, so nothing can be compared
@@ -32,7 +33,8 @@ WILL_CHANGE = {STALE, NOT_RUN, RUNNING, QUEUED, UNKNOWN, WAITING}
 class StageStatus:
     """One stage: ``state`` (one of the module's constants), why (``reasons``), and its last run's record.
 
-    seconds, peak_mb, counts, finished_at, bytes_written: from the manifest (the run that made its outputs).
+    seconds, peak_mb, finished_at, bytes_written, result (the stage's typed ``Result``): from the manifest (the run
+    that made its outputs; None without one).
     """
 
     name: str
@@ -43,7 +45,7 @@ class StageStatus:
     peak_mb: float | None = None
     bytes_written: int | None = None
     finished_at: str | None = None
-    counts: dict[str, Any] = field(default_factory=dict)
+    result: StageResult | None = None
 
 
 @dataclass(frozen=True)
@@ -57,8 +59,12 @@ class ProjectStatus:
     abandoned: LockHolder | None = None
 
     def to_json(self) -> dict[str, Any]:
+        """The status as JSON data (``status --json``): each stage's result as the manifest's ``counts``."""
         data = asdict(self)
         data["project"] = str(self.project)
+        for stage, status in zip(data["stages"], self.stages, strict=True):
+            stage.pop("result")
+            stage["counts"] = status.result.as_dict() if status.result is not None else {}
         return data
 
 
@@ -97,7 +103,7 @@ def _status(layout: ProjectLayout, writer: LockHolder | None, abandoned: LockHol
             status = replace(unreadable, name=stage.name)
         elif status is None:
             status = _stage_status(stage, ctx, manifest, changing)
-        status = _with_record(status, manifest.stages.get(stage.name), stage)
+        status = _with_record(status, manifest, stage)
         if status.state in WILL_CHANGE and ctx is not None:
             for out in stage.outputs(ctx):
                 changing[manifest.relative(out)] = stage.name
@@ -185,19 +191,21 @@ def _show(value: Any) -> str:
     return "(none)" if value is None else repr(value)
 
 
-def _with_record(status: StageStatus, record: StageRecord | None, stage: Stage) -> StageStatus:
-    if record is None or record.skipped:
+def _with_record(status: StageStatus, manifest: Manifest, stage: Stage) -> StageStatus:
+    record = manifest.stages.get(stage.name)
+    result = stage_result(manifest, stage)
+    if record is None or result is None:
         return status
     return StageStatus(
         status.name,
         status.state,
         status.reasons,
-        summary=stage.summary(record.counts),
+        summary=stage.summary(result),
         seconds=record.seconds,
         peak_mb=record.peak_mb,
         bytes_written=record.bytes_written,
         finished_at=record.finished_at,
-        counts=record.counts,
+        result=result,
     )
 
 

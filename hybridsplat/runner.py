@@ -3,7 +3,8 @@
 For each stage the runner hashes its inputs, options and fingerprint and compares them with the manifest: a stage
 whose record matches and whose outputs exist is "up to date". A stage that runs is first invalidated (its record
 dropped, its old outputs removed), so that a failure or an interruption (Ctrl-C, SIGTERM) never leaves an output
-that looks current; on success its timings, peak memory, counts and the bytes it wrote are recorded.
+that looks current; on success its timings, peak memory, result (the stage's typed ``Result``, stored as the
+record's ``counts``) and the bytes it wrote are recorded.
 
 Before a stage touches anything the runner checks that its estimate of what it will write
 (:meth:`Stage.expected_bytes`) fits on the disk (:mod:`hybridsplat.disk_space`); a failure is told in the user's
@@ -86,8 +87,11 @@ def run_stage(
         with terminal.stage(stage.name, ctx.layout.log(stage.name)) as progress, PeakMemory() as memory:
             ctx.progress, ctx.input_hashes, ctx.say = progress, hashes, terminal.line
             start = time.perf_counter()
-            counts = stage.run(ctx)
+            result = stage.run(ctx)
             seconds = time.perf_counter() - start
+            if not isinstance(result, stage.Result):
+                made, wanted = type(result).__name__, stage.Result.__name__
+                raise TypeError(f"stage {stage.name!r} returned a {made}, not its {wanted}")
     except BaseException as err:
         told = explain_failure(stage.name, err, ctx.layout.root, outputs)
         try:
@@ -103,7 +107,7 @@ def run_stage(
         name=stage.name,
         seconds=round(seconds, 4),
         peak_mb=round(memory.peak_mb, 1),
-        counts=to_jsonable(counts or {}),
+        counts=result.as_dict(),
         config=config,
         inputs=inputs,
         outputs=[manifest.relative(p) for p in outputs],
@@ -149,7 +153,7 @@ def describe(stage: Stage, record: StageRecord) -> str:
         return f"  {stage.name:<10} skipped: {record.reason}"
     if record.cached:
         return f"  {stage.name:<10} up to date (nothing it depends on changed)"
-    what = stage.summary(record.counts)
+    what = stage.summary(record.result(stage.Result))
     return f"  {stage.name:<10} {record.seconds:7.1f} s  peak {record.peak_mb:5.0f} MB" + (f"  {what}" if what else "")
 
 

@@ -25,7 +25,7 @@ import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.appearance import AppearanceOptions, AppearanceResult, assign_attributes
 from hybridsplat.layout import ProjectLayout, TileAppearanceFiles
+from hybridsplat.stages.appearance import TileAppearanceRecord
 from recon.tiling import TilePlan
 
 if TYPE_CHECKING:
@@ -109,7 +110,7 @@ def covered_pixels(cameras: Cameras, content: GaussianSet, least_alpha: float = 
     return masks
 
 
-def run_tile_appearance(job: TileAppearanceJob) -> dict[str, Any]:
+def run_tile_appearance(job: TileAppearanceJob) -> TileAppearanceRecord:
     """Refine one tile's survey (and fill) Gaussians; the tile's record (counts, seconds; ``cached`` when its files
     were up to date). A task of :func:`hybridsplat.tile_execution.run_tiles`: small values in and out."""
     from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
@@ -122,7 +123,8 @@ def run_tile_appearance(job: TileAppearanceJob) -> dict[str, Any]:
     if files.record.is_file() and files.survey_refined.is_file():
         record = read_json_object(files.record)
         if record.get("inputs") == key and (files.fill_refined.is_file() or not files.fill.is_file()):
-            return {"tile": job.name, **record["counts"], "seconds": 0.0, "cached": True}
+            counts = TileAppearanceRecord.from_json(record.get("counts"), files.record, "counts")
+            return replace(counts, tile=job.name, seconds=0.0, cached=True)
     start = time.perf_counter()
     files.record.unlink(missing_ok=True)
     with PeakMemory(interval_s=0.2) as memory:
@@ -137,18 +139,20 @@ def run_tile_appearance(job: TileAppearanceJob) -> dict[str, Any]:
         write_gaussian_ply(files.survey_refined, result.gaussians)
         if fill is not None:
             write_gaussian_ply(files.fill_refined, result.context if result.context is not None else fill)
-    counts = {
-        "peak_mb": round(memory.peak_mb, 1),
-        "survey_gaussians": len(survey),
-        "fill_gaussians": len(fill) if fill is not None else 0,
-        "photos": len(images),
-        "covered_share": float(np.mean([m.mean() for m in masks.values()])) if masks else 0.0,
-        "iterations": int(result.counts.get("iterations", 0)),
-        "holdout_psnr_db": result.counts.get("holdout_psnr_db"),
-    }
+    counts = TileAppearanceRecord(
+        peak_mb=round(memory.peak_mb, 1),
+        survey_gaussians=len(survey),
+        fill_gaussians=len(fill) if fill is not None else 0,
+        photos=len(images),
+        covered_share=float(np.mean([m.mean() for m in masks.values()])) if masks else 0.0,
+        iterations=int(result.counts.get("iterations", 0)),
+        holdout_psnr_db=result.counts.get("holdout_psnr_db"),
+    )
     seconds = time.perf_counter() - start
-    write_json_atomic(files.record, json.loads(json.dumps({"inputs": key, "counts": counts, "seconds": seconds})))
-    return {"tile": job.name, **counts, "seconds": seconds, "cached": False}
+    # the tile's file: its inputs' digest and what it made (the record less its name, seconds and cached flag)
+    kept = {k: v for k, v in counts.as_dict().items() if k not in ("tile", "seconds", "cached")}
+    write_json_atomic(files.record, json.loads(json.dumps({"inputs": key, "counts": kept, "seconds": seconds})))
+    return replace(counts, tile=job.name, seconds=seconds, cached=False)
 
 
 def _refine(
@@ -188,14 +192,20 @@ def _inputs_key(job: TileAppearanceJob, files: TileAppearanceFiles) -> str:
     return digest.hexdigest()
 
 
-@dataclass
+@dataclass(frozen=True)
 class StitchedAppearance:
     """The survey Gaussians refined tile by tile (rows of the parent's survey subset, positions bit for bit), the
-    fill refined likewise (rows of the parent's fill; None without one) and the counts."""
+    fill refined likewise (rows of the parent's fill; None without one), how many of each no tile refined
+    (``fill_unrefined`` None without a fill), and, from :func:`run_tiled_appearance`, each tile's record, the most
+    steps a tile took and the peak memory with the Ray workers (MB)."""
 
     survey: GaussianSet
     fill: GaussianSet | None
-    counts: dict[str, Any]
+    survey_unrefined: int
+    fill_unrefined: int | None
+    per_tile: tuple[TileAppearanceRecord, ...] = ()
+    iterations: int = 0
+    peak_mb_with_workers: float = 0.0
 
 
 def stitch_tile_appearance(
@@ -233,8 +243,8 @@ def stitch_tile_appearance(
             own = plan.owner(out[key].means[rows]) == t
             assign_attributes(out[key], rows[own], part.subset(np.flatnonzero(own)).with_sh_degree(out[key].sh_degree))
             refined[key][rows[own]] = True
-    counts = {f"{k}_unrefined": int((~r).sum()) for k, r in refined.items()}
-    return StitchedAppearance(out["survey"], out.get("fill"), counts)
+    unrefined = {k: int((~r).sum()) for k, r in refined.items()}
+    return StitchedAppearance(out["survey"], out.get("fill"), unrefined["survey"], unrefined.get("fill"))
 
 
 def _same_positions(a: np.ndarray, b: np.ndarray, tolerance_m: float = 1e-3) -> bool:
@@ -262,7 +272,7 @@ def run_tiled_appearance(
     """The appearance stage's fit on a tiled project: ``survey`` (the parent's survey Gaussians that do not need
     splats) and ``fill`` (its cleaned splats; None without) refined tile by tile on the tiles' training photos, the
     background layer frozen beside them when ``with_background``, run like the tile stages (``[tiles]`` workers,
-    ray_address, cpus_per_tile) and stitched by core. Counts: tiles, per tile, the Gaussians no tile refined."""
+    ray_address, cpus_per_tile) and stitched by core, with each tile's record."""
     from hybridsplat.manifest import PeakMemory
     from hybridsplat.stages.tiles import TilesOptions
     from hybridsplat.tile_execution import ExecutionOptions, run_tiles
@@ -291,6 +301,5 @@ def run_tiled_appearance(
     with PeakMemory(interval_s=0.2, children=True) as memory:  # the Ray workers' memory too
         records = run_tiles(jobs, execution, done, task=run_tile_appearance)
     stitched = stitch_tile_appearance(layout, plan, indices, survey, fill, options.training.sh_degree)
-    stitched.counts.update(tiles=len(jobs), per_tile=records, peak_mb_with_workers=round(memory.peak_mb, 1),
-                           iterations=max((int(r.get("iterations", 0)) for r in records), default=0))  # fmt: skip
-    return stitched
+    return replace(stitched, per_tile=tuple(records), peak_mb_with_workers=round(memory.peak_mb, 1),
+                   iterations=max((r.iterations for r in records), default=0))  # fmt: skip

@@ -24,11 +24,11 @@ from hybridsplat.tile_projects import run_tile
 TileDone = Callable[[str, int, int], None]
 """Called as each tile finishes: (tile name, tiles done, tiles in all)."""
 
-TileTask = Callable[[Any], dict]
+TileTask = Callable[[Any], Any]
 """What runs one tile's job (a module-level function, which Ray pickles by reference): :func:`run_tile` for the tile
 stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` and :func:`hybridsplat.tile_surface.run_tile_surface`
 for the appearance and merge stages' parts. A job has ``name`` and ``memory_mb`` (the MB its task declares; 0:
-unknown)."""
+unknown); the task returns the tile's record, a frozen dataclass with a ``resources`` field (what Ray gave it)."""
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ class ExecutionOptions:
 
 def run_tiles(
     jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDone | None = None, task: TileTask = run_tile
-) -> list[dict]:
+) -> list[Any]:
     """Run ``task`` on every job (:class:`TileJob` for :func:`run_tile`); the tiles' records in the order of
     ``jobs``."""
     if not options.uses_ray:
@@ -88,7 +88,7 @@ def import_ray() -> Any:
     return ray
 
 
-def _result(ray: Any, ref: Any, tile: str) -> dict:
+def _result(ray: Any, ref: Any, tile: str) -> Any:
     """A finished task's record; a task that failed raises its own error (a readable one-liner for the CLI, with
     the tile named in a note), not Ray's wrapper with the remote traceback."""
     try:
@@ -153,15 +153,16 @@ def task_resources(job: Any, options: ExecutionOptions, cluster: dict[str, float
     return resources
 
 
-def run_tile_task(job: Any, task: TileTask = run_tile) -> dict:
+def run_tile_task(job: Any, task: TileTask = run_tile) -> Any:
     """``task`` (:func:`run_tile`) as a Ray task: its record with the resources Ray assigned to the task."""
+    from dataclasses import replace
+
     import ray
 
-    record = task(job)
-    return {**record, "resources": dict(ray.get_runtime_context().get_assigned_resources())}
+    return replace(task(job), resources=dict(ray.get_runtime_context().get_assigned_resources()))
 
 
-def _run_on_ray(jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDone | None, task: TileTask) -> list[dict]:
+def _run_on_ray(jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDone | None, task: TileTask) -> list[Any]:
     ray = import_ray()
     started_here = _start_ray(ray, options)
     try:
@@ -172,7 +173,7 @@ def _run_on_ray(jobs: Sequence[Any], options: ExecutionOptions, on_done: TileDon
         remote = ray.remote(run_tile_task)
         pending = {remote.options(**task_resources(job, options, cluster)).remote(job, task): k
                    for k, job in enumerate(jobs)}  # fmt: skip
-        results: list[dict | None] = [None] * len(jobs)
+        results: list[Any] = [None] * len(jobs)
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             k = pending.pop(ready[0])

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import shutil
 from collections.abc import Collection
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.records import TypedRecord, omitted_if_none
 from recon.tiling import TilePlan
 
 TILE_STAGES: tuple[str, ...] = ("mvs", "classify", "masks", "convert", "train", "clean")
@@ -84,7 +85,30 @@ def _same_model(new: Path, old: Path) -> bool:
     return old.is_dir() and hash_path(new) == hash_path(old)
 
 
-def run_tile(job: TileJob) -> dict[str, Any]:
+@dataclass(frozen=True)
+class TileStageRun(TypedRecord):
+    """What a tile's manifest recorded of one of its stages: seconds, peak memory (MB), whether it was up to date
+    (``cached``) or ``skipped``, and its result as the manifest's ``counts`` (empty when skipped)."""
+
+    seconds: float = 0.0
+    peak_mb: float = 0.0
+    cached: bool = False
+    skipped: bool = False
+    counts: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TileRun(TypedRecord):
+    """One tile's run (:func:`run_tile`): its name, its ``stages`` (stage name → :class:`TileStageRun`), why it
+    fused no point (``empty``; then it ran nothing) and, as a Ray task, the resources Ray gave it."""
+
+    tile: str = ""
+    stages: dict[str, TileStageRun] = field(default_factory=dict)
+    empty: str | None = omitted_if_none()
+    resources: dict[str, float] | None = omitted_if_none()
+
+
+def run_tile(job: TileJob) -> TileRun:
     """Run the job's stages (:data:`TILE_STAGES` or a part of them) in its project; per stage what the tile's
     manifest recorded (seconds, peak MB, cached or skipped), for the parent's record and the cost model."""
     from core.errors import EmptyFusionError
@@ -95,7 +119,7 @@ def run_tile(job: TileJob) -> dict[str, Any]:
     layout = ProjectLayout(job.root)
     empty = _empty_record(layout)
     if empty is not None:
-        return {"tile": job.name, "empty": empty, "stages": {}}
+        return TileRun(job.name, empty=empty)
     stages = [stage_named(n) for n in job.stages]
     try:
         manifest = run_pipeline(job.root, job.config, stages=stages, terminal=Terminal(quiet=True))
@@ -103,18 +127,18 @@ def run_tile(job: TileJob) -> dict[str, Any]:
         # nothing in the tile survives fusion (water, a textureless roof): it adds nothing, the others go on; the
         # record keeps a second run from redoing its MVS while its model is unchanged
         _write_empty_record(layout, err.problem)
-        return {"tile": job.name, "empty": err.problem, "stages": {}}
+        return TileRun(job.name, empty=err.problem)
     records = {}
     for name in job.stages:
         record = manifest.stages[name]
-        records[name] = {
-            "seconds": float(record.seconds or 0.0),
-            "peak_mb": float(record.peak_mb or 0.0),
-            "cached": bool(record.cached),
-            "skipped": bool(record.skipped),
-            "counts": record.counts if not record.skipped else {},
-        }
-    return {"tile": job.name, "stages": records}
+        records[name] = TileStageRun(
+            seconds=float(record.seconds or 0.0),
+            peak_mb=float(record.peak_mb or 0.0),
+            cached=bool(record.cached),
+            skipped=bool(record.skipped),
+            counts=record.counts if not record.skipped else {},
+        )
+    return TileRun(job.name, records)
 
 
 def _empty_record(layout: ProjectLayout) -> str | None:

@@ -16,16 +16,16 @@ tiles, so a pixel of an overlap counts once per tile that rendered it.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Collection, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from core.gaussians import GaussianSet
 from fusion.splat_surface import SplatSurfaceOptions, SplatSurfacePoints
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.records import TypedRecord, omitted_if_none
 from recon.tiling import TilePlan
 
 if TYPE_CHECKING:
@@ -33,6 +33,19 @@ if TYPE_CHECKING:
     from hybridsplat.stages.base import StageContext
 
 _ARRAYS = ("positions", "normals", "colours", "sigma", "confidence", "n_views", "reference", "spread", "footprint")
+
+
+@dataclass(frozen=True)
+class TileSurfaceRecord(TypedRecord):
+    """One tile's splat-surface points (:func:`run_tile_surface`, its ``record.json``): the points ``found``, the
+    pixels per outcome (``counts``, by the outcomes of :class:`fusion.splat_surface.SplatSurfacePoints`), its
+    seconds and, as a Ray task, the resources Ray gave it."""
+
+    tile: str = ""
+    found: int = 0
+    counts: dict[str, int] = field(default_factory=dict)
+    seconds: float = 0.0
+    resources: dict[str, float] | None = omitted_if_none()
 
 
 @dataclass(frozen=True)
@@ -78,7 +91,7 @@ def _in_bounds(plan: TilePlan, tile: int, points: np.ndarray) -> np.ndarray:
     return points[plan.in_bounds(points, tile)] if len(points) else points
 
 
-def run_tile_surface(job: TileSurfaceJob) -> dict[str, Any]:
+def run_tile_surface(job: TileSurfaceJob) -> TileSurfaceRecord:
     """Find one tile's splat-surface points (in the parent's local frame) and write them; the tile's record
     (points found, pixel counts). A task of :func:`hybridsplat.tile_execution.run_tiles`."""
     import time
@@ -101,9 +114,8 @@ def run_tile_surface(job: TileSurfaceJob) -> dict[str, Any]:
     found = splat_surface_points(splats, cameras, masks, front, job.options, anchors)
     np.savez(files.found, **{k: getattr(found, k) for k in _ARRAYS},
              views=np.array([v.name for v in cameras if v.name in masks]))  # fmt: skip
-    record = {"tile": job.name, "found": len(found), "counts": dict(found.counts),
-              "seconds": time.perf_counter() - start}  # fmt: skip
-    write_json_atomic(files.record, json.loads(json.dumps(record)))
+    record = TileSurfaceRecord(job.name, len(found), dict(found.counts), time.perf_counter() - start)
+    write_json_atomic(files.record, record)
     return record
 
 
@@ -126,8 +138,9 @@ def stitch_tile_surface(
             for key in _ARRAYS:
                 parts[key].append(found[key][own])
             parts["reference"][-1] = np.array([index[tile_views[r]] for r in parts["reference"][-1]], np.int32)
-        for key, value in read_json_object(files.record)["counts"].items():
-            counts[key] = counts.get(key, 0) + int(value)
+        record = TileSurfaceRecord.from_json(read_json_object(files.record), files.record)
+        for key, value in record.counts.items():
+            counts[key] = counts.get(key, 0) + value
     if not tiles:
         empty = np.zeros((0, 3))
         return SplatSurfacePoints(empty, empty.copy(), np.zeros((0, 3), np.float32), np.zeros(0), np.zeros(0),

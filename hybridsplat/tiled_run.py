@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,9 +18,11 @@ import numpy as np
 
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest, PeakMemory
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages.base import StageContext
+from hybridsplat.stages.tiles import SeamCheck, StitchedProducts, TilePrediction
 from hybridsplat.tile_cost import CostPrediction, TileSize, tile_peak_mb
-from hybridsplat.tile_projects import TILE_STAGES, TileJob
+from hybridsplat.tile_projects import TILE_STAGES, TileJob, TileRun
 from recon.tiling import TilePlan
 
 
@@ -42,8 +44,28 @@ def plan_project_tiles(ctx: StageContext, options: Any) -> TilePlan:
     return plan
 
 
-def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
-    """Plan, run every tile, stitch; the stage's record (JSON-ready)."""
+@dataclass(frozen=True)
+class TiledRun(TypedRecord):
+    """What :func:`run_tiled` did (the tiles stage's record, logs/tiles.json): the plan's ``tiles``, ``grid``
+    (``CxR``) and overlap (m), the photos of each tile, the tiles left out (seen by fewer than 2 training photos;
+    fusing no point), the tiles run at a time (``workers``) and ``where``, each tile's run, the stitch and the cost
+    model's prediction against the measurement."""
+
+    tiles: int = 0
+    grid: str = ""
+    overlap_m: float = 0.0
+    photos_per_tile: tuple[int, ...] = ()
+    without_photos: tuple[str, ...] = ()
+    without_points: tuple[str, ...] = ()
+    workers: int = 1
+    where: str = ""
+    per_tile: tuple[TileRun, ...] = ()
+    stitched: StitchedProducts = field(default_factory=StitchedProducts)
+    prediction: TilePrediction | None = None
+
+
+def run_tiled(ctx: StageContext, options: Any) -> TiledRun:
+    """Plan, run every tile, stitch."""
     from hybridsplat.tile_context import training_phases
     from hybridsplat.tile_execution import ExecutionOptions, execution_session
     from hybridsplat.tile_projects import prepare_tile
@@ -77,30 +99,30 @@ def run_tiled(ctx: StageContext, options: Any) -> dict[str, Any]:
             )
             results = run_in_phases(ctx, plan, jobs, execution, options.neighbour_context)
         measured_s = time.perf_counter() - start
-    empty = {r["tile"]: r["empty"] for r in results if r.get("empty")}
+    empty = {r.tile: r.empty for r in results if r.empty}
     if len(empty) == len(jobs):
         from core.errors import EmptyFusionError
 
         raise EmptyFusionError(f"no tile fused a point ({len(jobs)} tiles; see their logs)", layout.tiles_dir)
     stitched = stitch_products(ctx, plan, [t for t, job in jobs if job.name not in empty])
-    return {
-        "tiles": len(plan.tiles),
-        "grid": f"{plan.columns}x{plan.rows}",
-        "overlap_m": plan.overlap_m,
-        "photos_per_tile": [len(t.photo_ids) for t in plan.tiles],
-        "without_photos": too_few,
-        "without_points": sorted(empty),
-        "workers": workers,
-        "where": _where(execution, workers),
-        "per_tile": results,
-        "stitched": stitched,
-        "prediction": {**prediction.to_json(), "measured_wall_s": measured_s, "measured_peak_mb": memory.peak_mb},
-    }
+    return TiledRun(
+        tiles=len(plan.tiles),
+        grid=f"{plan.columns}x{plan.rows}",
+        overlap_m=plan.overlap_m,
+        photos_per_tile=tuple(len(t.photo_ids) for t in plan.tiles),
+        without_photos=tuple(too_few),
+        without_points=tuple(sorted(empty)),
+        workers=workers,
+        where=_where(execution, workers),
+        per_tile=tuple(results),
+        stitched=stitched,
+        prediction=TilePrediction(**prediction.to_json(), measured_wall_s=measured_s, measured_peak_mb=memory.peak_mb),
+    )
 
 
 def run_in_phases(
     ctx: StageContext, plan: TilePlan, jobs: list[tuple[int, TileJob]], execution: Any, neighbour_context: bool
-) -> list[dict]:
+) -> list[TileRun]:
     """Run the tiles (``jobs``: plan index and job); their records in the order of ``jobs``. Without
     ``neighbour_context`` every tile runs all its stages at once; with it, the stages before training run in every
     tile at once, then the training stages in :func:`hybridsplat.tile_context.training_phases`, each tile given its
@@ -122,15 +144,16 @@ def run_in_phases(
             ProjectLayout(job.root).neighbour_splats.unlink(missing_ok=True)
         return run_tiles([job for _, job in jobs], execution, done)
     before = tuple(s for s in TILE_STAGES if s not in TRAINING_STAGES)
-    records = {r["tile"]: r for r in run_tiles([replace(j, stages=before) for _, j in jobs], execution, done)}
+    records = {r.tile: r for r in run_tiles([replace(j, stages=before) for _, j in jobs], execution, done)}
     by_index = dict(jobs)
-    ready = [t for t, job in jobs if not records[job.name].get("empty")]
+    ready = [t for t, job in jobs if not records[job.name].empty]
     finished: list[int] = []
     for phase in training_phases(plan, ready):
         for t in phase:
             write_neighbour_splats(ctx.layout, plan, t, finished)
         for record in run_tiles([replace(by_index[t], stages=TRAINING_STAGES) for t in phase], execution, done):
-            records[record["tile"]]["stages"].update(record["stages"])
+            first = records[record.tile]
+            records[record.tile] = replace(first, stages={**first.stages, **record.stages})
         finished += phase
     return [records[job.name] for _, job in jobs]
 
@@ -187,7 +210,7 @@ def predict_tiles(
     return predict(sizes, rates, workers, driver_mb=psutil.Process().memory_info().rss / 2**20, phases=phases)
 
 
-def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> dict[str, Any]:
+def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> StitchedProducts:
     """The parent's dense workspace, classified cloud and splats from the tiles (``tiles``: indices in plan order)."""
     from hybridsplat.tile_stitch import gather_depth_maps, stitch_fused, stitch_ply
     from recon.mvs import MvsOptions
@@ -200,21 +223,24 @@ def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> dict
     setup_dense_workspace(layout.sparse, ctx.source.image_dir, layout.dense, mvs.max_image_size)
     maps = gather_depth_maps([subs[t].dense for t in tiles], layout.dense)
     fused = stitch_fused(plan, [(t, subs[t].dense) for t in tiles if subs[t].fused_ply.is_file()], layout.dense)
-    counts: dict[str, Any] = {"depth_maps": maps, "fused": fused.kept, "fused_dropped": list(fused.dropped)}
     classified = [(t, subs[t].classified_points) for t in tiles if subs[t].classified_points.is_file()]
+    n_classified = None
     if classified:
-        counts["classified"] = stitch_ply(plan, classified, layout.classified_points)[0].kept
+        n_classified = stitch_ply(plan, classified, layout.classified_points)[0].kept
         _merge_classify_reports([subs[t].classify_report for t, _ in classified], layout)
+    splats = {}
     for key, path_of in (("trained", lambda lay: lay.trained_splats), ("cleaned", lambda lay: lay.cleaned_splats)):
         parts = [(t, path_of(subs[t])) for t in tiles if path_of(subs[t]).is_file()]
-        counts[key] = stitch_ply(plan, parts, path_of(layout))[0].kept if parts else 0
+        splats[key] = stitch_ply(plan, parts, path_of(layout))[0].kept if parts else 0
     from recon.workspace import read_fused
 
     positions = read_fused(layout.dense).positions
+    seam = None
     if len(positions) >= 2 and len(plan.tiles) > 1:
-        seam = seam_check(plan, positions)
-        counts["seam"] = {"ratio": seam.ratio, "spacing_inside_m": seam.spacing_inside, "border_points": seam.n_border}
-    return counts
+        found = seam_check(plan, positions)
+        seam = SeamCheck(ratio=found.ratio, spacing_inside_m=found.spacing_inside, border_points=found.n_border)
+    return StitchedProducts(depth_maps=maps, fused=fused.kept, fused_dropped=fused.dropped, classified=n_classified,
+                            trained=splats["trained"], cleaned=splats["cleaned"], seam=seam)  # fmt: skip
 
 
 def _merge_classify_reports(reports: list[Path], layout: ProjectLayout) -> None:

@@ -155,8 +155,9 @@ def test_report_shows_the_classification_figures(workspace, tmp_path):
 
     report_data = _minimal_report(tmp_path, stages)
     report_data["sections"] = []
-    for name in ("classify", "masks"):  # as the report stage makes them from the recorded counts
-        section = stage_named(name).report_section(stages[name]["counts"])
+    for name in ("classify", "masks"):  # as the report stage makes them from the recorded results
+        stage = stage_named(name)
+        section = stage.report_section(stage.Result.from_json(stages[name]["counts"]))
         report_data["sections"].append({"title": section.title, "lines": section.lines, "figures": section.figures})
     page = to_html(report_data, None, None)
     assert "Classification and region masks" in page and page.count("data:image/jpeg;base64,") == 2

@@ -177,16 +177,16 @@ def test_stage_with_a_memory_limit_writes_the_same_points_and_records_it(tmp_pat
     def run(**options):  # noqa: ANN003, ANN202
         config = ProjectConfig().with_stage_options("classify", ClassifyOptions(**options))
         ctx = StageContext(layout=layout, config=config, source=None)  # type: ignore[arg-type]
-        counts = ClassifyStage().run(ctx)
-        return counts, layout.classified_points.read_bytes(), ClassifyStage().expected_bytes(ctx)
+        result = ClassifyStage().run(ctx)
+        return result, layout.classified_points.read_bytes(), ClassifyStage().expected_bytes(ctx)
 
     memory, memory_ply, memory_bytes = run()
     monkeypatch.setattr(stream, "_choose_grid", lambda *a, **k: (Grid(-0.45, -0.45, 0.3, 3, 3), 0.3))
     streamed, streamed_ply, streamed_bytes = run(memory_limit_mb=1024)
     assert streamed_ply == memory_ply
-    assert streamed["memory_limit_mb"] == 1024 and streamed["cells"] == 9 and streamed["peak_rss_mb"] > 0
+    assert streamed.memory_limit_mb == 1024 and streamed.cells == 9 and streamed.peak_rss_mb > 0
     for key in ("points", "needs_splats", "per_class", "spacing_m", "model", "figures"):
-        assert streamed[key] == memory[key], key
+        assert getattr(streamed, key) == getattr(memory, key), key
     assert streamed_bytes > memory_bytes
     assert "classified in 9 cells (peak" in ClassifyStage().summary(streamed)
     assert not [p for p in layout.classified_points.parent.iterdir() if p.name.startswith("hybridsplat_")]

@@ -21,7 +21,7 @@ from core.pointcloud import PointCloud
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.stages.base import StageContext
-from hybridsplat.stages.convert import ConvertStage, ConvertStageOptions
+from hybridsplat.stages.convert import ConvertResult, ConvertStage, ConvertStageOptions
 from recon.workspace import DenseWorkspace, write_vis
 
 UTM = np.array([500_000.0, 5_200_000.0, 300.0])
@@ -51,8 +51,8 @@ def _project(root, n: int = 4_000, seed: int = 5) -> ProjectLayout:  # noqa: ANN
     return layout
 
 
-def _convert(layout: ProjectLayout, **options) -> tuple[dict, bytes, bytes]:  # noqa: ANN003
-    """Run the convert stage with these options; its counts, the PLY's bytes and its origin sidecar's bytes."""
+def _convert(layout: ProjectLayout, **options) -> tuple[ConvertResult, bytes, bytes]:  # noqa: ANN003
+    """Run the convert stage with these options; its result, the PLY's bytes and its origin sidecar's bytes."""
     config = ProjectConfig().with_stage_options("convert", ConvertStageOptions(**options))
     counts = ConvertStage().run(StageContext(layout=layout, config=config, source=None))  # type: ignore[arg-type]
     ply = layout.mvs_gaussians
@@ -63,15 +63,15 @@ def _convert(layout: ProjectLayout, **options) -> tuple[dict, bytes, bytes]:  # 
 def test_memory_limit_gives_the_same_file_in_several_cells_and_records_limit_and_peak(tmp_path, monkeypatch, mode):
     layout = _project(tmp_path / "p")
     memory, ply, sidecar = _convert(layout, mode=mode)
-    assert "memory_limit_mb" not in memory
+    assert memory.memory_limit_mb is None and "memory_limit_mb" not in memory.as_dict()
     layout.mvs_gaussians.unlink()
     small = convert_stream.StreamPlan(600.0, 500, 1_999)  # 500 points a cell: ≥ 8 cells; chunks cut across cells
     monkeypatch.setattr(convert_stream, "plan_memory", lambda limit, k=8: small)
     streamed, ply_s, sidecar_s = _convert(layout, mode=mode, memory_limit_mb=600.0)
     assert ply_s == ply and sidecar_s == sidecar
-    assert streamed["memory_limit_mb"] == 600.0 and streamed["peak_rss_mb"] > 0 and streamed["cells"] >= 8
-    assert streamed["gaussians"] == memory["gaussians"] == 4_000
-    assert streamed["median_spacing_m"] == pytest.approx(memory["median_spacing_m"], rel=1e-12)
+    assert streamed.memory_limit_mb == 600.0 and streamed.peak_rss_mb > 0 and streamed.cells >= 8
+    assert streamed.gaussians == memory.gaussians == 4_000
+    assert streamed.median_spacing_m == pytest.approx(memory.median_spacing_m, rel=1e-12)
     assert not [p for p in layout.mvs_gaussians.parent.iterdir() if p.is_dir()]  # the cell files are gone
     assert "streamed in" in ConvertStage().summary(streamed)
 
@@ -81,7 +81,7 @@ def test_memory_limit_with_the_real_plan_gives_the_same_file(tmp_path):
     _, ply, _ = _convert(layout)
     layout.mvs_gaussians.unlink()
     streamed, ply_s, _ = _convert(layout, memory_limit_mb=1024.0)
-    assert ply_s == ply and streamed["cells"] >= 1 and streamed["memory_limit_mb"] == 1024.0
+    assert ply_s == ply and streamed.cells >= 1 and streamed.memory_limit_mb == 1024.0
 
 
 def test_visibility_positions_are_checked_against_the_registered_images(tmp_path):

@@ -3,7 +3,7 @@ anything a measurement depends on, and an interrupted store is never restored.""
 
 from pathlib import Path
 
-from eval.cache import ENTRY, ProductCache, code_digest, files_in
+from eval.cache import ENTRY, ProductCache, StoredMeasurement, code_digest, files_in
 
 
 def _eval_dir(root: Path) -> Path:
@@ -29,7 +29,8 @@ def test_a_stored_measurement_comes_back_with_its_files(tmp_path):
     fresh = tmp_path / "other_project" / "eval"
     restored = cache.restore(key, fresh)
     assert restored is not None
-    assert restored["metrics"] == metrics and restored["per_material"] == table
+    assert restored.metrics == metrics and restored.per_material == table
+    assert restored.files == ("c2c_mvs.ply", "plots/c2c_mvs_hist.svg")
     assert (fresh / "c2c_mvs.ply").read_bytes() == (eval_dir / "c2c_mvs.ply").read_bytes()
     assert (fresh / "plots" / "c2c_mvs_hist.svg").read_text() == "<svg/>"
     assert sorted(files_in(fresh)) == ["c2c_mvs.ply", "plots/c2c_mvs_hist.svg"]
@@ -68,8 +69,7 @@ def test_missing_or_interrupted_entries_are_not_restored(tmp_path):
     (tmp_path / "cache" / key).mkdir()
     assert cache.restore(key, tmp_path / "fresh") is None
     cache.store(key, eval_dir, ["c2c_mvs.ply"], {"skipped": False}, None)
-    assert cache.restore(key, tmp_path / "fresh") == {"files": ["c2c_mvs.ply"], "metrics": {"skipped": False},
-                                                      "per_material": None}  # fmt: skip
+    assert cache.restore(key, tmp_path / "fresh") == StoredMeasurement(("c2c_mvs.ply",), {"skipped": False}, None)
 
 
 def test_a_damaged_entry_is_measured_again_and_replaced(tmp_path):
@@ -85,4 +85,4 @@ def test_a_damaged_entry_is_measured_again_and_replaced(tmp_path):
     (entry / ENTRY).write_text('{"files": []}')  # keys missing
     assert cache.restore(key, tmp_path / "fresh") is None
     cache.store(key, eval_dir, ["c2c_mvs.ply"], {"skipped": True}, None)  # the new measurement replaces it
-    assert cache.restore(key, tmp_path / "fresh")["metrics"] == {"skipped": True}
+    assert cache.restore(key, tmp_path / "fresh").metrics == {"skipped": True}

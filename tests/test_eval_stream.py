@@ -146,11 +146,12 @@ def test_run_memory_limit_reaches_the_eval_and_merge_stages(monkeypatch, tmp_pat
 
 
 def test_the_summary_and_the_report_name_the_limit_and_the_peak():
-    from hybridsplat.stages.evaluate import EvalStage
+    from hybridsplat.stages.evaluate import EvalResult, EvalStage, ProductHeadline
 
-    counts = {"memory_limit_mb": 700.0, "peak_rss_mb": 612.4, "mvs_c2c_mean_m": 0.01}
-    line = EvalStage().summary(counts)
+    mvs = {"mvs": ProductHeadline(c2c_mean_m=0.01)}
+    result = EvalResult(memory_limit_mb=700.0, peak_rss_mb=612.4, products=mvs)
+    line = EvalStage().summary(result)
     assert line.startswith("C2C streamed within 700 MiB (peak 612 MiB)") and "mvs C2C mean" in line
-    section = EvalStage().report_section(counts)
+    section = EvalStage().report_section(result)
     assert section is not None and "--memory-limit 700 MiB (peak resident memory of the run 612 MiB" in section.lines[0]
-    assert EvalStage().report_section({"mvs_c2c_mean_m": 0.01}) is None
+    assert EvalStage().report_section(EvalResult(products=mvs)) is None

@@ -96,7 +96,7 @@ def test_the_merge_stage_with_a_memory_limit_writes_the_same_survey_points(tmp_p
             "merge", MergeOptions(memory_limit_mb=limit)
         )
         counts = MergeStage().run(StageContext(layout=layout, config=config, source=None))  # type: ignore[arg-type]
-        assert counts.get("memory_limit_mb") == limit
+        assert counts.memory_limit_mb == limit
         paths = (layout.merged_points_ply, layout.merged_points_las, sidecar_path(layout.merged_points_ply))
         files[name] = [p.read_bytes() for p in paths]
     assert files["chunked"] == files["whole"]

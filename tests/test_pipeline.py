@@ -394,9 +394,12 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     measured = sorted(n for n, p in first["products"].items() if not p["skipped"])
     assert {"mvs", "baseline", "baseline_20", "merged"} <= set(measured)
 
-    again = run_pipeline(copy, load_config(copy), force=["eval"]).stages["eval"]
-    assert again.counts["reused"] == len(measured)  # nothing changed: every measurement restored
-    assert again.counts["renderer"] == ("gsplat" if gsplat_available() else "cpu")  # the report names it
+    from hybridsplat.project_io import stage_result
+    from hybridsplat.stages.evaluate import EvalStage
+
+    again = stage_result(run_pipeline(copy, load_config(copy), force=["eval"]), EvalStage)
+    assert again.reused == len(measured)  # nothing changed: every measurement restored
+    assert again.renderer == ("gsplat" if gsplat_available() else "cpu")  # the report names it
     assert json.loads(layout.metrics_json.read_text()) == first
     for name in measured:  # with the files they name
         for rel in first["products"][name]["c2c"]["files"].values():
@@ -404,13 +407,12 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
 
     merged = read_gaussian_ply(layout.merged_ply)  # a changed product: the merged set loses half its Gaussians
     write_gaussian_ply(layout.merged_ply, merged.subset(np.arange(len(merged) // 2)), extra_fields=True)
-    changed = run_pipeline(copy, load_config(copy)).stages["eval"]
-    assert not changed.cached and changed.counts["reused"] == len(measured) - 4  # merged and its three controls
+    manifest = run_pipeline(copy, load_config(copy))
+    changed = stage_result(manifest, EvalStage)
+    assert not manifest.stages["eval"].cached and changed.reused == len(measured) - 4  # merged and its 3 controls
     images = json.loads(layout.metrics_json.read_text())["products"]["merged"]["images"]["full"]
     assert images["psnr"] != first["products"]["merged"]["images"]["full"]["psnr"]
-    from hybridsplat.stages.evaluate import EvalStage
-
-    line = EvalStage().summary(changed.counts)  # the headline the run prints: PSNR and, with weights, LPIPS
+    line = EvalStage().summary(changed)  # the headline the run prints: PSNR and, with weights, LPIPS
     assert f"merged PSNR {images['psnr']:.2f} dB" in line
     if images.get("lpips") is not None:
         assert f"LPIPS {images['lpips']:.3f}" in line
@@ -418,7 +420,7 @@ def test_a_new_evaluation_measures_only_the_products_that_changed(project, tmp_p
     config = load_config(copy)
     config = config.with_stage_options("eval", replace(config.options("eval", EvalStageOptions), cache=False))
     off = run_pipeline(copy, config).stages["eval"]
-    assert not off.cached and "reused" not in off.counts
+    assert not off.cached and "reused" not in off.counts and stage_result(layout, EvalStage).reused is None
 
 
 def test_bad_input_leaves_no_project_behind(tmp_path, capsys):
@@ -587,9 +589,12 @@ def test_eval_with_a_memory_limit_gives_the_in_memory_figures(project, tmp_path,
     monkeypatch.setattr(geometry_stream, "exact_nearest", exact_nearest)
     config = load_config(copy)
     options = replace(config.options("eval", EvalStageOptions), cache=False, memory_limit_mb=1024.0)
-    record = run_pipeline(copy, config.with_stage_options("eval", options), force=["eval"]).stages["eval"]
-    assert record.counts["memory_limit_mb"] == 1024.0 and record.counts["peak_rss_mb"] > 0
-    assert "C2C streamed within 1024 MiB" in EvalStage().summary(record.counts)
+    from hybridsplat.project_io import stage_result
+
+    manifest = run_pipeline(copy, config.with_stage_options("eval", options), force=["eval"])
+    result = stage_result(manifest, EvalStage)
+    assert result.memory_limit_mb == 1024.0 and result.peak_rss_mb > 0
+    assert "C2C streamed within 1024 MiB" in EvalStage().summary(result)
     assert max(cells) >= 4  # several cells, and the points beyond the halo searched in the whole cloud
     assert "Evaluation with bounded memory" in (layout.report_dir / "report.md").read_text()
     streamed = json.loads(layout.metrics_json.read_text())

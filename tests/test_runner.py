@@ -11,7 +11,7 @@ from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest, hash_path
 from hybridsplat.runner import run_stages
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, StageResult
 from hybridsplat.terminal import Terminal
 
 
@@ -20,11 +20,17 @@ class DoubleOptions:
     times: int = 2
 
 
+@dataclass(frozen=True)
+class DoubleResult(StageResult):
+    chars: int = 0
+
+
 class Double(Stage):
     """Toy stage: writes the input text repeated ``times`` times; can be told to fail halfway."""
 
     name = "double"
     Options = DoubleOptions
+    Result = DoubleResult
 
     def __init__(self, src: Path, out: Path, fail_with: BaseException | None = None) -> None:
         self.src, self.out, self.fail_with, self.calls = src, out, fail_with, 0
@@ -40,7 +46,7 @@ class Double(Stage):
         self.out.write_text(self.src.read_text() * ctx.options(self).times)  # a partial output first
         if self.fail_with is not None:
             raise self.fail_with
-        return {"chars": len(self.out.read_text())}
+        return DoubleResult(len(self.out.read_text()))
 
 
 class Unneeded(Stage):
@@ -112,12 +118,17 @@ def test_unneeded_stage_is_skipped_with_reason_and_stale_output_removed(tmp_path
 
 
 def test_peak_memory_is_recorded(tmp_path):
+    @dataclass(frozen=True)
+    class Sum(StageResult):
+        sum: float = 0.0
+
     class Allocate(Stage):
         name = "alloc"
+        Result = Sum
 
         def run(self, ctx):
             block = np.ones(300 * 2**20 // 8)  # 300 MB, touched
-            return {"sum": float(block[:10].sum())}
+            return Sum(block[:10].sum())
 
     rec = _run(tmp_path, [Allocate()]).stages["alloc"]
     assert rec.peak_mb > 300 and rec.counts == {"sum": 10.0}

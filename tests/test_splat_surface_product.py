@@ -189,7 +189,8 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
     off = stage.run(ctx)
-    assert "splat_surface" not in off and "splat_surface" not in stage.summary(off)
+    assert off.splat_surface is None and "splat_surface" not in off.as_dict()
+    assert "splat-surface" not in stage.summary(off)
     before = products(layout)
     points = read_point_cloud(layout.merged_points_ply)
     assert "sigma" not in points.fields and not np.any(points.fields["source"] == Source.SPLAT_SURFACE)
@@ -208,28 +209,28 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_
 
     ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
     on = stage.run(ctx)
-    c = on["splat_surface"]
+    c = on.splat_surface
     points = read_point_cloud(layout.merged_points_ply)
     source = np.asarray(points.fields["source"])
     surface = source == Source.SPLAT_SURFACE
-    assert int(surface.sum()) == c["kept"] > 300 and on["points"] == len(points)
+    assert int(surface.sum()) == c.kept > 300 and on.points == len(points)
     pos = points.world_positions[surface]
     # on the real layer's plane (a few rim pixels of the layer's edge at x = 0 off by 1.6 mm, within their σ of 4 mm),
     # none of the virtual layer behind the trusted surface
     assert np.quantile(np.abs(pos[:, 2]), 0.99) < 1e-4 and np.abs(pos[:, 2]).max() < 3e-3 and pos[:, 0].max() < 0.1
-    assert c["pixels"]["virtual"] > 100 and c["views"] == 6
-    assert c["found"] == c["kept"] + c["near_mvs"] + c["unsupported"] and c["per_class"] == {"textureless": c["kept"]}
+    assert c.pixels["virtual"] > 100 and c.views == 6
+    assert c.found == c.kept + c.near_mvs + c.unsupported and c.per_class == {"textureless": c.kept}
     sigma = np.asarray(points.fields["sigma"])
     assert np.all(sigma[surface] > 0) and np.all(sigma[~surface] == 0)
     assert np.all(np.asarray(points.fields["classification"])[surface] == SPLAT_SURFACE_CLASS)
     # the surface points replace the splat centres; MVS points and the viewer product stay as they were
-    assert not np.any(source == Source.SPLAT) and c["splat_centres_dropped"] == off["point_splats"]["kept"]
-    assert int((source == Source.MVS).sum()) == off["points"] - off["point_splats"]["kept"]
+    assert not np.any(source == Source.SPLAT) and c.splat_centres_dropped == off.point_splats["kept"]
+    assert int((source == Source.MVS).sum()) == off.points - off.point_splats["kept"]
     after = products(layout)
     assert after["merged.ply"] == before["merged.ply"] and after["splats.ply"] == before["splats.ply"]
     las = read_point_cloud(layout.merged_points_las)
-    assert int((np.asarray(las.fields["source"]) == Source.SPLAT_SURFACE).sum()) == c["kept"]
-    assert f"{c['kept']} splat-surface points (textureless {c['kept']})" in stage.summary(on)
+    assert int((np.asarray(las.fields["source"]) == Source.SPLAT_SURFACE).sum()) == c.kept
+    assert f"{c.kept} splat-surface points (textureless {c.kept})" in stage.summary(on)
     assert stage.expected_bytes(ctx) > sum(len(b) for b in after.values())
 
 

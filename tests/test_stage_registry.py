@@ -16,7 +16,7 @@ from hybridsplat.stages import register_stage, stage_names, unregister_stage
 TOY_MODULE = '''
 from dataclasses import dataclass
 
-from hybridsplat.stages.base import CliOption, ReportSection, Stage
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageResult
 
 
 @dataclass(frozen=True)
@@ -26,9 +26,18 @@ class ToyOptions:
     factor: int = 2
 
 
+@dataclass(frozen=True)
+class ToyResult(StageResult):
+    """photos: the input's photos; factor: how many times their count was written."""
+
+    photos: int = 0
+    factor: int = 0
+
+
 class ToyStage(Stage):
     name = "toy"
     Options = ToyOptions
+    Result = ToyResult
     title = "toy stage"
     command = "toy"
     command_help = "Write the photo count, factor times."
@@ -41,10 +50,13 @@ class ToyStage(Stage):
     def run(self, ctx):
         n = len(ctx.source.spec.image_names)
         (ctx.layout.root / "toy.txt").write_text(str(n) * ctx.options(self).factor)
-        return {"photos": n, "factor": ctx.options(self).factor}
+        return ToyResult(photos=n, factor=ctx.options(self).factor)
 
-    def report_section(self, counts):
-        return ReportSection("Toy", (f"toy counted {counts['photos']} photos, factor {counts['factor']}",))
+    def summary(self, result):
+        return f"{result.photos} photos"
+
+    def report_section(self, result):
+        return ReportSection("Toy", (f"toy counted {result.photos} photos, factor {result.factor}",))
 '''
 
 
@@ -84,7 +96,10 @@ def test_a_registered_toy_stage_runs_skips_when_current_and_shows_in_help_and_re
     assert run_cli(["toy", str(project), "--factor", "3"], toy) == 0  # an option changed: it runs again
     assert (project / "toy.txt").read_text() == "333"
     record = json.loads(layout.manifest.read_text())["stages"]["toy"]
-    assert not record["cached"] and record["counts"] == {"photos": 3, "factor": 3}
+    assert not record["cached"] and record["counts"] == {"photos": 3, "factor": 3}  # its result, field by field
+    from hybridsplat.project_io import stage_result
+
+    assert stage_result(layout, stage_named("toy")) == stage_named("toy").Result(photos=3, factor=3)
     assert "factor = 3" in layout.config.read_text()  # recorded in the project's configuration
     assert run_cli(["toy", str(project)], toy) == 0  # nothing changed: up to date
     assert json.loads(layout.manifest.read_text())["stages"]["toy"]["cached"]

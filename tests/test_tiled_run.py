@@ -18,6 +18,7 @@ from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest
 from hybridsplat.options import options_with
 from hybridsplat.pipeline import run_pipeline
+from hybridsplat.project_io import stage_result
 from hybridsplat.stages import stage_named
 from hybridsplat.stages.tiles import TilesOptions
 from hybridsplat.tile_projects import PER_TILE_IN_PARENT, TILE_STAGES
@@ -57,7 +58,7 @@ def test_tiles_run_as_projects_and_the_parent_skips_what_they_made(tiled):
     _, project = tiled
     layout = ProjectLayout(project)
     stages = Manifest(layout.manifest).stages
-    assert not stages["tiles"].skipped and stages["tiles"].counts["tiles"] == 2
+    assert not stages["tiles"].skipped and stage_result(layout, stage_named("tiles")).tiles == 2
     for name in PER_TILE_IN_PARENT:
         assert stages[name].skipped and "made per tile" in stages[name].reason, name
     for name in ("masks", "convert", "merge", "eval", "report"):
@@ -85,9 +86,8 @@ def test_the_second_phase_trains_with_its_neighbours_splats_frozen_in_the_overla
     assert 0 < len(given) == int(keep.sum()) < len(splats)
     np.testing.assert_array_equal(given.means, splats.means[keep])
     np.testing.assert_array_equal(given.logit_opacities, splats.logit_opacities[keep])
-    trained = Manifest(second.manifest).stages["train"].counts
-    assert trained["neighbour_context"] == len(given)
-    assert Manifest(first.manifest).stages["train"].counts["neighbour_context"] == 0
+    assert stage_result(second, stage_named("train")).neighbour_context == len(given)
+    assert stage_result(first, stage_named("train")).neighbour_context == 0
 
 
 def test_stitched_clouds_keep_each_point_once_from_the_tile_that_owns_it(tiled):
@@ -182,7 +182,7 @@ def test_tiles_on_a_two_worker_ray_instance_make_the_same_clouds(tiled, tmp_path
     project = tmp_path / "ray"
     config = _config(scene, workers=2)
     manifest = run_pipeline(project, config, stages=[stage_named("sfm"), stage_named("tiles")])
-    assert manifest.stages["tiles"].counts["workers"] == 2
+    assert stage_result(manifest, stage_named("tiles")).workers == 2
     for tile in json.loads(ProjectLayout(project).record("tiles").read_text())["per_tile"]:
         # each task declared one CPU and its predicted peak memory (the cost model's, well above a megabyte)
         assert tile["resources"]["CPU"] == 1 and tile["resources"]["memory"] > 100 * 2**20, tile["tile"]
@@ -218,9 +218,9 @@ def test_the_appearance_stage_refines_each_gaussian_in_the_tile_whose_core_holds
     fit = options_with(AppearanceOptions, {"training.iterations": 20, "training.min_iterations": 20})
     config = ProjectConfig(input=InputOptions(path=str(scene)),
                            stages={**FAST, "tiles": TilesOptions(grid="2x1"), "appearance": fit})  # fmt: skip
-    counts = run_pipeline(project, config, stages=[stage_named("appearance")]).stages["appearance"].counts
-    assert counts["tiles"] == 2 and counts["survey_unrefined"] == 0 and counts["fill_unrefined"] == 0
-    assert not any(r["cached"] for r in counts["per_tile"])
+    fitted = stage_result(run_pipeline(project, config, stages=[stage_named("appearance")]), stage_named("appearance"))
+    assert fitted.tiles == 2 and fitted.survey_unrefined == 0 and fitted.fill_unrefined == 0
+    assert not any(r.cached for r in fitted.per_tile)
     plan = read_tile_plan(layout.tile_plan)
     mvs, survey = read_gaussian_ply(layout.mvs_gaussians), read_gaussian_ply(layout.survey_splats)
     np.testing.assert_array_equal(survey.means, mvs.means)
@@ -244,8 +244,8 @@ def test_the_appearance_stage_refines_each_gaussian_in_the_tile_whose_core_holds
     before = layout.survey_splats.read_bytes()
     ProjectLayout(layout.tile_project("r0c1")).tile_appearance_files().record.unlink()
     Manifest(layout.manifest).invalidate("appearance")
-    again = run_pipeline(project, config, stages=[stage_named("appearance")]).stages["appearance"].counts
-    assert {r["tile"]: r["cached"] for r in again["per_tile"]} == {"r0c0": True, "r0c1": False}
+    again = stage_result(run_pipeline(project, config, stages=[stage_named("appearance")]), stage_named("appearance"))
+    assert {r.tile: r.cached for r in again.per_tile} == {"r0c0": True, "r0c1": False}
     assert layout.survey_splats.read_bytes() == before  # the fit is deterministic for its seed
 
 
@@ -263,9 +263,9 @@ def test_the_tiles_appearance_fits_as_ray_tasks_make_the_same_survey_layer(tiled
         config = ProjectConfig(input=InputOptions(path=str(scene)), stages=stages)
         for tile in ("r0c0", "r0c1"):
             ProjectLayout(layout.tile_project(tile)).tile_appearance_files().record.unlink(missing_ok=True)
-        counts = run_pipeline(layout.root, config, stages=[stage_named("appearance")], force=["appearance"])
-        per_tile = counts.stages["appearance"].counts["per_tile"]
-        assert sorted(r["tile"] for r in per_tile if not r["cached"]) == ["r0c0", "r0c1"]
+        manifest = run_pipeline(layout.root, config, stages=[stage_named("appearance")], force=["appearance"])
+        per_tile = stage_result(manifest, stage_named("appearance")).per_tile
+        assert sorted(r.tile for r in per_tile if not r.cached) == ["r0c0", "r0c1"]
         products.append((layout.survey_splats.read_bytes(), layout.refined_fill_splats.read_bytes()))
     assert products[0] == products[1]
 
@@ -286,8 +286,8 @@ def test_splat_surface_points_found_tile_by_tile_are_the_untiled_ones(tiled, tmp
     merge = MergeOptions(splat_surface=True, splat_surface_support=None)
     config = ProjectConfig(input=InputOptions(path=str(scene)),
                            stages={**FAST, "tiles": TilesOptions(grid="2x1"), "merge": merge})  # fmt: skip
-    counts = run_pipeline(layout.root, config, stages=[stage_named("merge")]).stages["merge"].counts
-    tiled_found = counts["splat_surface"]["found"]
+    merged = stage_result(run_pipeline(layout.root, config, stages=[stage_named("merge")]), stage_named("merge"))
+    tiled_found = merged.splat_surface.found
     # the untiled search on the same products, as the merge stage runs it without tiles
     cameras, _ = project_io.read_project_model(layout, layout.dense_workspace.sparse)
     masks = {k: m for k, m in project_io.read_region_masks(layout, cameras, training=True).items() if m.any()}
@@ -335,17 +335,21 @@ def test_a_tile_that_fuses_no_point_adds_nothing_and_is_not_redone(tiled, tmp_pa
 
     monkeypatch.setattr(hybridsplat.pipeline, "run_pipeline", fusion_fails_in_r0c1)
     tiles_only = [stage_named("sfm"), stage_named("tiles")]
-    record = run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]).stages["tiles"]
-    assert record.counts["without_points"] == ["r0c1"]
-    assert "fused no point: r0c1" in stage_named("tiles").summary(record.counts)
+    result = stage_result(
+        run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]), stage_named("tiles")
+    )
+    assert result.without_points == ("r0c1",)
+    assert "fused no point: r0c1" in stage_named("tiles").summary(result)
     plan = read_tile_plan(layout.tile_plan)
     r0c0 = _rows(ProjectLayout(layout.tile_project("r0c0")).fused_ply)
     own = plan.owner(np.stack([r0c0["x"], r0c0["y"], r0c0["z"]], axis=1).astype(np.float64)) == 0
     assert _rows(layout.fused_ply).tobytes() == r0c0[own].tobytes()  # only the other tile's core
     # a second run takes the tile's record while its model is unchanged: its MVS is not run again
     calls.clear()
-    again = run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]).stages["tiles"]
-    assert again.counts["without_points"] == ["r0c1"] and not any(c.endswith("r0c1") for c in calls)
+    again = stage_result(
+        run_pipeline(project, _config(scene), stages=tiles_only, force=["tiles"]), stage_named("tiles")
+    )
+    assert again.without_points == ("r0c1",) and not any(c.endswith("r0c1") for c in calls)
     # every tile empty: the run fails, naming the tiles' folder
     monkeypatch.setattr(hybridsplat.pipeline, "run_pipeline", lambda root, *a, **k: (_ for _ in ()).throw(
         EmptyFusionError("fusion produced no points", root)))  # fmt: skip

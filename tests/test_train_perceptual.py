@@ -242,5 +242,5 @@ def test_stage_records_the_option_and_checks_the_weights_file_first(tmp_path) ->
         ctx = StageContext(layout=layout, config=ProjectConfig().with_stage_options("train", good),
                            source=SimpleNamespace(holdout_names=()))  # fmt: skip
         counts = TrainStage().run(ctx)
-        assert counts["iterations"] == 6 and counts["lpips_weights"] == str(WEIGHTS)
+        assert counts.iterations == 6 and counts.lpips_weights == str(WEIGHTS)
         assert layout.trained_splats.is_file()

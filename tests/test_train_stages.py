@@ -66,35 +66,35 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     train, clean, merge = TrainStage(), CleanStage(), MergeStage()
     assert train.needs(ctx) is None
     counts = train.run(ctx)
-    assert counts["iterations"] == 24 and counts["views_used"] > 0
-    assert counts["seeds"]["mvs"] == int(needs.sum()) and counts["context_gaussians"] == int((~needs).sum())
+    assert counts.iterations == 24 and counts.views_used > 0
+    assert counts.seeds.mvs == int(needs.sum()) and counts.context_gaussians == int((~needs).sum())
     trained = read_gaussian_ply(layout.trained_splats)
-    assert len(trained) == counts["trained"] and (layout.snapshots_dir / "splats_000012.ply").is_file()
+    assert len(trained) == counts.trained and (layout.snapshots_dir / "splats_000012.ply").is_file()
     assert clean.needs(ctx) is None
     c = clean.run(ctx)
-    assert c["kept"] + c["outside_masks"] + c["low_opacity"] + c["extreme_scale"] + c["isolated"] == c["input"]
+    assert c.kept + c.outside_masks + c.low_opacity + c.extreme_scale + c.isolated == c.input
     m = merge.run(ctx)
     merged = read_gaussian_ply(layout.merged_ply)
-    assert m["mvs"] == int((~needs).sum()) and m["splats"] == c["kept"]
-    assert int((merged.fields["source"] == Source.MVS).sum()) == m["mvs"]
+    assert m.mvs == int((~needs).sum()) and m.splats == c.kept
+    assert int((merged.fields["source"] == Source.MVS).sum()) == m.mvs
     assert layout.splats_export.is_file()
     # the point product: the MVS points and only the trustworthy splats, every left-out splat counted with a reason
-    p = m["point_splats"]
-    assert p["input"] == c["kept"]
+    p = m.point_splats  # the selection's counts (fusion.clean.SurveyPointCounts), by name
+    assert p["input"] == c.kept
     left_out = p["low_opacity"] + p["thick"] + p["large"] + p["few_views"] + p["off_masks"] + p["interior"]
     assert p["kept"] + left_out == p["input"]
     points = read_point_cloud(layout.merged_points_ply)
-    q = m["point_needs_mvs"]  # the needs_splats MVS points that pass the same view and rim tests
+    q = m.point_needs_mvs  # the needs_splats MVS points that pass the same view and rim tests
     assert q["input"] == int(needs.sum()) and q["low_opacity"] == q["thick"] == q["large"] == 0  # no shape tests
-    assert len(points) == m["points"] == m["mvs"] + p["kept"] + q["kept"]
+    assert len(points) == m.points == m.mvs + p["kept"] + q["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
-    assert counts["prior_views"] > 0 and counts["prior_pixels"] > 0  # the priors asked for are used
+    assert counts.prior_views > 0 and counts.prior_pixels > 0  # the priors asked for are used
     # merged.ply's surface field: every MVS Gaussian, and the splats that pass the surface test, counted by reason
-    s = m["surface_splats"]
+    s = m.surface_splats
     surface = np.asarray(merged.fields["surface"]) > 0.5
     is_mvs = merged.fields["source"] == Source.MVS
     assert surface[is_mvs].all() and int(surface[~is_mvs].sum()) == s["kept"]
-    assert s["input"] == c["kept"] and s["thick"] == s["large"] == s["interior"] == 0  # not part of that rule
+    assert s["input"] == c.kept and s["thick"] == s["large"] == s["interior"] == 0  # not part of that rule
     assert s["kept"] + s["low_opacity"] + s["few_views"] + s["off_masks"] + s["behind"] == s["input"]
 
 
@@ -158,8 +158,8 @@ def test_point_product_keeps_the_needs_splats_mvs_points_of_the_chosen_classes(t
         products[kept] = (counts, read_point_cloud(layout.merged_points_ply))
     (with_classes, pts_with), (without, pts_without) = products[("textureless", "thin")], products[()]
     textureless = truth.means[codes == 3]
-    assert with_classes["point_needs_mvs_classes"] == {"textureless": len(textureless), "thin": 0}
-    assert without["point_needs_mvs_classes"] == {}
+    assert with_classes.point_needs_mvs_classes == {"textureless": len(textureless), "thin": 0}
+    assert without.point_needs_mvs_classes == {}
 
     def has(points, queries):
         d = np.linalg.norm(points.positions[None, :, :] - queries[:, None, :], axis=2).min(axis=1)
@@ -189,7 +189,7 @@ def test_a_collaborative_only_project_trains_no_fill_and_merges_the_survey_layer
     assert "stage 'train' was skipped" in CleanStage().needs(ctx)
     counts = MergeStage().run(ctx)
     merged = read_gaussian_ply(layout.merged_ply)
-    assert counts["splats"] == 0 and counts["mvs"] == len(merged) > 0.9 * len(truth)  # the merge's filter aside
+    assert counts.splats == 0 and counts.mvs == len(merged) > 0.9 * len(truth)  # the merge's filter aside
     assert (np.asarray(merged.fields["source"]) == Source.MVS).all()
     converted = read_gaussian_ply(layout.mvs_gaussians)
     rows = {tuple(p) for p in converted.means + converted.origin}

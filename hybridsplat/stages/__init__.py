@@ -1,7 +1,8 @@
 """The pipeline's stages, in order: the registry.
 
-Adding a stage is its module (a :class:`~hybridsplat.stages.base.Stage` subclass) and one ``register_stage`` line
-below; its per-stage command, its ``run`` options and its report section come from its declaration.
+Adding a stage is its module (a :class:`~hybridsplat.stages.base.Stage` subclass with its typed ``Result``, see
+:mod:`hybridsplat.stages.base`) and one ``register_stage`` line below; its per-stage command, its ``run`` options and
+its report section come from its declaration.
 
 Stage modules are imported lazily: :func:`stage_named` imports only that stage's module, so a command fails on a
 bad input before the other stages' heavy dependencies (torch, open3d, pycolmap...) are loaded; :func:`registered_stages`
@@ -87,7 +88,7 @@ def stage_options_types() -> dict[str, type]:
     return {stage.name: stage.Options for stage in registered_stages()}
 
 
-_getattr, __dir__ = lazy_exports(__name__, {"Stage": "base", "StageContext": "base"})
+_getattr, __dir__ = lazy_exports(__name__, {"Stage": "base", "StageContext": "base", "StageResult": "base"})
 
 
 def __getattr__(attr: str) -> Any:
@@ -100,6 +101,7 @@ __all__ = [
     "STAGES",
     "Stage",
     "StageContext",
+    "StageResult",
     "register_stage",
     "registered_stages",
     "stage_named",

@@ -14,12 +14,14 @@ layer is then kept as trained).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fusion.appearance import AppearanceOptions, assign_attributes
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, StageResult, omitted_if_none
 
 if TYPE_CHECKING:
     import numpy as np
@@ -28,9 +30,66 @@ if TYPE_CHECKING:
     from hybridsplat.layout import ProjectLayout
 
 
+@dataclass(frozen=True)
+class TileAppearanceRecord(TypedRecord):
+    """One tile's fit (:func:`hybridsplat.tile_appearance.run_tile_appearance`): its peak memory (MB), its survey and
+    fill Gaussians and training photos, the share of their pixels it fitted (0..1), its steps, its PSNR on
+    held-back pixels (dB; None without an evaluation), its seconds, whether its files were up to date
+    (``cached``: not fitted again) and, as a Ray task, the resources Ray gave it."""
+
+    tile: str = ""
+    peak_mb: float = 0.0
+    survey_gaussians: int = 0
+    fill_gaussians: int = 0
+    photos: int = 0
+    covered_share: float = 0.0
+    iterations: int = 0
+    holdout_psnr_db: float | None = None
+    seconds: float = 0.0
+    cached: bool = False
+    resources: dict[str, float] | None = omitted_if_none()
+
+
+@dataclass(frozen=True)
+class AppearanceResult(StageResult):
+    """What the appearance stage made: ``gaussians`` survey Gaussians refined in ``iterations`` steps (tiled: the
+    most a tile took) at SH degree ``sh_degree``, ``context_refined`` fill and background Gaussians refined beside
+    them, and the ``unrefined_needs_splats`` MVS Gaussians left as converted (the points that need splats).
+
+    Untiled (the counts of :func:`fusion.appearance.refine_survey_appearance`): the step budget, the photo
+    downscale and training resolution (W, H px), the Gaussians at the σ bound and at the least opacity, the PSNR on
+    held-back pixels at the first and last evaluation (dB), the context Gaussians and the training's seconds.
+    Tiled (:mod:`hybridsplat.tile_appearance`): ``background_refined`` (False: the background stays as trained),
+    the survey and fill Gaussians no tile refined, the ``tiles`` fitted, each tile's record and the peak memory
+    with the Ray workers (MB). ``reason``: why nothing was refined, when nothing was."""
+
+    gaussians: int = 0
+    iterations: int = 0
+    step_budget: int | None = omitted_if_none()
+    downscale: int | None = omitted_if_none()
+    resolution: tuple[int, ...] | None = omitted_if_none()
+    sh_degree: int = 0
+    at_scale_bound: int | None = omitted_if_none()
+    at_least_opacity: int | None = omitted_if_none()
+    holdout_psnr_db_first: float | None = omitted_if_none()
+    holdout_psnr_db: float | None = omitted_if_none()
+    context_gaussians: int | None = omitted_if_none()
+    context_refined: int = 0
+    seconds_training: float | None = omitted_if_none()
+    background_refined: bool | None = omitted_if_none()
+    unrefined_needs_splats: int = 0
+    survey_unrefined: int | None = omitted_if_none()
+    fill_unrefined: int | None = omitted_if_none()
+    tiles: int | None = omitted_if_none()
+    per_tile: tuple[TileAppearanceRecord, ...] | None = omitted_if_none()
+    peak_mb_with_workers: float | None = omitted_if_none()
+    reason: str | None = omitted_if_none()
+
+
 class AppearanceStage(Stage):
     name = "appearance"
     Options = AppearanceOptions
+    Result = AppearanceResult
     title = "survey-layer appearance"
     uses_seed = True
 
@@ -77,7 +136,7 @@ class AppearanceStage(Stage):
             total += one * (4 if tiled and path != ctx.layout.background_splats else 1)
         return total
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> AppearanceResult:
         import numpy as np
 
         from core.io.gaussian_ply import write_gaussian_ply
@@ -91,7 +150,7 @@ class AppearanceStage(Stage):
             write_gaussian_ply(layout.survey_splats, mvs)
             for base, refined in self._refined_layers(ctx):
                 write_gaussian_ply(refined, layers[base])
-            return {"gaussians": 0, "reason": "every MVS point needs splats: the survey layer is empty"}
+            return AppearanceResult(reason="every MVS point needs splats: the survey layer is empty")
         if tiling_on(ctx):  # each tile reads its own photos
             return self._run_tiled(ctx, mvs, survey, layers)
         cameras, images = project_io.read_training_photos(layout, set(ctx.source.holdout_names))
@@ -109,11 +168,11 @@ class AppearanceStage(Stage):
         assign_attributes(out, survey, result.gaussians)
         write_gaussian_ply(layout.survey_splats, out)
         _write_refined_layers(self._refined_layers(ctx), layers, result.context)
-        return {**result.counts, "unrefined_needs_splats": int(needs.sum())}
+        return AppearanceResult(**result.counts, unrefined_needs_splats=int(needs.sum()))
 
     def _run_tiled(
         self, ctx: StageContext, mvs: GaussianSet, survey: np.ndarray, layers: dict[Path, GaussianSet]
-    ) -> dict[str, Any]:
+    ) -> AppearanceResult:
         """The tiled project's fit (:mod:`hybridsplat.tile_appearance`): the survey rows and the fill refined tile by
         tile, the background layer kept as trained (its refined copy is the layer itself)."""
         from core.io.gaussian_ply import write_gaussian_ply
@@ -129,29 +188,34 @@ class AppearanceStage(Stage):
         write_gaussian_ply(layout.survey_splats, out)
         for base, refined in self._refined_layers(ctx):
             write_gaussian_ply(refined, stitched.fill if base == layout.cleaned_splats else layers[base])
-        return {
-            "gaussians": len(survey),
-            "sh_degree": stitched.survey.sh_degree,
-            "context_refined": len(fill) if fill is not None and self._refined_layers(ctx) else 0,
-            "background_refined": False,
-            "unrefined_needs_splats": int(len(mvs) - len(survey)),
-            **stitched.counts,
-        }
+        return AppearanceResult(
+            gaussians=len(survey),
+            iterations=stitched.iterations,
+            sh_degree=stitched.survey.sh_degree,
+            context_refined=len(fill) if fill is not None and self._refined_layers(ctx) else 0,
+            background_refined=False,
+            unrefined_needs_splats=int(len(mvs) - len(survey)),
+            survey_unrefined=stitched.survey_unrefined,
+            fill_unrefined=stitched.fill_unrefined,
+            tiles=len(stitched.per_tile),
+            per_tile=stitched.per_tile,
+            peak_mb_with_workers=stitched.peak_mb_with_workers,
+        )
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        if not counts.get("gaussians"):
-            return f"survey layer not refined: {counts.get('reason', 'nothing to refine')}"
-        first, last = counts.get("holdout_psnr_db_first"), counts.get("holdout_psnr_db")
+    def summary(self, result: AppearanceResult) -> str:
+        if not result.gaussians:
+            return f"survey layer not refined: {result.reason or 'nothing to refine'}"
+        first, last = result.holdout_psnr_db_first, result.holdout_psnr_db
         psnr = f", held-back PSNR {first:.2f} -> {last:.2f} dB" if first is not None and last is not None else ""
-        context = counts.get("context_refined", 0)
+        context = result.context_refined
         beside = f" with {context} fill and background Gaussians" if context else ""
-        if counts.get("tiles"):
+        if result.tiles:
             beside = f" with {context} fill Gaussians" if context else ""
-            where = f" in {counts['tiles']} tiles (background as trained), up to {counts['iterations']} steps a tile"
-            return f"{counts['gaussians']} survey Gaussians refined{beside}{where}, SH {counts['sh_degree']}"
+            where = f" in {result.tiles} tiles (background as trained), up to {result.iterations} steps a tile"
+            return f"{result.gaussians} survey Gaussians refined{beside}{where}, SH {result.sh_degree}"
         return (
-            f"{counts['gaussians']} survey Gaussians refined{beside} (positions frozen), {counts['iterations']} "
-            f"steps, SH {counts['sh_degree']}{psnr}"
+            f"{result.gaussians} survey Gaussians refined{beside} (positions frozen), {result.iterations} "
+            f"steps, SH {result.sh_degree}{psnr}"
         )
 
 

@@ -8,17 +8,56 @@ and the stage says why.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fusion.background import BackgroundOptions
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, StageResult, omitted_if_none
+
+
+@dataclass(frozen=True)
+class ShellScore(TypedRecord):
+    """How much the photos disagree about a candidate shell radius (mean colour disagreement over ``pairs`` of
+    photos seeing the same direction)."""
+
+    disagreement: float = math.nan
+    pairs: int = 0
+
+
+@dataclass(frozen=True)
+class BackgroundResult(StageResult):
+    """What the background stage made (the counts of :func:`fusion.background.train_background`): the ``share`` of
+    the training photos' pixels beyond the survey region (0..1), the ``seeds`` and trained ``gaussians``, the photo
+    ``downscale``, the shell's radius (m; ``shell_multiple`` of the region's radius, ``shell_decided``: chosen by
+    the photos' agreement) and each candidate's score (``shell_scores``, by multiple), the region's radius (m), the
+    Gaussians extrapolated to directions no photo shows (``unseen_gaussians``), the training's steps, whether it
+    stopped early and its PSNR on held-back pixels (dB). ``reason``: why there is no background layer, when
+    there is none."""
+
+    share: float = 0.0
+    seeds: int = 0
+    gaussians: int = 0
+    downscale: int = 1
+    shell_radius_m: float = 0.0
+    shell_multiple: float = 0.0
+    shell_decided: bool = False
+    shell_scores: dict[str, ShellScore] = field(default_factory=dict)
+    region_radius_m: float = 0.0
+    unseen_gaussians: int = 0
+    iterations: int = 0
+    stopped_early: bool = False
+    holdout_psnr_db: float | None = None
+    reason: str | None = omitted_if_none()
 
 
 class BackgroundStage(Stage):
     name = "background"
     Options = BackgroundOptions
+    Result = BackgroundResult
     title = "background layer"
     uses_seed = True
 
@@ -44,7 +83,7 @@ class BackgroundStage(Stage):
         cap = max(getattr(opts.training.strategy, "cap", 0), 2 * opts.max_seeds)
         return sizes.gaussian_ply_bytes(cap, opts.training.sh_degree) + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> BackgroundResult:
         from core.gaussians import GaussianSet
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
         from hybridsplat import project_io
@@ -63,19 +102,19 @@ class BackgroundStage(Stage):
         result = train_background(cameras, images, foreground, ctx.options(self), ctx.config.seed, progress)
         if isinstance(result, str):
             write_gaussian_ply(layout.background_splats, _empty(cameras.origin))
-            return {"gaussians": 0, "reason": result}
+            return BackgroundResult(reason=result)
         write_gaussian_ply(layout.background_splats, result.gaussians)
-        return result.counts
+        return BackgroundResult(**result.counts)
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        if not counts.get("gaussians"):
-            return f"no background layer: {counts.get('reason', 'nothing to train')}"
-        chosen = " (chosen by the photos' agreement)" if counts.get("shell_decided") else ""
-        unseen = counts.get("unseen_gaussians", 0)
+    def summary(self, result: BackgroundResult) -> str:
+        if not result.gaussians:
+            return f"no background layer: {result.reason or 'nothing to train'}"
+        chosen = " (chosen by the photos' agreement)" if result.shell_decided else ""
+        unseen = result.unseen_gaussians
         unseen_text = f" ({unseen} extrapolated to directions no photo shows)" if unseen else ""
         return (
-            f"{counts['gaussians']} Gaussians on a {counts['shell_radius_m']:.3g} m shell{chosen}{unseen_text}, "
-            f"{100 * counts['share']:.1f} % of the pixels, {counts['iterations']} steps"
+            f"{result.gaussians} Gaussians on a {result.shell_radius_m:.3g} m shell{chosen}{unseen_text}, "
+            f"{100 * result.share:.1f} % of the pixels, {result.iterations} steps"
         )
 
 

@@ -2,10 +2,38 @@
 
 A stage is a small class in its own module: a ``name``, its ``Options`` (the domain's options dataclass, or one
 composing it: one TOML table in ``config.toml``, see :mod:`hybridsplat.options`), the files it reads (``inputs``)
-and writes (``outputs``), ``needs`` (a reason to skip, or None) and ``run`` (returns counts for the manifest). It
-is a thin shell: it reads files through :mod:`hybridsplat.project_io`, calls a function of
+and writes (``outputs``), ``needs`` (a reason to skip, or None) and ``run`` (returns its ``Result``). It is a thin
+shell: it reads files through :mod:`hybridsplat.project_io`, calls a function of
 ``recon``/``classify``/``fusion``/``eval``, and writes files (atomically, through ``core.io``). The runner
 (``hybridsplat.runner``) decides whether it runs, times it and records it.
+
+A stage's result is a small typed record declared in its module beside it::
+
+    @dataclass(frozen=True)
+    class MvsResult(StageResult):
+        # (its docstring: what the stage made, each field's meaning and unit)
+        backend: str = ""
+        points: int = 0
+        seconds_per_view: float = 0.0
+        memory_limit_mb: float | None = omitted_if_none()  # only some runs have it
+
+
+    class MvsStage(Stage):
+        name = "mvs"
+        Result = MvsResult
+
+        def run(self, ctx) -> MvsResult: ...
+
+        def summary(self, result: MvsResult) -> str: ...
+
+Every field has a type hint and a default (the docstring states the units); nested values keyed by data (per class,
+per tile) may be mappings, fixed groups are nested records. ``run`` returns it; the runner stores it in the
+manifest as the stage record's ``counts`` (:meth:`hybridsplat.records.TypedRecord.as_dict`: one key a field, the
+:func:`~hybridsplat.records.omitted_if_none` ones only when set) and ``summary`` and ``report_section`` are given
+it back typed. Any other code (another stage, ``status``, the report) reads it through
+:func:`hybridsplat.project_io.stage_result` (``stage_result(layout, TrainStage).iterations``), never by a string
+key of the counts. A record of an earlier version still reads: unknown keys are ignored, missing ones take their
+defaults (:meth:`hybridsplat.records.TypedRecord.from_json`).
 
 What the command line and the report show of a stage comes from its declaration too: ``command`` and
 ``command_options`` make ``hybridsplat <command> PROJECT [--option V]`` (:mod:`hybridsplat.commands.stages`),
@@ -22,13 +50,30 @@ from typing import Any, ClassVar
 
 from hybridsplat.config import ProjectConfig
 from hybridsplat.layout import ProjectLayout
+from hybridsplat.records import TypedRecord, omitted_if_none
 from hybridsplat.source import Source
 from hybridsplat.terminal import ProgressCallback
+
+__all__ = [
+    "MEMORY_LIMIT_HELP",
+    "CliOption",
+    "NoOptions",
+    "ReportSection",
+    "Stage",
+    "StageContext",
+    "StageResult",
+    "omitted_if_none",
+]
 
 
 @dataclass(frozen=True)
 class NoOptions:
     """A stage without options."""
+
+
+@dataclass(frozen=True)
+class StageResult(TypedRecord):
+    """Base of the stages' results: what ``run`` returns and the manifest records (see the module docstring)."""
 
 
 MEMORY_LIMIT_HELP = (
@@ -110,6 +155,7 @@ class Stage:
 
     name: ClassVar[str]
     Options: ClassVar[type] = NoOptions
+    Result: ClassVar[type[StageResult]] = StageResult  # what ``run`` returns (the manifest's counts, typed)
     title: ClassVar[str] = ""  # a few words for the terminal
     command: ClassVar[str | None] = None  # ``hybridsplat <command> PROJECT`` runs this stage alone
     command_help: ClassVar[str] = ""  # that command's help (default: the title)
@@ -153,14 +199,14 @@ class Stage:
 
         return "made per tile (--tiles): stage 'tiles' stitched its products" if tiling_on(ctx) else None
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
-        """Do the work; return counts for the manifest (JSON-serialisable)."""
+    def run(self, ctx: StageContext) -> StageResult:
+        """Do the work; return what it made (an instance of ``Result``, recorded in the manifest)."""
         raise NotImplementedError
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        """A few words about what the stage produced, for the terminal's one-line summary."""
+    def summary(self, result: Any) -> str:
+        """A few words about what the stage produced (its ``Result``), for the terminal's one-line summary."""
         return ""
 
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        """This stage's section of the report, from the counts it recorded (None: no section)."""
+    def report_section(self, result: Any) -> ReportSection | None:
+        """This stage's section of the report, from the ``Result`` it recorded (None: no section)."""
         return None

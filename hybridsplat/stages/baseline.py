@@ -8,18 +8,44 @@ the demo turns it on): a survey does not need it, a comparison does.
 
 from __future__ import annotations
 
+import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import WholeSceneOptions
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult
+
+
+@dataclass(frozen=True)
+class BaselineResult(StageResult):
+    """What the baseline stage made: ``splats`` Gaussians from ``initial`` SfM points after ``iterations`` steps
+    (``stopped_early``: by the early stop, else its whole budget) within ``cap``, at photo ``downscale`` and
+    ``resolution`` (W, H px), their PSNR on held-back pixels (dB; NaN without an evaluation), the views used, the
+    training's seconds; ``history``: (step, seconds since the start, PSNR on the held-back pixels in dB) per
+    evaluation window; ``checkpoints``: step → seconds of the stage until that checkpoint (the setup before the
+    training included)."""
+
+    splats: int = 0
+    initial: int = 0
+    downscale: int = 1
+    cap: int = 0
+    iterations: int = 0
+    stopped_early: bool = False
+    holdout_psnr_db: float = math.nan
+    views_used: int = 0
+    resolution: tuple[int, ...] = ()
+    seconds_training: float = 0.0
+    history: tuple[tuple[int, float, float], ...] = ()
+    checkpoints: dict[str, float] = field(default_factory=dict)
 
 
 class BaselineStage(Stage):
     name = "baseline"
     Options = WholeSceneOptions
+    Result = BaselineResult
     title = "whole-scene 3DGS baseline"
     uses_seed = True
     run_options = (
@@ -55,7 +81,7 @@ class BaselineStage(Stage):
             return "not requested (run --baseline, or [baseline] enabled = true): only needed for comparison"
         return None
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> BaselineResult:
         from core.io.gaussian_ply import write_gaussian_ply
         from core.io.images import read_image
         from fusion.train.masked import train_whole_scene
@@ -82,25 +108,23 @@ class BaselineStage(Stage):
         layout.baseline_checkpoints_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.baseline_checkpoints_dir / f"baseline_{step:06d}.ply", snap)
-        return {
-            "splats": len(result.splats),
-            "initial": result.initial_gaussians,
-            "downscale": downscale,
-            "cap": opts.training.strategy.cap,
-            "iterations": result.iterations,
-            "stopped_early": result.stopped_early,
-            "holdout_psnr_db": result.final_holdout_psnr,
-            "views_used": result.views_used,
-            "resolution": list(result.resolution),
-            "seconds_training": result.seconds,
-            # (step, seconds since the start, PSNR on the held-back pixels) per evaluation window
-            "history": [[c.step, round(c.seconds, 3), round(c.holdout_psnr, 3)] for c in result.history],
-            # step -> seconds of the stage until that checkpoint (the setup before the training included)
-            "checkpoints": {str(s): round(setup + t, 3) for s, t in sorted(result.snapshot_seconds.items())},
-        }
+        return BaselineResult(
+            splats=len(result.splats),
+            initial=result.initial_gaussians,
+            downscale=downscale,
+            cap=opts.training.strategy.cap,
+            iterations=result.iterations,
+            stopped_early=result.stopped_early,
+            holdout_psnr_db=result.final_holdout_psnr,
+            views_used=result.views_used,
+            resolution=result.resolution,
+            seconds_training=result.seconds,
+            history=tuple((c.step, round(c.seconds, 3), round(c.holdout_psnr, 3)) for c in result.history),
+            checkpoints={str(s): round(setup + t, 3) for s, t in sorted(result.snapshot_seconds.items())},
+        )
 
-    def summary(self, counts: dict[str, Any]) -> str:
+    def summary(self, result: BaselineResult) -> str:
         return (
-            f"{counts['splats']} splats after {counts['iterations']} steps, "
-            f"PSNR {counts['holdout_psnr_db']:.2f} dB on held-back pixels"
+            f"{result.splats} splats after {result.iterations} steps, "
+            f"PSNR {result.holdout_psnr_db:.2f} dB on held-back pixels"
         )

@@ -9,20 +9,50 @@ classify/figures/importances.png.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from classify.options import ClassifyOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import (
+    MEMORY_LIMIT_HELP,
+    CliOption,
+    ReportSection,
+    Stage,
+    StageContext,
+    StageResult,
+    omitted_if_none,
+)
 
 _IMPORTANCE_BARS = 20  # classify.figures.importances_png draws the top 20 features
+
+
+@dataclass(frozen=True)
+class ClassifyResult(StageResult):
+    """What the classify stage made: ``points`` classified, ``needs_splats`` of them, the ``model`` (its path, or
+    the no-model fallback's name), the points ``per_class`` (class name → count), the point spacing (m), the
+    seconds it took and its ``figures`` (paths relative to the project). Streamed (``memory_limit_mb``, MiB): its
+    peak resident memory (MiB), the ``cells`` it ran in and how often one was ``regrown``."""
+
+    points: int = 0
+    needs_splats: int = 0
+    model: str = ""
+    per_class: dict[str, int] = field(default_factory=dict)
+    spacing_m: float = 0.0
+    seconds: float = 0.0
+    figures: tuple[str, ...] = ()
+    memory_limit_mb: float | None = omitted_if_none()
+    peak_rss_mb: float | None = omitted_if_none()
+    cells: int | None = omitted_if_none()
+    regrown: int | None = omitted_if_none()
 
 
 class ClassifyStage(Stage):
     name = "classify"
     Options = ClassifyOptions
+    Result = ClassifyResult
     title = "classify the dense cloud"
     command_help = (
         "Classify the dense cloud into PROJECT/classify/points.ply (classification, probability, needs_splats)."
@@ -67,7 +97,7 @@ class ClassifyStage(Stage):
         model = resolve_model_path(ctx.options(self).model)
         return model is not None and model.is_file()
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> ClassifyResult:
         from classify.run import classify_dense, write_classified, write_classify_figures
         from core.io.json_io import write_json_atomic
 
@@ -82,32 +112,43 @@ class ClassifyStage(Stage):
         write_json_atomic(ctx.layout.classify_report, report)
         importances = ctx.layout.importances_figure if self._has_model(ctx) else None
         figures = write_classify_figures(result, ctx.layout.classes_figure, importances)
-        counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
-        counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
-        return counts
+        return _result(report, figures, ctx.layout.root)
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        share = counts["needs_splats"] / max(counts["points"], 1)
-        text = f"{counts['points']} points, {share:.1%} need splats ({counts['model']})"
-        if counts.get("memory_limit_mb") is not None:
-            text += f", classified in {counts['cells']} cells (peak {counts['peak_rss_mb']:.0f} MiB)"
+    def summary(self, result: ClassifyResult) -> str:
+        share = result.needs_splats / max(result.points, 1)
+        text = f"{result.points} points, {share:.1%} need splats ({result.model})"
+        if result.memory_limit_mb is not None:
+            text += f", classified in {result.cells} cells (peak {result.peak_rss_mb or 0:.0f} MiB)"
         return text
 
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        if not isinstance(counts.get("points"), int) or counts["points"] <= 0:
+    def report_section(self, result: ClassifyResult) -> ReportSection | None:
+        if result.points <= 0:
             return None
-        per = ", ".join(f"{k} {v:,}" for k, v in (counts.get("per_class") or {}).items())
-        line = (f"{counts['points']:,} points, {counts.get('needs_splats', 0) / counts['points']:.1%} need splats "
-                f"({per}); model {Path(str(counts.get('model', '?'))).name}.")  # fmt: skip
+        per = ", ".join(f"{k} {v:,}" for k, v in result.per_class.items())
+        line = (f"{result.points:,} points, {result.needs_splats / result.points:.1%} need splats "
+                f"({per}); model {Path(result.model).name or '?'}.")  # fmt: skip
         captions = {"classes": "the dense cloud coloured by class (top and side views)",
                     "importances": "the classifier's feature importances"}  # fmt: skip
-        figures = tuple(
-            (str(f), captions.get(Path(str(f)).stem, Path(str(f)).stem)) for f in counts.get("figures") or []
-        )
+        figures = tuple((f, captions.get(Path(f).stem, Path(f).stem)) for f in result.figures)
         return ReportSection("Classification and region masks", (line,), figures)
 
 
-def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> dict[str, Any]:
+def _result(report: dict[str, Any], figures: list[Path], root: Path, **streamed: Any) -> ClassifyResult:
+    """The stage's result from classify/report.json's content (:meth:`classify.run.ClassifiedCloud.report`), the
+    figures written (relative to the project ``root``) and, when streamed, its memory counts."""
+    return ClassifyResult(
+        points=report["points"],
+        needs_splats=report["needs_splats"],
+        model=report["model"],
+        per_class=report["per_class"],
+        spacing_m=report["spacing_m"],
+        seconds=report["seconds"],
+        figures=tuple(str(f.relative_to(root)) for f in figures),
+        **streamed,
+    )
+
+
+def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> ClassifyResult:
     """The fused cloud classified cell by cell (:func:`classify.stream.classify_stream`) into the same
     classify/points.ply as the in-memory path, with the same report and figures; temporary cell files in
     classify/."""
@@ -166,8 +207,5 @@ def _run_streamed(ctx: StageContext, opts: ClassifyOptions, has_model: bool) -> 
             ctx.layout.importances_figure, importances_png(list(importances), list(importances.values()))
         )
         figures.append(ctx.layout.importances_figure)
-    counts = {k: report[k] for k in ("points", "needs_splats", "model", "per_class", "spacing_m", "seconds")}
-    counts["figures"] = [str(f.relative_to(ctx.layout.root)) for f in figures]
-    counts.update(memory_limit_mb=opts.memory_limit_mb, peak_rss_mb=memory.peak_mb, cells=result.cells,
-                  regrown=result.regrown)  # fmt: skip
-    return counts
+    return _result(report, figures, ctx.layout.root, memory_limit_mb=opts.memory_limit_mb,
+                   peak_rss_mb=memory.peak_mb, cells=result.cells, regrown=result.regrown)  # fmt: skip

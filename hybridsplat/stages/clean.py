@@ -2,18 +2,33 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from fusion.clean_options import CleanOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult
+
+
+@dataclass(frozen=True)
+class CleanResult(StageResult):
+    """What the clean stage did (:class:`fusion.clean.CleanCounts`): of ``input`` trained splats, how many it
+    removed outside every training mask, below the opacity, of extreme scale and in isolated clusters, and how
+    many it ``kept``."""
+
+    input: int = 0
+    outside_masks: int = 0
+    low_opacity: int = 0
+    extreme_scale: int = 0
+    isolated: int = 0
+    kept: int = 0
 
 
 class CleanStage(Stage):
     name = "clean"
     Options = CleanOptions
+    Result = CleanResult
     title = "splat cleaning"
     command = "clean"
     command_help = (
@@ -39,7 +54,7 @@ class CleanStage(Stage):
     def needs(self, ctx: StageContext) -> str | None:
         return None if ctx.layout.trained_splats.is_file() else "no trained splats (stage 'train' was skipped)"
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> CleanResult:
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
         from hybridsplat.project_io import read_project_model, read_region_masks
 
@@ -50,7 +65,7 @@ class CleanStage(Stage):
 
         result = clean_splats(splats, cameras, masks, ctx.options(self))
         write_gaussian_ply(ctx.layout.cleaned_splats, result.splats)
-        return vars(result.counts)
+        return CleanResult(**vars(result.counts))
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        return f"{counts['kept']} of {counts['input']} splats kept"
+    def summary(self, result: CleanResult) -> str:
+        return f"{result.kept} of {result.input} splats kept"

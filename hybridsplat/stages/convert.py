@@ -6,11 +6,10 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from fusion.convert_options import DEFAULT_MODE, ConvertMode, ConvertOptions
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, Stage, StageContext
+from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, Stage, StageContext, StageResult, omitted_if_none
 
 STREAM_TEMP_BYTES = 56
 """Temporary bytes a point of the streamed conversion takes in export/ (cells and halos 32, results 24)."""
@@ -35,9 +34,26 @@ class ConvertStageOptions:
             plan_memory(self.memory_limit_mb, self.conversion.k_neighbors)  # a ConfigError naming the value
 
 
+@dataclass(frozen=True)
+class ConvertResult(StageResult):
+    """What the convert stage made: ``gaussians`` (one per fused point), the mean nearest-neighbour and the median
+    spacing of the points (m) and the conversion's ``warnings`` (one line each). Streamed (``memory_limit_mb``,
+    MiB): its peak resident memory (MiB), the ``cells`` it ran in and the points converted by the fallback."""
+
+    gaussians: int = 0
+    mean_nn_spacing_m: float = 0.0
+    median_spacing_m: float = 0.0
+    warnings: tuple[str, ...] = ()
+    memory_limit_mb: float | None = omitted_if_none()
+    peak_rss_mb: float | None = omitted_if_none()
+    cells: int | None = omitted_if_none()
+    fallback_points: int | None = omitted_if_none()
+
+
 class ConvertStage(Stage):
     name = "convert"
     Options = ConvertStageOptions
+    Result = ConvertResult
     title = "MVS points to Gaussians"
     run_options = (
         CliOption("mode", "--convert-mode", help="MVS-to-Gaussian conversion: adaptive | paper."),
@@ -63,7 +79,7 @@ class ConvertStage(Stage):
         streamed = STREAM_TEMP_BYTES * fused.count if ctx.options(self).memory_limit_mb is not None else 0
         return gaussians + streamed + sizes.SIDECAR_BYTES + sizes.LOG_BYTES
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> ConvertResult:
         opts: ConvertStageOptions = ctx.options(self)
         if opts.memory_limit_mb is not None:
             return _run_streamed(ctx, opts)
@@ -78,21 +94,26 @@ class ConvertStage(Stage):
             result = convert_points(cloud, opts.mode, opts.conversion)
         write_gaussian_ply(ctx.layout.mvs_gaussians, result.gaussians, extra_fields=True)
         ctx.progress("points", len(cloud), len(cloud))
-        return {
-            "gaussians": len(result.gaussians),
-            "mean_nn_spacing_m": result.stats.mean_nn_spacing,
-            "median_spacing_m": result.stats.median_spacing,
-            "warnings": [" ".join(str(w.message).split()) for w in caught],
-        }
+        return ConvertResult(
+            gaussians=len(result.gaussians),
+            mean_nn_spacing_m=result.stats.mean_nn_spacing,
+            median_spacing_m=result.stats.median_spacing,
+            warnings=_lines(caught),
+        )
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        text = f"{counts['gaussians']} Gaussians, median spacing {counts['median_spacing_m']:.3g} m"
-        if counts.get("memory_limit_mb") is not None:
-            text += f", streamed in {counts['cells']} cells (peak {counts['peak_rss_mb']:.0f} MiB)"
+    def summary(self, result: ConvertResult) -> str:
+        text = f"{result.gaussians} Gaussians, median spacing {result.median_spacing_m:.3g} m"
+        if result.memory_limit_mb is not None:
+            text += f", streamed in {result.cells} cells (peak {result.peak_rss_mb or 0:.0f} MiB)"
         return text
 
 
-def _run_streamed(ctx: StageContext, opts: ConvertStageOptions) -> dict[str, Any]:
+def _lines(caught: list[warnings.WarningMessage]) -> tuple[str, ...]:
+    """The warnings' messages, one line each."""
+    return tuple(" ".join(str(w.message).split()) for w in caught)
+
+
+def _run_streamed(ctx: StageContext, opts: ConvertStageOptions) -> ConvertResult:
     """The fused cloud converted chunk by chunk (:func:`fusion.convert_stream.convert_stream`) into the same
     export/mvs_gaussians.ply as the in-memory path; temporary cell files in export/."""
     from fusion.convert_stream import StreamOptions, convert_stream
@@ -110,13 +131,13 @@ def _run_streamed(ctx: StageContext, opts: ConvertStageOptions) -> dict[str, Any
             source, opts.mode, opts.conversion, stream, ply_path=ctx.layout.mvs_gaussians, extra_fields=True
         )
     ctx.progress("points", result.num_points, result.num_points)
-    return {
-        "gaussians": result.num_points,
-        "mean_nn_spacing_m": result.stats.mean_nn_spacing,
-        "median_spacing_m": result.stats.median_spacing,
-        "warnings": [" ".join(str(w.message).split()) for w in caught],
-        "memory_limit_mb": opts.memory_limit_mb,
-        "peak_rss_mb": memory.peak_mb,
-        "cells": result.cells,
-        "fallback_points": result.fallback_points,
-    }
+    return ConvertResult(
+        gaussians=result.num_points,
+        mean_nn_spacing_m=result.stats.mean_nn_spacing,
+        median_spacing_m=result.stats.median_spacing,
+        warnings=_lines(caught),
+        memory_limit_mb=opts.memory_limit_mb,
+        peak_rss_mb=memory.peak_mb,
+        cells=result.cells,
+        fallback_points=result.fallback_points,
+    )

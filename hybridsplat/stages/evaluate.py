@@ -7,8 +7,9 @@ masks: the true non-collaborative materials of a data_synth scene.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields, replace
+from os import PathLike
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +17,17 @@ import numpy as np
 
 from core.errors import ConfigError
 from hybridsplat.project_io import model_origin, read_model_at, unrefined_layers
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import (
+    MEMORY_LIMIT_HELP,
+    CliOption,
+    ReportSection,
+    Stage,
+    StageContext,
+    StageResult,
+    omitted_if_none,
+)
 
 _PREVIEW_WIDTH = 800  # eval.plots.preview_image: 800 px wide, at most 4 times as high
 _HISTOGRAM_BINS = 50  # eval.c2c.histogram
@@ -143,9 +153,62 @@ def _filtered_mvs(points_path: Path, gaussians_path: Path, converted_path: Path)
     return points.subset(is_mvs), _converted_survey(survey, converted_path, gaussians_path)
 
 
+@dataclass(frozen=True)
+class ProductHeadline(TypedRecord):
+    """A product's headline figures: its C2C mean distance to the reference (m), its whole-image PSNR (dB) and
+    LPIPS on the held-out views; None where not measured."""
+
+    c2c_mean_m: float | None = omitted_if_none()
+    psnr: float | None = omitted_if_none()
+    lpips: float | None = omitted_if_none()
+
+
+_HEADLINE_KEYS = tuple(f.name for f in fields(ProductHeadline))
+
+
+@dataclass(frozen=True)
+class EvalResult(StageResult):
+    """What the eval stage measured: whether LPIPS was (``lpips``: its weights were found), the held-out ``views``
+    and the ``renderer`` that rendered them (cpu | gsplat | reference; None without held-out views), each product's
+    headline figures (``products``: product name → :class:`ProductHeadline`), the products ``reused`` from the
+    cache, the materials scored (``per_material``), and with ``memory_limit_mb`` (MiB) the run's peak resident
+    memory (MiB).
+
+    Its JSON keeps the manifest's flat form: a product's headline figures as ``<product>_c2c_mean_m``,
+    ``<product>_psnr`` and ``<product>_lpips``."""
+
+    lpips: bool = False
+    views: int = 0
+    renderer: str | None = omitted_if_none()
+    products: dict[str, ProductHeadline] = field(default_factory=dict)
+    reused: int | None = omitted_if_none()
+    per_material: int | None = omitted_if_none()
+    memory_limit_mb: float | None = omitted_if_none()
+    peak_rss_mb: float | None = omitted_if_none()
+
+    def as_dict(self) -> dict[str, Any]:
+        data = super().as_dict()
+        for name, figures in data.pop("products").items():
+            data.update({f"{name}_{key}": value for key, value in figures.items()})
+        return data
+
+    @classmethod
+    def from_json(cls, data: Any, where: str | PathLike[str] | None = None, key: str = "") -> EvalResult:
+        if not isinstance(data, Mapping):
+            return super().from_json(data, where, key)
+        flat, products = dict(data), {}
+        for name in list(flat):
+            for figure in _HEADLINE_KEYS:
+                if name.endswith("_" + figure) and len(name) > len(figure) + 1:
+                    products.setdefault(name[: -len(figure) - 1], {})[figure] = flat.pop(name)
+                    break
+        return super().from_json({**flat, "products": products}, where, key)
+
+
 class EvalStage(Stage):
     name = "eval"
     Options = EvalStageOptions
+    Result = EvalResult
     title = "evaluation against ground truth"
     run_options = (
         CliOption("reference", "--lidar", is_path=True,
@@ -224,7 +287,7 @@ class EvalStage(Stage):
             return "nothing to compare with: no reference cloud and no held-out photos (see --holdout)"
         return None
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> EvalResult:
         """Every product measured (:meth:`_measure`). With ``memory_limit_mb`` and a reference cloud, the reference
         is read in chunks and spooled once into eval/ (:func:`eval.geometry_stream.spool_reference`, removed after)
         for every product's streamed C2C and per-material scores, and the limit and peak memory are recorded."""
@@ -244,15 +307,15 @@ class EvalStage(Stage):
         with PeakMemory() as memory:
             with tempfile.TemporaryDirectory(prefix="hybridsplat_eval_reference_", dir=ctx.layout.eval_dir) as tmp:
                 source = reference_source(reference, plan.chunk)
-                counts = self._measure(ctx, spool_reference(source, tmp, plan.chunk))
-        return {**counts, "memory_limit_mb": opts.memory_limit_mb, "peak_rss_mb": memory.peak_mb}
+                result = self._measure(ctx, spool_reference(source, tmp, plan.chunk))
+        return replace(result, memory_limit_mb=opts.memory_limit_mb, peak_rss_mb=memory.peak_mb)
 
-    def _measure(self, ctx: StageContext, spooled: Any) -> dict[str, Any]:
+    def _measure(self, ctx: StageContext, spooled: Any) -> EvalResult:
         """The stage's work; ``spooled``: the reference as chunks (a :class:`core.io.point_stream.PointSource`) with
         a memory limit, None without."""
         from core.io.json_io import write_json_atomic
         from eval.cache import files_in
-        from eval.evaluate import ImageInputs, evaluate_product
+        from eval.evaluate import evaluate_product
         from eval.geometry import GeometryOptions
         from eval.metrics_io import read_metrics, record_product
 
@@ -260,21 +323,16 @@ class EvalStage(Stage):
         layout, spec = ctx.layout, ctx.source.spec
         reference = self._reference(ctx)
         tau = opts.tau_m if opts.tau_m is not None else (opts.tau_gsd * spec.gsd_m if spec.gsd_m else None)
-        images = None
-        held_out = self._held_out(ctx)
-        if held_out is not None:
-            cameras, _ = read_model_at(held_out.model, held_out.origin)
-            views = [v for v in cameras if held_out.names is None or v.name in held_out.names]
-            masks = self._truth_masks(ctx) if held_out.names is None else None
-            images = ImageInputs(cameras, views, held_out.photos, masks)
+        images = self._image_inputs(ctx)
         lpips_model = _lpips_or_none(opts.lpips_weights or None)
         products = self._products(ctx)
         cache = self._cache(ctx, reference, tau, images, lpips_model) if opts.cache else None
-        counts: dict[str, Any] = {"lpips": lpips_model is not None, "views": len(images.views) if images else 0}
+        renderer = None
         if images is not None:
             from fusion.render.api import resolve_backend
 
-            counts["renderer"] = resolve_backend("auto").value  # what rendered the held-out views (the report says)
+            renderer = resolve_backend("auto").value  # what rendered the held-out views (the report says)
+        headlines: dict[str, ProductHeadline] = {}
         measured: dict[str, tuple[Any, Any]] = {}
         stored_tables: dict[str, Any] = {}
         keys: dict[str, str] = {}
@@ -288,10 +346,9 @@ class EvalStage(Stage):
                 keys[name] = cache.key(name, [ctx.content_hash(f) for f in source.files])
                 stored = cache.restore(keys[name], layout.eval_dir)
                 if stored is not None:
-                    record_product(layout.metrics_json, name, stored["metrics"])
-                    stored_tables[name] = stored["per_material"]  # {"rows": ..., "sigma_calibration": ...}
-                    counts["reused"] = counts.get("reused", 0) + 1
-                    _count(counts, name, stored["metrics"])
+                    record_product(layout.metrics_json, name, stored.metrics)
+                    stored_tables[name] = stored.per_material  # {"rows": ..., "sigma_calibration": ...}
+                    headlines[name] = _headline(stored.metrics)
                     continue
             before = files_in(layout.eval_dir)
             cloud, gaussians = source.load()
@@ -308,14 +365,13 @@ class EvalStage(Stage):
             after = files_in(layout.eval_dir)
             written[name] = [r for r, t in after.items() if before.get(r) != t and r != layout.metrics_json.name]
             measured[name] = (cloud, gaussians)
-            _count(counts, name, result.as_dict())
+            headlines[name] = _headline(result.as_dict())
         ctx.progress("products", len(products), len(products))
         per_material = self._per_material(
             ctx, measured, stored_tables, spooled if spooled is not None else reference, tau, images
         )
         if per_material is not None:
             write_json_atomic(layout.per_material_json, per_material)
-            counts["per_material"] = len(per_material["materials"])
         if cache is not None:
             entries = read_metrics(layout.metrics_json)["products"]
             tables = per_material["products"] if per_material is not None else {}
@@ -323,7 +379,27 @@ class EvalStage(Stage):
             for name in measured:
                 stored_entry = {"rows": tables.get(name), "sigma_calibration": calibrations.get(name)}
                 cache.store(keys[name], layout.eval_dir, written[name], entries[name], stored_entry)
-        return counts
+        return EvalResult(
+            lpips=lpips_model is not None,
+            views=len(images.views) if images else 0,
+            renderer=renderer,
+            products=headlines,
+            reused=len(stored_tables) or None,  # the products restored from the cache
+            per_material=len(per_material["materials"]) if per_material is not None else None,
+        )
+
+    def _image_inputs(self, ctx: StageContext) -> Any:
+        """The held-out views to render (an :class:`eval.evaluate.ImageInputs`), None without any: their cameras,
+        photos and (a data_synth scene's own test views) the masks of their true non-collaborative materials."""
+        from eval.evaluate import ImageInputs
+
+        held_out = self._held_out(ctx)
+        if held_out is None:
+            return None
+        cameras, _ = read_model_at(held_out.model, held_out.origin)
+        views = [v for v in cameras if held_out.names is None or v.name in held_out.names]
+        masks = self._truth_masks(ctx) if held_out.names is None else None
+        return ImageInputs(cameras, views, held_out.photos, masks)
 
     def _cache(self, ctx: StageContext, reference: Path | None, tau: float | None, images: Any, lpips: Any) -> Any:
         """The project's store of measurements, keyed by what every product's measurement depends on."""
@@ -461,31 +537,31 @@ class EvalStage(Stage):
             write_image(out / label_path.name, mask)
         return out
 
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
+    def report_section(self, result: EvalResult) -> ReportSection | None:
         """With ``memory_limit_mb``: how the geometry was measured, the limit and the peak memory; else None."""
-        if counts.get("memory_limit_mb") is None:
+        if result.memory_limit_mb is None:
             return None
         line = (
             f"The C2C distances and the per-material scores read the reference cloud in chunks and compared it cell "
-            f"by cell within --memory-limit {counts['memory_limit_mb']:g} MiB (peak resident memory of the run "
-            f"{counts['peak_rss_mb']:.0f} MiB; the products themselves are held in memory). The figures are those of "
-            "the in-memory evaluation; the reverse mean, std and RMSE agree to float rounding (sums by chunks)."
+            f"by cell within --memory-limit {result.memory_limit_mb:g} MiB (peak resident memory of the run "
+            f"{result.peak_rss_mb or 0:.0f} MiB; the products themselves are held in memory). The figures are those "
+            "of the in-memory evaluation; the reverse mean, std and RMSE agree to float rounding (sums by chunks)."
         )
         return ReportSection("Evaluation with bounded memory", (line,))
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        parts = [f"{counts['reused']} unchanged product(s) reused"] if counts.get("reused") else []
-        if counts.get("memory_limit_mb") is not None:
-            parts.append(
-                f"C2C streamed within {counts['memory_limit_mb']:g} MiB (peak {counts['peak_rss_mb']:.0f} MiB)"
-            )
+    def summary(self, result: EvalResult) -> str:
+        parts = [f"{result.reused} unchanged product(s) reused"] if result.reused else []
+        if result.memory_limit_mb is not None:
+            parts.append(f"C2C streamed within {result.memory_limit_mb:g} MiB (peak {result.peak_rss_mb or 0:.0f} MiB)")
         for name in ("mvs", "baseline", "merged"):
-            if f"{name}_c2c_mean_m" in counts:
-                parts.append(f"{name} C2C mean {counts[f'{name}_c2c_mean_m']:.3g} m")
-            if counts.get(f"{name}_psnr") is not None:
-                lpips = counts.get(f"{name}_lpips")
-                parts.append(f"{name} PSNR {counts[f'{name}_psnr']:.2f} dB"
-                             + (f" LPIPS {lpips:.3f}" if lpips is not None else ""))  # fmt: skip
+            headline = result.products.get(name)
+            if headline is None:
+                continue
+            if headline.c2c_mean_m is not None:
+                parts.append(f"{name} C2C mean {headline.c2c_mean_m:.3g} m")
+            if headline.psnr is not None:
+                lpips = f" LPIPS {headline.lpips:.3f}" if headline.lpips is not None else ""
+                parts.append(f"{name} PSNR {headline.psnr:.2f} dB{lpips}")
         return ", ".join(parts)
 
 
@@ -585,15 +661,12 @@ def _product_bytes(cloud: sizes.PlyVertices, renders: bool, geometry: bool, view
     return total
 
 
-def _count(counts: dict[str, Any], name: str, entry: dict[str, Any]) -> None:
-    """The stage's headline figures of one product (C2C mean, whole-image PSNR and LPIPS) from its metrics entry."""
+def _headline(entry: dict[str, Any]) -> ProductHeadline:
+    """The stage's headline figures of one product (C2C mean, whole-image PSNR and LPIPS) from its metrics entry
+    (eval/metrics.json's, :mod:`eval.metrics_io`)."""
     c2c, images = entry.get("c2c"), entry.get("images")
-    if c2c is not None:
-        counts[f"{name}_c2c_mean_m"] = c2c.get("mean")
-    if images is not None:
-        full = images.get("full") or {}
-        counts[f"{name}_psnr"] = full.get("psnr")
-        counts[f"{name}_lpips"] = full.get("lpips")
+    full = (images.get("full") or {}) if images is not None else {}
+    return ProductHeadline(c2c.get("mean") if c2c is not None else None, full.get("psnr"), full.get("lpips"))
 
 
 def _mesh_points(path: Path, tau: float, max_points: int = 2_000_000) -> np.ndarray | None:

@@ -9,20 +9,36 @@ non-collaborative region or hole says that training is not needed.
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from classify.mask_options import MaskOptions
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext, StageResult
 
 HOLE_AREA_HELP = ("Where MVS holes are looked for: hull_below | hull | below | enclosed | region (the rays that "
                   "meet the survey region; the others are background).")  # fmt: skip
 
 
+@dataclass(frozen=True)
+class MasksResult(StageResult):
+    """What the masks stage made: masks of ``photos`` training photos, ``empty`` of them empty, their mean coverage
+    (the share of a photo's pixels its mask covers, 0..1), whether any needs training (``training_needed``) and
+    its ``figures`` (paths relative to the project; none when every mask is empty)."""
+
+    photos: int = 0
+    empty: int = 0
+    mean_coverage: float = 0.0
+    training_needed: bool = True
+    figures: tuple[str, ...] = ()
+
+
 class MasksStage(Stage):
     name = "masks"
     Options = MaskOptions
+    Result = MasksResult
     title = "region masks per photo"
     command = "masks"
     command_help = "Region masks per registered photo: non-collaborative points, MVS holes and user masks, united."
@@ -66,7 +82,7 @@ class MasksStage(Stage):
         record = 4 * sizes.KIB + 512 * n
         return n * sizes.png_bytes(width, height, 1) + record + _figure_bytes(n, width, height) + sizes.LOG_BYTES
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> MasksResult:
         from classify.run import project_masks
         from core.io.atomic import remove_output
         from core.io.json_io import write_json_atomic
@@ -89,29 +105,30 @@ class MasksStage(Stage):
         write_json_atomic(ctx.layout.record(self.name), result)
         if not result["figure"]:
             remove_output(ctx.layout.masks_figure)  # a figure of an earlier run would be stale
-        counts = {k: result[k] for k in ("photos", "empty", "mean_coverage", "training_needed")}
-        counts["figures"] = [str(ctx.layout.masks_figure.relative_to(ctx.layout.root))] if result["figure"] else []
-        return counts
-
-    def summary(self, counts: dict[str, Any]) -> str:
-        if not counts["training_needed"]:
-            return f"{counts['photos']} masks, all empty: no splat training needed"
-        return f"{counts['photos']} masks, mean coverage {counts['mean_coverage']:.1%}, {counts['empty']} empty"
-
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        if not isinstance(counts.get("photos"), int):
-            return None
-        if counts.get("training_needed") is False:
-            line = f"{counts['photos']} masks, all empty: no splat training is needed."
-        else:
-            cov = counts.get("mean_coverage")
-            share = f"{cov:.1%}" if isinstance(cov, (int, float)) else "n/a"
-            line = (f"{counts['photos']} masks, mean coverage {share} of the photo, "
-                    f"{counts.get('empty', 0)} empty (skipped by training).")  # fmt: skip
-        caption = "photos with their region masks (red: splats are trained there)"
-        return ReportSection(
-            "Classification and region masks", (line,), tuple((str(f), caption) for f in counts.get("figures") or [])
+        figures = (str(ctx.layout.masks_figure.relative_to(ctx.layout.root)),) if result["figure"] else ()
+        return MasksResult(
+            photos=result["photos"],
+            empty=result["empty"],
+            mean_coverage=result["mean_coverage"],
+            training_needed=result["training_needed"],
+            figures=figures,
         )
+
+    def summary(self, result: MasksResult) -> str:
+        if not result.training_needed:
+            return f"{result.photos} masks, all empty: no splat training needed"
+        return f"{result.photos} masks, mean coverage {result.mean_coverage:.1%}, {result.empty} empty"
+
+    def report_section(self, result: MasksResult) -> ReportSection | None:
+        if not result.training_needed:
+            line = f"{result.photos} masks, all empty: no splat training is needed."
+        else:
+            cov = result.mean_coverage
+            share = f"{cov:.1%}" if math.isfinite(cov) else "n/a"
+            line = (f"{result.photos} masks, mean coverage {share} of the photo, "
+                    f"{result.empty} empty (skipped by training).")  # fmt: skip
+        caption = "photos with their region masks (red: splats are trained there)"
+        return ReportSection("Classification and region masks", (line,), tuple((f, caption) for f in result.figures))
 
 
 def _figure_bytes(photos: int, width: int, height: int) -> int:

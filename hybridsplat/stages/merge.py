@@ -13,19 +13,29 @@ are found tile by tile (:mod:`hybridsplat.tile_surface`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fusion.merge_options import MergeOptions
 from hybridsplat.disk_space import tree_bytes
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import MEMORY_LIMIT_HELP, CliOption, ReportSection, Stage, StageContext
+from hybridsplat.stages.base import (
+    MEMORY_LIMIT_HELP,
+    CliOption,
+    ReportSection,
+    Stage,
+    StageContext,
+    StageResult,
+    omitted_if_none,
+)
 
 
-def _survey_exports(ctx: StageContext, points: Any, crs: str | None) -> dict[str, Any]:
+def _survey_exports(ctx: StageContext, points: Any, crs: str | None) -> int | None:
     """export/merged_points.ply and .las of the survey points (a GaussianSet): with a CRS, the LAS of every point
     with the CRS as WKT and the PLY's sidecar naming it; without, both through :func:`fusion.export.export_points`.
-    With ``memory_limit_mb``, written in chunks (the same bytes) and the limit recorded."""
+    With ``memory_limit_mb``, written in chunks (the same bytes): the points a chunk holds (None without)."""
     from core.io.origin import write_origin
     from fusion.export import export_points
     from fusion.export_stream import export_chunk_points, point_chunks, write_las_points
@@ -44,12 +54,64 @@ def _survey_exports(ctx: StageContext, points: Any, crs: str | None) -> dict[str
         write_origin(layout.merged_points_ply, points.origin, crs)
     else:
         export_points(layout.merged_points_las, points, chunk=chunk)
-    return {} if chunk is None else {"memory_limit_mb": limit, "export_chunk_points": chunk}
+    return chunk
+
+
+@dataclass(frozen=True)
+class SplatSurfaceCounts(TypedRecord):
+    """The splat-surface points of the merge (``splat_surface``): rendered in ``views`` training views, kept where
+    ``min_agreeing`` other views agree; the pixels per outcome (``pixels``, by the outcomes of
+    :class:`fusion.splat_surface.SplatSurfacePoints`), the points ``found``; of the survey-point product (the counts
+    of :func:`fusion.survey.with_splat_surface`) the splat centres dropped for them, those left out as unsupported
+    or near an MVS point and those ``kept``; the kept ones per predicted class (class name → count) and their
+    median σ (m; None without any)."""
+
+    views: int = 0
+    min_agreeing: int = 0
+    pixels: dict[str, int] = field(default_factory=dict)
+    found: int = 0
+    splat_centres_dropped: int = 0
+    unsupported: int = 0
+    near_mvs: int = 0
+    kept: int = 0
+    per_class: dict[str, int] = field(default_factory=dict)
+    sigma_median_m: float | None = None
+
+
+@dataclass(frozen=True)
+class MergeResult(StageResult):
+    """What the merge stage made: the viewer product's Gaussians (``merged``; ``written`` to export/merged.ply) per
+    layer (``mvs`` survey, ``splats`` fill, ``background``), the survey points, and whether the survey, fill
+    (hybrid only) and background layers came with their appearance refined.
+
+    Hybrid only (:func:`fusion.survey.hybrid_products`; each a :class:`fusion.clean.SurveyPointCounts` by its field
+    names): the survey-point selection of the splats (``point_splats``), the surface test of the splats
+    (``surface_splats``) and the selection of the ``needs_splats`` MVS points (``point_needs_mvs``), and the
+    needs-splats MVS points kept per class (``point_needs_mvs_classes``); with ``splat_surface``, its counts. With
+    ``memory_limit_mb`` (MiB), the points a chunk of the survey-point export holds."""
+
+    merged: int = 0
+    written: int = 0
+    mvs: int = 0
+    splats: int = 0
+    background: int = 0
+    points: int = 0
+    survey_refined: bool = False
+    point_splats: dict[str, int] | None = omitted_if_none()
+    surface_splats: dict[str, int] | None = omitted_if_none()
+    point_needs_mvs: dict[str, int] | None = omitted_if_none()
+    point_needs_mvs_classes: dict[str, int] | None = omitted_if_none()
+    splat_surface: SplatSurfaceCounts | None = omitted_if_none()
+    fill_refined: bool | None = omitted_if_none()
+    background_refined: bool = False
+    memory_limit_mb: float | None = omitted_if_none()
+    export_chunk_points: int | None = omitted_if_none()
 
 
 class MergeStage(Stage):
     name = "merge"
     Options = MergeOptions
+    Result = MergeResult
     title = "merge and export"
     command_options = (
         CliOption(
@@ -157,7 +219,7 @@ class MergeStage(Stage):
         width, height = sizes.largest(cameras)
         return sizes.model_count(model, "images") * width * height // (1 + opts.splat_surface_points.min_agreeing)
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> MergeResult:
         from core.gaussians import GaussianSet
         from core.io.gaussian_ply import read_gaussian_ply
         from fusion.export import ExportOptions, export_gaussian_ply
@@ -166,11 +228,10 @@ class MergeStage(Stage):
         layout = ctx.layout
         mvs = read_gaussian_ply(layout.mvs_gaussians)
         refined = _refined_rows(self._survey_file(ctx), mvs, "the converted MVS Gaussians'")
-        extra: dict[str, Any] = {"survey_refined": refined is not None}
+        hybrid: dict[str, Any] = {}  # the hybrid's fields of the result
         if self._hybrid(ctx):
-            products = self._hybrid_products(ctx, mvs, refined)
+            products, hybrid = self._hybrid_products(ctx, mvs, refined)
             gaussians, points = products.gaussians, products.points
-            extra.update(products.counts)
         else:
             result = merge_gaussians(None, mvs)
             gaussians, points = result.gaussians, result.gaussians
@@ -181,7 +242,6 @@ class MergeStage(Stage):
         if refined_background is not None and refined_background.is_file():
             background_file = refined_background
         background = _background_layer(background_file, gaussians)
-        extra["background_refined"] = background_file == ctx.layout.refined_background_splats
         if background is not None:  # the viewer product only: the survey points never hold it
             gaussians = GaussianSet.concatenate([gaussians, background])
         gaussians, layers = _visible_layers(gaussians)
@@ -192,14 +252,27 @@ class MergeStage(Stage):
 
         # the viewer product's sidecar names its layers (and the CRS the user gave)
         write_origin(layout.merged_ply, gaussians.origin, crs, layers={k: int(v) for k, v in LAYERS.items()})
-        extra.update(_survey_exports(ctx, points, crs))
+        chunk = _survey_exports(ctx, points, crs)
         _viewer_exports(ctx, gaussians, points, crs)
-        return {"merged": len(gaussians), "written": written.num_written, **layers, "points": len(points),
-                **extra}  # fmt: skip
+        return MergeResult(
+            merged=len(gaussians),
+            written=written.num_written,
+            mvs=layers["mvs"],
+            splats=layers["splats"],
+            background=layers["background"],
+            points=len(points),
+            survey_refined=refined is not None,
+            **hybrid,
+            background_refined=background_file == ctx.layout.refined_background_splats,
+            memory_limit_mb=ctx.options(self).memory_limit_mb if chunk is not None else None,
+            export_chunk_points=chunk,
+        )
 
-    def _hybrid_products(self, ctx: StageContext, mvs: Any, refined: Any) -> Any:
+    def _hybrid_products(self, ctx: StageContext, mvs: Any, refined: Any) -> tuple[Any, dict[str, Any]]:
         """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply; with ``refined`` (the
-        survey layer's refined appearance, one per MVS Gaussian) the viewer set takes it."""
+        survey layer's refined appearance, one per MVS Gaussian) the viewer set takes it. Returns the products and
+        the hybrid's fields of :class:`MergeResult` (the point selections' counts of
+        :func:`fusion.survey.hybrid_products`, the splat-surface points', whether the fill was refined)."""
         from core.io.gaussian_ply import read_gaussian_ply
         from fusion.export import export_gaussian_ply
         from fusion.merge import merge_hybrid
@@ -221,53 +294,49 @@ class MergeStage(Stage):
             if any(n in codes for n in opts.needs_mvs_classes):
                 predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype("int64")
         products = hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
-        if opts.splat_surface:
-            _add_splat_surface(ctx, products, splats, views, (mvs, needs))
+        surface = _add_splat_surface(ctx, products, splats, views, (mvs, needs)) if opts.splat_surface else None
         if refined is not None or refined_fill is not None:
             survey, fill = mvs if refined is None else refined, splats if refined_fill is None else refined_fill
             viewer = merge_hybrid(survey, fill, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
             products.gaussians = _same_rows(viewer, products.gaussians)
-        products.counts["fill_refined"] = refined_fill is not None
-        return products
+        return products, {**products.counts, "splat_surface": surface, "fill_refined": refined_fill is not None}
 
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        if not isinstance(counts.get("written"), int):
-            return None
+    def report_section(self, result: MergeResult) -> ReportSection | None:
         line = (
-            f"The merged product (export/merged.ply) holds {counts['written']:,} Gaussians in three layers "
-            f"(its `source` field): survey {counts.get('mvs', 0):,} (the MVS Gaussians, positions as converted"
-            f"{', appearance refined' if counts.get('survey_refined') else ''}), "
-            f"fill {counts.get('splats', 0):,} (splats trained in the region masks), background "
-            f"{counts.get('background', 0):,} (what the photos see beyond the survey region; viewer product only). "
-            f"The survey points (merged_points.ply/.las) hold {counts.get('points', 0):,} points, no background."
+            f"The merged product (export/merged.ply) holds {result.written:,} Gaussians in three layers "
+            f"(its `source` field): survey {result.mvs:,} (the MVS Gaussians, positions as converted"
+            f"{', appearance refined' if result.survey_refined else ''}), "
+            f"fill {result.splats:,} (splats trained in the region masks), background "
+            f"{result.background:,} (what the photos see beyond the survey region; viewer product only). "
+            f"The survey points (merged_points.ply/.las) hold {result.points:,} points, no background."
         )
         lines = (line,)
-        surface = counts.get("splat_surface")
-        if isinstance(surface, dict):
-            per_class = ", ".join(f"{k} {v:,}" for k, v in surface.get("per_class", {}).items()) or "none"
-            dropped = surface.get("splat_centres_dropped", 0)
+        surface = result.splat_surface
+        if surface is not None:
+            per_class = ", ".join(f"{k} {v:,}" for k, v in surface.per_class.items()) or "none"
+            dropped = surface.splat_centres_dropped
             from fusion.convert_options import SPLAT_SURFACE_CLASS
 
             lines += (
-                f"Of those, {surface.get('kept', 0):,} are splat-surface points (`source` 4, LAS classification "
-                f"{SPLAT_SURFACE_CLASS}, a `sigma` each, median {_mm(surface.get('sigma_median_m'))}): the fill "
-                f"layer's rendered surface inside the training masks of {surface.get('views', 0)} views, kept where "
-                f"at least {surface.get('min_agreeing', '')} other views agree, not behind a trusted surface and near "
+                f"Of those, {surface.kept:,} are splat-surface points (`source` 4, LAS classification "
+                f"{SPLAT_SURFACE_CLASS}, a `sigma` each, median {_mm(surface.sigma_median_m)}): the fill "
+                f"layer's rendered surface inside the training masks of {surface.views} views, kept where "
+                f"at least {surface.min_agreeing} other views agree, not behind a trusted surface and near "
                 f"a fused MVS point; by the class the classifier predicted there: {per_class}. "
                 + (f"They replace the {dropped:,} splat centres of the survey-point rule." if dropped else ""),
             )
         return ReportSection("The merged product's layers", lines)
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        layers = f"survey {counts['mvs']}, fill {counts['splats']}, background {counts.get('background', 0)}"
-        text = f"{counts['written']} Gaussians in the merged product ({layers})"
-        if "point_splats" in counts:
-            c = counts["point_splats"]
-            text += f", {counts['points']} survey points ({c['kept']} of {c['input']} splats trustworthy)"
-        if "splat_surface" in counts:
-            c = counts["splat_surface"]
-            per_class = ", ".join(f"{k} {v}" for k, v in c["per_class"].items()) or "none"
-            text += f", {c['kept']} splat-surface points ({per_class})"
+    def summary(self, result: MergeResult) -> str:
+        layers = f"survey {result.mvs}, fill {result.splats}, background {result.background}"
+        text = f"{result.written} Gaussians in the merged product ({layers})"
+        if result.point_splats is not None:
+            c = result.point_splats
+            text += f", {result.points} survey points ({c.get('kept', 0)} of {c.get('input', 0)} splats trustworthy)"
+        if result.splat_surface is not None:
+            surface = result.splat_surface
+            per_class = ", ".join(f"{k} {v}" for k, v in surface.per_class.items()) or "none"
+            text += f", {surface.kept} splat-surface points ({per_class})"
         return text
 
 
@@ -291,9 +360,11 @@ def _mm(metres: Any) -> str:
     return f"{1000 * metres:.2f} mm" if isinstance(metres, (int, float)) else "n/a"
 
 
-def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any, mvs_needs: tuple[Any, Any]) -> None:
-    """Adds the splat-surface points of the cleaned fill layer (``splats``) to ``products.points`` and their counts
-    to ``products.counts["splat_surface"]``: rendered in the training views (held-out photos left out) inside their
+def _add_splat_surface(
+    ctx: StageContext, products: Any, splats: Any, views: Any, mvs_needs: tuple[Any, Any]
+) -> SplatSurfaceCounts:
+    """Adds the splat-surface points of the cleaned fill layer (``splats``) to ``products.points``; their counts:
+    rendered in the training views (held-out photos left out) inside their
     training masks, the trusted MVS points (``views.trusted``) as the front surface, supported by the MVS Gaussians
     (``splat_surface_support``; they are also the anchors of the σ model, :func:`fusion.splat_surface.sigma_model`),
     counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
@@ -334,11 +405,11 @@ def _add_splat_surface(ctx: StageContext, products: Any, splats: Any, views: Any
     per_class = classes_of_points(points.with_origin(mvs.origin).means[added], mvs, needs, predicted, codes)
     sigma = np.asarray(points.fields["sigma"], np.float64)[added]
     products.points = points
-    products.counts["splat_surface"] = {
-        "views": len(masks), "min_agreeing": opts.splat_surface_points.min_agreeing, "pixels": dict(found.counts),
-        "found": len(found), **counts, "per_class": per_class,
-        "sigma_median_m": float(np.median(sigma)) if len(sigma) else None,
-    }  # fmt: skip
+    return SplatSurfaceCounts(
+        views=len(masks), min_agreeing=opts.splat_surface_points.min_agreeing, pixels=dict(found.counts),
+        found=len(found), **counts, per_class=per_class,
+        sigma_median_m=float(np.median(sigma)) if len(sigma) else None,
+    )  # fmt: skip
 
 
 def _refined_rows(path: Path | None, base: Any, what: str) -> Any:

@@ -24,7 +24,7 @@ from core.options import enum_choice
 from fusion.mesh.options import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
 
 _MESH_BYTES = {"ply": (16, 13), "obj": (128, 38), "glb": (28, 12)}  # upper bytes per (vertex, triangle), per format
 
@@ -61,9 +61,49 @@ class MeshStageOptions:
         object.__setattr__(self, "method", enum_choice(MeshMethod, self.method, "method"))
 
 
+@dataclass(frozen=True)
+class MeshResult(StageResult):
+    """What the mesh stage made: a mesh of ``triangles`` triangles and ``vertices`` vertices, its boundary,
+    non-manifold and degenerate edges / triangles, the ``budget`` asked for and whether it is within the
+    decimation's tolerance of it, the ``method``, the training ``snapshots`` read, the ``formats`` written and the
+    meshing's ``warnings`` (one line each).
+
+    Poisson (the counts of :meth:`fusion.mesh.pipeline.MeshResult.summary`): the oriented points and those from the
+    snapshots, the splat points dropped near MVS points, the off-surface Gaussians, the Poisson depth, the
+    untrimmed mesh (triangles, watertight, cap triangles, non-manifold edges) and the trimmed one (triangles,
+    edge-manifold, boundary edges), and its seconds. TSDF: the triangles before decimation (``triangles_raw``)."""
+
+    oriented_points: int | None = omitted_if_none()
+    snapshot_points: int | None = omitted_if_none()
+    splat_points_dropped_near_mvs: int | None = omitted_if_none()
+    off_surface_gaussians: int | None = omitted_if_none()
+    poisson_depth: int | None = omitted_if_none()
+    triangles_untrimmed: int | None = omitted_if_none()
+    untrimmed_watertight: bool | None = omitted_if_none()
+    untrimmed_cap_triangles: int | None = omitted_if_none()
+    untrimmed_non_manifold_edges: int | None = omitted_if_none()
+    triangles_trimmed: int | None = omitted_if_none()
+    trimmed_edge_manifold: bool | None = omitted_if_none()
+    trimmed_boundary_edges: int | None = omitted_if_none()
+    triangles_raw: int | None = omitted_if_none()
+    triangles: int = 0
+    vertices: int = 0
+    boundary_edges: int = 0
+    non_manifold_edges: int = 0
+    degenerate_triangles: int = 0
+    seconds: float | None = omitted_if_none()
+    budget: int | None = omitted_if_none()
+    within_budget_tolerance: bool | None = omitted_if_none()
+    method: str = ""
+    snapshots: int = 0
+    formats: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+
 class MeshStage(Stage):
     name = "mesh"
     Options = MeshStageOptions
+    Result = MeshResult
     title = "mesh with a polygon budget"
     command = "mesh"
     command_help = "A triangle mesh with a polygon budget from the merged product: PROJECT/export/mesh.ply, .obj, .glb."
@@ -113,7 +153,7 @@ class MeshStage(Stage):
             return "no mesh asked for (run --mesh BUDGET, or hybridsplat mesh PROJECT --budget N)"
         return None
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> MeshResult:
         from core.io.gaussian_ply import read_gaussian_ply
         from core.io.origin import write_origin
         from fusion.mesh import MeshWarning, mesh_from_gaussians, write_mesh
@@ -136,8 +176,7 @@ class MeshStage(Stage):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MeshWarning)
             if opts.method is MeshMethod.TSDF:
-                counts = _tsdf(merged, cameras, opts)
-                mesh = counts.pop("mesh")
+                mesh, made = _tsdf(merged, cameras, opts)
             else:
                 viewpoints = None
                 if cameras is not None and len(cameras):
@@ -150,22 +189,22 @@ class MeshStage(Stage):
                     survey = read_ply(layout.merged_points_ply)
                 result = mesh_from_gaussians(merged, options, snapshots=snapshots, viewpoints=viewpoints,
                                              survey_points=survey)  # fmt: skip
-                mesh, counts = result.mesh, result.summary()
+                mesh, made = result.mesh, MeshResult(**result.summary())
         for fmt in opts.formats:
             write_mesh(layout.mesh_path(fmt), mesh)
         # the sidecar is written even for a zero origin (an output of the stage, and it carries the CRS)
         write_origin(layout.mesh_path("ply"), mesh.origin, ctx.config.input.crs or None)
         ctx.progress("mesh", 1, 1)
-        counts.update(
+        return replace(
+            made,
             method=opts.method.value,
             snapshots=len(snapshots),
-            formats=list(opts.formats),
-            warnings=[" ".join(str(w.message).split()) for w in caught],
+            formats=opts.formats,
+            warnings=tuple(" ".join(str(w.message).split()) for w in caught),
         )
-        return counts
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        return f"{counts['triangles']} triangles ({counts['method']}), {', '.join(counts['formats'])}"
+    def summary(self, result: MeshResult) -> str:
+        return f"{result.triangles} triangles ({result.method}), {', '.join(result.formats)}"
 
 
 def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianSet
@@ -193,7 +232,7 @@ def load_merged_with_source(merged_ply: Path, points_ply: Path):  # -> GaussianS
     return merged
 
 
-def _tsdf(merged, cameras, opts: MeshStageOptions) -> dict[str, Any]:
+def _tsdf(merged, cameras, opts: MeshStageOptions) -> tuple[Any, MeshResult]:  # (TriangleMesh, its counts)
     from fusion.convert import Source
     from fusion.mesh import mesh_quality
     from fusion.mesh.colors import vertex_colors_from_gaussians
@@ -209,14 +248,13 @@ def _tsdf(merged, cameras, opts: MeshStageOptions) -> dict[str, Any]:
     mesh = TriangleMesh(mesh.vertices, mesh.triangles, mesh.origin,
                         vertex_colors_from_gaussians(mesh.vertices, mesh.origin, merged))  # fmt: skip
     q = mesh_quality(mesh)
-    return {
-        "mesh": mesh,
-        "triangles_raw": raw.num_triangles,
-        "triangles": q.triangles,
-        "vertices": q.vertices,
-        "boundary_edges": q.boundary_edges,
-        "non_manifold_edges": q.non_manifold_edges,
-        "degenerate_triangles": q.degenerate_triangles,
-        "budget": opts.budget,
-        "within_budget_tolerance": st.within_tolerance,
-    }
+    return mesh, MeshResult(
+        triangles_raw=raw.num_triangles,
+        triangles=q.triangles,
+        vertices=q.vertices,
+        boundary_edges=q.boundary_edges,
+        non_manifold_edges=q.non_manifold_edges,
+        degenerate_triangles=q.degenerate_triangles,
+        budget=opts.budget,
+        within_budget_tolerance=st.within_tolerance,
+    )

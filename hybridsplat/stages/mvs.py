@@ -8,7 +8,7 @@ not in ``dense/stereo/fusion.cfg`` (COLMAP PatchMatch runs the explicit ``dense/
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,13 +18,28 @@ from core.io.json_io import write_json_atomic
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.project_io import model_origin
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult
 from recon.mvs import MvsOptions
+
+
+@dataclass(frozen=True)
+class MvsResult(StageResult):
+    """What the mvs stage made: the ``backend`` that ran (cpu | colmap), depth maps of ``views`` photos (the
+    ``held_out`` ones aside), the longer side of the dense images (``image_size``, px), ``points`` fused points and
+    the seconds a view took (``seconds_per_view``)."""
+
+    backend: str = ""
+    views: int = 0
+    held_out: int = 0
+    image_size: int = 0
+    points: int = 0
+    seconds_per_view: float = 0.0
 
 
 class MvsStage(Stage):
     name = "mvs"
     Options = MvsOptions
+    Result = MvsResult
     title = "dense depth maps and fusion"
     command = "mvs"
     command_help = "Depth + normal maps per photo, fused by COLMAP into PROJECT/dense/fused.ply (+ .vis)."
@@ -69,7 +84,7 @@ class MvsStage(Stage):
         text = 4 * sizes.KIB + sizes.JSON_BYTES + sizes.LOG_BYTES + (1 + 8) * sizes.KIB * n + 256 * n
         return photos + fused + model + text
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> MvsResult:
         from core.io.origin import write_origin
         from recon.mvs import run_mvs
 
@@ -80,19 +95,19 @@ class MvsStage(Stage):
         if np.any(origin != 0):  # the model is in a local frame: fused.ply (float32) gets the offset sidecar
             write_origin(layout.fused_ply, origin, ctx.config.input.crs)
         write_json_atomic(layout.record(self.name), {"report": report, "options": options})
-        return {
-            "backend": report.backend,
-            "views": report.num_views,
-            "held_out": len(ctx.source.holdout_names),
-            "image_size": max(max(s) for s in report.image_sizes) if report.image_sizes else 0,
-            "points": report.num_points,
-            "seconds_per_view": report.seconds_per_view,
-        }
+        return MvsResult(
+            backend=report.backend,
+            views=report.num_views,
+            held_out=len(ctx.source.holdout_names),
+            image_size=max(max(s) for s in report.image_sizes) if report.image_sizes else 0,
+            points=report.num_points,
+            seconds_per_view=report.seconds_per_view,
+        )
 
-    def summary(self, counts: dict[str, Any]) -> str:
+    def summary(self, result: MvsResult) -> str:
         return (
-            f"{counts['backend']}: {counts['views']} views at {counts['image_size']} px, "
-            f"{counts['seconds_per_view']:.1f} s/view, {counts['points']} fused points"
+            f"{result.backend}: {result.views} views at {result.image_size} px, "
+            f"{result.seconds_per_view:.1f} s/view, {result.points} fused points"
         )
 
 

@@ -1,26 +1,40 @@
 """Stage ``report``: report/report.{json,md,html} from the manifest and eval/metrics.json, see eval.report.
 
 Besides the evaluation's tables, every stage that declares a :meth:`~hybridsplat.stages.base.Stage.report_section`
-gets its section, made from the counts it recorded in the manifest.
+gets its section, made from the result it recorded in the manifest, and the notes beside the products' figures
+(their training steps, the renderer) come from the train, baseline, background, appearance and eval stages' results
+(:func:`run_notes`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from eval.report_options import ReportOptions
 from hybridsplat.disk_space import tree_bytes
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import Stage, StageContext
+from hybridsplat.stages.base import Stage, StageContext, StageResult
+
+if TYPE_CHECKING:
+    from eval.report import RunNotes
 
 _C2C_VIEWS_PX = (990, 462)  # eval.plots.c2c_views_jpeg: 9 × 4.2 in at 110 dpi
 _THUMBNAIL_MAX_SIDE = 1500  # eval.report.THUMBNAIL_MAX_SIDE
 
 
+@dataclass(frozen=True)
+class ReportResult(StageResult):
+    """What the report stage made: report/report.html of ``html_bytes`` bytes."""
+
+    html_bytes: int = 0
+
+
 class ReportStage(Stage):
     name = "report"
     Options = ReportOptions
+    Result = ReportResult
     title = "report"
 
     def inputs(self, ctx: StageContext) -> list[Path]:
@@ -52,13 +66,13 @@ class ReportStage(Stage):
 
         return {"stages": Manifest(ctx.layout.manifest).content_digest(exclude=(self.name,))}
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> ReportResult:
         opts: ReportOptions = ctx.options(self)
         paths = write_project_report(ctx.layout, units=ctx.config.input.units, max_panels=opts.max_panels)
-        return {"html_bytes": paths.html.stat().st_size}
+        return ReportResult(html_bytes=paths.html.stat().st_size)
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        return f"report.html {counts['html_bytes'] / 1e6:.1f} MB"
+    def summary(self, result: ReportResult) -> str:
+        return f"report.html {result.html_bytes / 1e6:.1f} MB"
 
 
 def _metrics_counts(path: Path) -> tuple[int, int]:
@@ -83,23 +97,49 @@ def _thumbnail_bytes(path: Path) -> int:
 
 
 def stage_sections(layout: Any) -> list[dict[str, Any]]:
-    """The report sections of the registered stages, from the counts each recorded in the project's manifest."""
+    """The report sections of the registered stages, from the result each recorded in the project's manifest."""
     from hybridsplat.manifest import Manifest
+    from hybridsplat.project_io import stage_result
     from hybridsplat.stages import registered_stages
 
     if not layout.manifest.is_file():
         return []
-    records = Manifest(layout.manifest).stages
+    manifest = Manifest(layout.manifest)
     sections = []
     for stage in registered_stages():
-        record = records.get(stage.name)
-        if record is None or record.skipped:
-            continue
-        section = stage.report_section(record.counts or {})
+        result = stage_result(manifest, stage)
+        section = stage.report_section(result) if result is not None else None
         if section is not None:
             sections.append({"title": section.title, "lines": list(section.lines),
                              "figures": [list(f) for f in section.figures]})  # fmt: skip
     return sections
+
+
+def run_notes(layout: Any) -> RunNotes:
+    """What the report tells of how the products were made (:class:`eval.report.RunNotes`), from the train,
+    baseline, background, appearance and eval stages' results."""
+    from eval.report import RunNotes, TrainingRun
+    from hybridsplat.manifest import Manifest
+    from hybridsplat.project_io import stage_result
+    from hybridsplat.stages.appearance import AppearanceStage
+    from hybridsplat.stages.background import BackgroundStage
+    from hybridsplat.stages.baseline import BaselineStage
+    from hybridsplat.stages.evaluate import EvalStage
+    from hybridsplat.stages.train import TrainStage
+
+    if not layout.manifest.is_file():
+        return RunNotes()
+    manifest = Manifest(layout.manifest)
+    train, baseline = stage_result(manifest, TrainStage), stage_result(manifest, BaselineStage)
+    background, appearance = stage_result(manifest, BackgroundStage), stage_result(manifest, AppearanceStage)
+    evaluated = stage_result(manifest, EvalStage)
+    return RunNotes(
+        fill=TrainingRun(train.iterations, train.stopped_early) if train is not None and not train.reason else None,
+        baseline=TrainingRun(baseline.iterations, baseline.stopped_early) if baseline is not None else None,
+        background_steps=background.iterations if background is not None else 0,
+        appearance_steps=appearance.iterations if appearance is not None else 0,
+        renderer=evaluated.renderer if evaluated is not None else None,
+    )
 
 
 def write_project_report(layout, units: str | None = None, max_panels: int | None = None):
@@ -109,4 +149,5 @@ def write_project_report(layout, units: str | None = None, max_panels: int | Non
     paths = ReportPaths(layout.report_json, layout.report_md, layout.report_html)
     panels = ReportOptions().max_panels if max_panels is None else max_panels
     return write_report(layout.manifest, layout.metrics_json, paths, max_panels=panels, units=units,
-                        per_material_file=layout.per_material_json, sections=stage_sections(layout))  # fmt: skip
+                        per_material_file=layout.per_material_json, sections=stage_sections(layout),
+                        notes=run_notes(layout))  # fmt: skip

@@ -7,21 +7,39 @@ camera centres when a reference is given (``--reference``; a data_synth scene's 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from core.io.json_io import write_json_atomic
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
 from recon.sfm import SfmOptions
+
+
+@dataclass(frozen=True)
+class SfmResult(StageResult):
+    """What the sfm stage made: ``images`` photos given, ``registered`` of them posed, ``unregistered`` (name → why
+    not), ``points`` sparse points and their mean reprojection error (px); the ``mapper`` that ran (None for
+    known poses) and the ``matcher`` (how it was chosen); with a reference, the alignment's RMS over its inlier
+    camera centres (m) and their number."""
+
+    images: int = 0
+    registered: int = 0
+    unregistered: dict[str, str] = field(default_factory=dict)
+    points: int = 0
+    reprojection_error_px: float = 0.0
+    mapper: str | None = omitted_if_none()
+    matcher: str = ""
+    alignment_rms_m: float | None = omitted_if_none()
+    alignment_inliers: int | None = omitted_if_none()
 
 
 class SfmStage(Stage):
     name = "sfm"
     Options = SfmOptions
+    Result = SfmResult
     title = "camera poses and sparse model"
     uses_seed = True
     command_options = (
@@ -69,7 +87,7 @@ class SfmStage(Stage):
         record = 8 * sizes.KIB + 256 * len(names) + name_bytes
         return model + record + sizes.LOG_BYTES + 16 * sizes.KIB * len(names)
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> SfmResult:
         from recon.align import align_to_reference
         from recon.model import from_reconstruction, read_reconstruction
         from recon.sfm import run_sfm, triangulate_known_poses
@@ -101,28 +119,26 @@ class SfmStage(Stage):
             layout.record(self.name),
             {"image_dir": str(src.image_dir.resolve()), "origin": origin, "report": report},
         )
-        counts: dict[str, Any] = {
-            "images": report.num_images,
-            "registered": len(report.registered),
-            "unregistered": report.unregistered,
-            "points": report.num_points,
-            "reprojection_error_px": report.mean_reprojection_error,
-        }
-        if report.mapper:
-            counts["mapper"] = report.mapper
-        counts["matcher"] = report.matcher
-        if report.alignment is not None:
-            counts["alignment_rms_m"] = report.alignment.rms_inliers
-            counts["alignment_inliers"] = report.alignment.num_inliers
-        return counts
-
-    def summary(self, counts: dict[str, Any]) -> str:
-        text = (
-            f"{counts['registered']}/{counts['images']} photos registered, {counts['points']} points, "
-            f"{counts['reprojection_error_px']:.2f} px"
+        aligned = report.alignment
+        return SfmResult(
+            images=report.num_images,
+            registered=len(report.registered),
+            unregistered=report.unregistered,
+            points=report.num_points,
+            reprojection_error_px=report.mean_reprojection_error,
+            mapper=report.mapper or None,
+            matcher=report.matcher,
+            alignment_rms_m=aligned.rms_inliers if aligned is not None else None,
+            alignment_inliers=aligned.num_inliers if aligned is not None else None,
         )
-        if "alignment_rms_m" in counts:
-            text += f", aligned (centre rms {counts['alignment_rms_m']:.3g} m)"
+
+    def summary(self, result: SfmResult) -> str:
+        text = (
+            f"{result.registered}/{result.images} photos registered, {result.points} points, "
+            f"{result.reprojection_error_px:.2f} px"
+        )
+        if result.alignment_rms_m is not None:
+            text += f", aligned (centre rms {result.alignment_rms_m:.3g} m)"
         return text
 
 

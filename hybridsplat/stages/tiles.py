@@ -19,12 +19,14 @@ trains every tile alone). The ``appearance`` stage then refines the survey layer
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext
+from hybridsplat.records import TypedRecord
+from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext, StageResult, omitted_if_none
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,62 @@ class TilesOptions:
         parse_tiles(self.grid)  # a ConfigError naming the option for anything but off, auto, NxM
 
 
+@dataclass(frozen=True)
+class SeamCheck(TypedRecord):
+    """The stitched cloud's spacing across the tiles' core borders against inside them (``ratio``; 1: no seam),
+    the spacing inside (m) and the points near a border (:func:`recon.tiling.seam_check`)."""
+
+    ratio: float = math.nan
+    spacing_inside_m: float = math.nan
+    border_points: int = 0
+
+
+@dataclass(frozen=True)
+class StitchedProducts(TypedRecord):
+    """What the stitch made in the parent (:func:`hybridsplat.tiled_run.stitch_products`): the depth maps gathered,
+    the fused points kept and those dropped per tile (outside its core), the classified points (None without a
+    tile's), the trained and cleaned splats, and the seam check (None for one tile or fewer than 2 points)."""
+
+    depth_maps: int = 0
+    fused: int = 0
+    fused_dropped: tuple[int, ...] = ()
+    classified: int | None = omitted_if_none()
+    trained: int = 0
+    cleaned: int = 0
+    seam: SeamCheck | None = omitted_if_none()
+
+
+@dataclass(frozen=True)
+class TilePrediction(TypedRecord):
+    """The cost model's prediction for the run (:class:`hybridsplat.tile_cost.CostPrediction`: ``workers``, wall
+    time s, peak memory MB, seconds per tile and the ``rates`` by their field names) and what was measured."""
+
+    workers: int = 1
+    wall_s: float = 0.0
+    peak_mb: float = 0.0
+    tile_seconds: tuple[float, ...] = ()
+    rates: dict[str, Any] = field(default_factory=dict)
+    measured_wall_s: float = 0.0
+    measured_peak_mb: float = 0.0
+
+
+@dataclass(frozen=True)
+class TilesResult(StageResult):
+    """What the tiles stage made: ``tiles`` tiles of a ``grid`` (``CxR``) with their photos, what the stitch made,
+    the cost model's prediction against the measurement, the tiles run at a time (``workers``) and ``where`` they
+    ran, and the tiles left out: seen by fewer than 2 training photos, or fusing no point."""
+
+    tiles: int = 0
+    grid: str = ""
+    photos_per_tile: tuple[int, ...] = ()
+    stitched: StitchedProducts = field(default_factory=StitchedProducts)
+    prediction: TilePrediction | None = None
+    workers: int = 1
+    where: str = ""
+    without_photos: tuple[str, ...] = ()
+    without_points: tuple[str, ...] = ()
+
+
 def tiling_on(ctx: StageContext) -> bool:
     """Whether this project runs tiled (``[tiles] grid`` is not off)."""
     from recon.tiling import parse_tiles
@@ -71,6 +129,7 @@ def tiling_on(ctx: StageContext) -> bool:
 class TilesStage(Stage):
     name = "tiles"
     Options = TilesOptions
+    Result = TilesResult
     title = "tiles"
     uses_seed = True  # through its tile sub-projects' config
     run_options = (
@@ -121,51 +180,55 @@ class TilesStage(Stage):
     def needs(self, ctx: StageContext) -> str | None:
         return None if tiling_on(ctx) else "off (run --tiles auto|NxM to split a large survey into tiles)"
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> TilesResult:
+        from core.io.json_io import write_json_atomic
         from hybridsplat.tiled_run import run_tiled
 
         start = time.perf_counter()
-        record = run_tiled(ctx, ctx.options(self))
-        record["seconds"] = time.perf_counter() - start
-        from core.io.json_io import write_json_atomic
-
-        write_json_atomic(ctx.layout.record(self.name), record)
-        return {
-            k: record[k]
-            for k in ("tiles", "grid", "photos_per_tile", "stitched", "prediction", "workers", "where",
-                      "without_photos", "without_points")
-        }  # fmt: skip
-
-    def summary(self, counts: dict[str, Any]) -> str:
-        stitched = counts["stitched"]
-        return (
-            f"{counts['tiles']} tiles ({counts['grid']}) on {counts.get('where', counts['workers'])}: "
-            f"{stitched['fused']} fused points, {stitched['cleaned']} splats stitched" + _left_out(counts)
+        run = run_tiled(ctx, ctx.options(self))
+        write_json_atomic(ctx.layout.record(self.name), {**run.as_dict(), "seconds": time.perf_counter() - start})
+        return TilesResult(
+            tiles=run.tiles,
+            grid=run.grid,
+            photos_per_tile=run.photos_per_tile,
+            stitched=run.stitched,
+            prediction=run.prediction,
+            workers=run.workers,
+            where=run.where,
+            without_photos=run.without_photos,
+            without_points=run.without_points,
         )
 
-    def report_section(self, counts: dict[str, Any]) -> ReportSection | None:
-        if not isinstance(counts.get("tiles"), int):
+    def summary(self, result: TilesResult) -> str:
+        stitched = result.stitched
+        return (
+            f"{result.tiles} tiles ({result.grid}) on {result.where or result.workers}: "
+            f"{stitched.fused} fused points, {stitched.cleaned} splats stitched" + _left_out(result)
+        )
+
+    def report_section(self, result: TilesResult) -> ReportSection | None:
+        if not result.tiles:
             return None
-        pred = counts.get("prediction") or {}
+        pred = result.prediction
         lines = [
-            f"{counts['tiles']} tiles ({counts['grid']}), photos per tile {counts['photos_per_tile']}, "
-            f"run on {counts.get('where', counts['workers'])}{_left_out(counts)}.",
+            f"{result.tiles} tiles ({result.grid}), photos per tile {list(result.photos_per_tile)}, "
+            f"run on {result.where or result.workers}{_left_out(result)}.",
         ]
-        if pred:
+        if pred is not None:
             lines.append(
-                f"Cost model: predicted {pred.get('wall_s', 0):.0f} s and {pred.get('peak_mb', 0):.0f} MB peak; "
-                f"measured {pred.get('measured_wall_s', 0):.0f} s and {pred.get('measured_peak_mb', 0):.0f} MB."
+                f"Cost model: predicted {pred.wall_s:.0f} s and {pred.peak_mb:.0f} MB peak; "
+                f"measured {pred.measured_wall_s:.0f} s and {pred.measured_peak_mb:.0f} MB."
             )
         return ReportSection("Tiles", tuple(lines))
 
 
-def _left_out(counts: dict[str, Any]) -> str:
+def _left_out(result: TilesResult) -> str:
     """Which tiles added nothing, and why (empty when every tile did)."""
     parts = []
-    if counts.get("without_photos"):
-        parts.append(f"seen by fewer than 2 photos: {', '.join(counts['without_photos'])}")
-    if counts.get("without_points"):
-        parts.append(f"fused no point: {', '.join(counts['without_points'])}")
+    if result.without_photos:
+        parts.append(f"seen by fewer than 2 photos: {', '.join(result.without_photos)}")
+    if result.without_points:
+        parts.append(f"fused no point: {', '.join(result.without_points)}")
     return f" (tiles left out, {'; '.join(parts)})" if parts else ""
 
 

@@ -8,13 +8,17 @@ point) and the SfM points. Skipped when the scene has no classification or no ma
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import MaskedTrainingOptions
 from fusion.train.options import GeometryOptions
+from fusion.train.strategy import RefineCounts
+from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
-from hybridsplat.stages.base import CliOption, Stage, StageContext
+from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
 
 _GEOMETRY_OPTIONS = (
     CliOption("training.geometry.normal_consistency_weight", "--geometry",
@@ -29,9 +33,53 @@ _GEOMETRY_OPTIONS = (
 with weight W (given both, W wins)."""
 
 
+@dataclass(frozen=True)
+class TrainSeeds(TypedRecord):
+    """Where the initial splats came from: MVS points that need splats, SfM points in the masks, points along mask
+    pixels' rays, and of those the rays without a depth to place them at."""
+
+    mvs: int = 0
+    sfm: int = 0
+    rays: int = 0
+    rays_without_depth: int = 0
+
+
+@dataclass(frozen=True)
+class TrainResult(StageResult):
+    """What the train stage made: ``trained`` splats after ``iterations`` steps (``stopped_early``: by the early
+    stop, else its whole budget), their masked PSNR on the held-back pixels (dB; NaN without an evaluation), at
+    photo ``downscale`` and ``resolution`` (W, H px) within ``cap`` splats; the views used and those without a
+    mask pixel, the mask pixels, the frozen MVS ``context_gaussians`` and how many were culled, the views and
+    pixels with a depth / normal prior, the ``seeds``, the strategy's ``refine`` counts (summed over the run),
+    the training's seconds, the LPIPS weights file (None without the LPIPS term) and the neighbours' splats
+    frozen beside a tile (``neighbour_context``). ``reason``: why nothing was trained, when nothing was."""
+
+    trained: int = 0
+    downscale: int = 1
+    cap: int = 0
+    iterations: int = 0
+    stopped_early: bool = False
+    holdout_psnr_db: float = math.nan
+    views_used: int = 0
+    views_without_mask: int = 0
+    mask_pixels: int = 0
+    context_gaussians: int = 0
+    context_culled: int = 0
+    prior_views: int = 0
+    prior_pixels: int = 0
+    seeds: TrainSeeds = field(default_factory=TrainSeeds)
+    refine: RefineCounts = field(default_factory=RefineCounts)
+    resolution: tuple[int, ...] = ()
+    seconds_training: float = 0.0
+    lpips_weights: str | None = None
+    neighbour_context: int = 0
+    reason: str | None = omitted_if_none()
+
+
 class TrainStage(Stage):
     name = "train"
     Options = MaskedTrainingOptions
+    Result = TrainResult
     title = "masked splat training"
     uses_seed = True
     command = "train"
@@ -84,7 +132,7 @@ class TrainStage(Stage):
             return "every region mask is empty: no non-collaborative region or hole needs splats"
         return None
 
-    def run(self, ctx: StageContext) -> dict[str, Any]:
+    def run(self, ctx: StageContext) -> TrainResult:
         from core.io.gaussian_ply import read_gaussian_ply, write_gaussian_ply
         from core.io.images import read_image
         from hybridsplat import project_io
@@ -104,7 +152,7 @@ class TrainStage(Stage):
         masks = project_io.read_region_masks(layout, cameras, training=True)
         masks = {k: m for k, m in masks.items() if k not in held_out}  # never train on those
         if not any(m.any() for m in masks.values()):
-            return {"trained": 0, "reason": "masks are empty"}
+            return TrainResult(reason="masks are empty")
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name in masks}
         mvs = read_gaussian_ply(layout.mvs_gaussians).with_origin(cameras.origin)
         neighbours = None  # a tile of a tiled run: its neighbours' splats in the overlap, frozen
@@ -131,15 +179,12 @@ class TrainStage(Stage):
         layout.snapshots_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
-        return {**_counts(result, seeds, used, lpips_file), "neighbour_context": len(neighbours or ())}
+        return _result(result, seeds, used, lpips_file, neighbours=len(neighbours or ()))
 
-    def summary(self, counts: dict[str, Any]) -> str:
-        if not counts.get("trained"):
+    def summary(self, result: TrainResult) -> str:
+        if not result.trained:
             return "no splats trained"
-        return (
-            f"{counts['trained']} splats after {counts['iterations']} steps, "
-            f"masked PSNR {counts['holdout_psnr_db']:.2f} dB"
-        )
+        return f"{result.trained} splats after {result.iterations} steps, masked PSNR {result.holdout_psnr_db:.2f} dB"
 
 
 def _training_budget(model: Path, opts: MaskedTrainingOptions) -> int:
@@ -158,30 +203,26 @@ def _training_budget(model: Path, opts: MaskedTrainingOptions) -> int:
     return min(cap, max(1000, round(opts.splats_per_mask_pixel * pixels)))
 
 
-def _counts(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | None) -> dict[str, Any]:
-    """The train stage's record: what was trained, at which resolution and budget, and from which seeds."""
-    return {
-        "trained": len(result.splats),
-        "downscale": used["downscale"],
-        "cap": used["cap"],
-        "iterations": result.iterations,
-        "stopped_early": result.stopped_early,
-        "holdout_psnr_db": result.final_holdout_psnr,
-        "views_used": result.views_used,
-        "views_without_mask": result.views_without_mask,
-        "mask_pixels": result.mask_pixels,
-        "context_gaussians": result.context_total,
-        "context_culled": result.context_culled,
-        "prior_views": result.prior_views,
-        "prior_pixels": result.prior_pixels,
-        "seeds": {
-            "mvs": seeds.from_mvs,
-            "sfm": seeds.from_sfm,
-            "rays": seeds.from_rays,
-            "rays_without_depth": seeds.rays_without_depth,
-        },  # fmt: skip
-        "refine": vars(result.refine),
-        "resolution": list(result.resolution),
-        "seconds_training": result.seconds,
-        "lpips_weights": str(lpips_file) if lpips_file is not None else None,
-    }
+def _result(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | None, neighbours: int) -> TrainResult:
+    """The train stage's result: what was trained, at which resolution and budget, and from which seeds."""
+    return TrainResult(
+        trained=len(result.splats),
+        downscale=used["downscale"],
+        cap=used["cap"],
+        iterations=result.iterations,
+        stopped_early=result.stopped_early,
+        holdout_psnr_db=result.final_holdout_psnr,
+        views_used=result.views_used,
+        views_without_mask=result.views_without_mask,
+        mask_pixels=result.mask_pixels,
+        context_gaussians=result.context_total,
+        context_culled=result.context_culled,
+        prior_views=result.prior_views,
+        prior_pixels=result.prior_pixels,
+        seeds=TrainSeeds(seeds.from_mvs, seeds.from_sfm, seeds.from_rays, seeds.rays_without_depth),
+        refine=result.refine,
+        resolution=result.resolution,
+        seconds_training=result.seconds,
+        lpips_weights=str(lpips_file) if lpips_file is not None else None,
+        neighbour_context=neighbours,
+    )
