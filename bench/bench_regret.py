@@ -321,10 +321,23 @@ def sigma_by_class(project: Path) -> dict[str, Any] | None:
     _, nearest = _nearest_needs(mvs, needs, world)
     cls = predicted[needs][nearest]
     names = {code: name for name, code in codes.items()}
+    material = np.asarray(reference.fields["material"]).astype(np.int64)[_nearest_reference(reference, world)]
+    class_names = np.array([names.get(c, str(c)) for c in range(max(names, default=0) + 1)])
+    # Per point, for choosing σ factors offline: distance to the reference surface, σ, predicted class, material id.
+    np.savez(project / "bench_sigma_points.npz", distance_m=distances, sigma_m=sigma, class_code=cls,
+             material=material, class_names=class_names)  # fmt: skip
     out = {"all": calibration_row(distances, sigma)}
     for code in sorted(set(cls.tolist())):
         out[names.get(code, str(code))] = calibration_row(distances[cls == code], sigma[cls == code])
     return out
+
+
+def _nearest_reference(reference, world: np.ndarray) -> np.ndarray:
+    """Index of each point's nearest reference point (the owner of its material, as eval.per_material assigns it)."""
+    from scipy.spatial import cKDTree
+
+    anchor = reference.world_positions[0]
+    return cKDTree(reference.world_positions - anchor).query(world - anchor, k=1)[1]
 
 
 def _nearest_needs(mvs, needs: np.ndarray, world: np.ndarray):
