@@ -177,24 +177,33 @@ def with_splat_surface(
     return out, counts | {"kept": len(added)}
 
 
-def classes_of_points(
+def class_names_of_points(
     positions: np.ndarray, mvs: GaussianSet, needs: np.ndarray, predicted: np.ndarray | None,
     codes: Mapping[str, int],
-) -> dict[str, int]:  # fmt: skip
-    """Points per predicted class (the material kind the classifier saw there): each of ``positions`` (n, 3, the
-    frame of ``mvs``) takes the class of its nearest ``needs_splats`` MVS Gaussian (``needs`` (N,) bool,
-    ``predicted`` (N,) class code each); ``codes``: class name → code. Points of no named class (or with no
-    classified neighbour) count as ``"other"``."""
+) -> np.ndarray:  # fmt: skip
+    """The predicted class (the material kind the classifier saw there) of each point: ``positions`` (n, 3, the
+    frame of ``mvs``) take the class of their nearest ``needs_splats`` MVS Gaussian (``needs`` (N,) bool,
+    ``predicted`` (N,) class code each); ``codes``: class name → code. (n,) array of names; a point of no named
+    class (or with no classified neighbour) is ``"other"``."""
     n = len(positions)
-    if n == 0:
-        return {}
-    if predicted is None or not needs.any():
-        return {"other": n}
+    out = np.full(n, "other", dtype=object)
+    if n == 0 or predicted is None or not needs.any():
+        return out
     from scipy.spatial import cKDTree
 
     _, nearest = cKDTree(mvs.means[needs]).query(np.asarray(positions, np.float64), k=1)
     cls = np.asarray(predicted)[needs][nearest]
-    out = {name: int((cls == code).sum()) for name, code in codes.items()}
-    out = {k: v for k, v in out.items() if v}
-    other = n - sum(out.values())
-    return out | ({"other": other} if other else {})
+    for name, code in codes.items():
+        out[cls == code] = name
+    return out
+
+
+def classes_of_points(
+    positions: np.ndarray, mvs: GaussianSet, needs: np.ndarray, predicted: np.ndarray | None,
+    codes: Mapping[str, int],
+) -> dict[str, int]:  # fmt: skip
+    """Points per predicted class (:func:`class_names_of_points`): class name → count, the named classes in the
+    order of ``codes``, ``"other"`` last; classes without points left out."""
+    names = class_names_of_points(positions, mvs, needs, predicted, codes)
+    out = {name: int((names == name).sum()) for name in [*codes, "other"]}
+    return {k: v for k, v in out.items() if v}

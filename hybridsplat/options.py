@@ -94,8 +94,8 @@ def _value_to_data(value: Any, tp: Any, runtime: tuple[str, ...]) -> Any:
         return {"kind": _kind(type(value)), **data} if len(choices) > 1 else data
     if isinstance(value, Enum):
         return value.value
-    if isinstance(value, (tuple, list, frozenset, set)):
-        return [v.value if isinstance(v, Enum) else v for v in value]
+    if isinstance(value, (tuple, list, frozenset, set)):  # nested sequences (pairs) become nested TOML arrays
+        return [_value_to_data(v, None, runtime) if isinstance(v, (tuple, list, Enum)) else v for v in value]
     if isinstance(value, Path):
         return str(value)
     return value

@@ -16,6 +16,7 @@ import torch
 from test_splat_surface import layer
 from test_train_trainer import ring_cameras
 
+from core.errors import ConfigError
 from core.gaussians import GaussianSet
 from core.io import read_point_cloud, write_point_cloud
 from core.io.colmap import write_model
@@ -185,9 +186,10 @@ def products(layout: ProjectLayout) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in files}
 
 
-def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_path, monkeypatch) -> None:
+def test_merge_stage_adds_splat_surface_points_on_the_plane_unless_turned_off(tmp_path, monkeypatch) -> None:
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=False))
     off = stage.run(ctx)
     assert off.splat_surface is None and "splat_surface" not in off.as_dict()
     assert "splat-surface" not in stage.summary(off)
@@ -202,12 +204,12 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_
 
     monkeypatch.setattr(merge_module, "_add_splat_surface", not_called)
     rule = SplatSurfaceOptions(min_agreeing=1, max_reproj_px=3.0)
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_keep_centres=True,
-                                                                     splat_surface_points=rule))  # fmt: skip
+    merge_off = MergeOptions(splat_surface=False, splat_surface_keep_centres=True, splat_surface_points=rule)
+    ctx.config = ctx.config.with_stage_options("merge", merge_off)
     assert stage.run(ctx) == off and products(layout) == before
     monkeypatch.undo()
 
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions())
     on = stage.run(ctx)
     c = on.splat_surface
     points = read_point_cloud(layout.merged_points_ply)
@@ -238,13 +240,15 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_
 
 
 def test_the_new_options_round_trip_through_config_tables() -> None:
-    merge = MergeOptions(splat_surface=True, splat_surface_keep_centres=True,
+    merge = MergeOptions(splat_surface=False, splat_surface_keep_centres=True,
+                         splat_surface_sigma_scale=(("reflective", 1.5), ("thin", 2.0)),
                          splat_surface_points=SplatSurfaceOptions(min_agreeing=3, depth="median"))  # fmt: skip
     table = tomllib.loads("\n".join(toml_tables("merge", merge)))["merge"]
-    assert table["splat_surface"] is True and table["splat_surface_points"]["depth"] == "median"
+    assert table["splat_surface"] is False and table["splat_surface_points"]["depth"] == "median"
+    assert table["splat_surface_sigma_scale"] == [["reflective", 1.5], ["thin", 2.0]]
     assert options_from_table(MergeOptions, table, "test") == merge
     default = tomllib.loads("\n".join(toml_tables("merge", MergeOptions())))["merge"]
-    assert default["splat_surface"] is False and options_from_table(MergeOptions, default, "test") == MergeOptions()
+    assert default["splat_surface"] is True and options_from_table(MergeOptions, default, "test") == MergeOptions()
     train = MaskedTrainingOptions()
     assert train.training.geometry is None  # off by default
     table = {"training": {"geometry": {"normal_consistency_weight": 0.1, "every": 4}}}
@@ -269,8 +273,8 @@ def test_geometry_and_splat_surface_flags_on_train_and_run() -> None:
         assert weighted.training.geometry.normal_consistency_weight == 0.2
     flat = apply_cli_values(MaskedTrainingOptions(), TrainStage.run_options, {"train_flat": True})
     assert flat.training.flat and flat.training.geometry is None
-    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": True})
-    assert merge == MergeOptions(splat_surface=True)
+    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": False})
+    assert merge == MergeOptions(splat_surface=False)
     assert apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": None}) == MergeOptions()
 
 
@@ -327,3 +331,31 @@ def test_eval_scores_the_splat_surface_points_per_material_and_the_report_shows_
     assert tables["Table 5"][1] == ["material", "kind", "mvs", "merged", "merged_unrefined"]
     plain_tables = [t[0].split(" — ")[0] for t in _per_material_tables({**table, "products": {"mvs": plain}}, Units.MM)]
     assert plain_tables == ["Table 5", "Table 5b"]  # no splat-surface points: no table of them
+
+
+def test_the_sigma_scale_of_a_class_multiplies_the_sigma_of_its_points_only(tmp_path) -> None:
+    layout, ctx = plane_project(tmp_path / "p")
+    stage = MergeStage()
+    stage.run(ctx)
+    plain = read_point_cloud(layout.merged_points_ply)
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("reflective", 3.0),)))
+    stage.run(ctx)
+    other = read_point_cloud(layout.merged_points_ply)  # the plane's points are predicted textureless: unchanged
+    assert np.array_equal(np.asarray(other.fields["sigma"]), np.asarray(plain.fields["sigma"]))
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("textureless", 2.5),)))
+    stage.run(ctx)
+    scaled = read_point_cloud(layout.merged_points_ply)
+    surface = np.asarray(plain.fields["source"]) == Source.SPLAT_SURFACE
+    assert surface.sum() > 300 and np.array_equal(
+        np.asarray(scaled.fields["source"]), np.asarray(plain.fields["source"])
+    )
+    ratio = (
+        np.asarray(scaled.fields["sigma"], np.float64)[surface] / np.asarray(plain.fields["sigma"], np.float64)[surface]
+    )
+    np.testing.assert_allclose(ratio, 2.5, rtol=1e-6)  # float32 storage
+    assert np.array_equal(scaled.world_positions, plain.world_positions)
+
+
+def test_a_sigma_scale_below_one_is_refused_with_the_entry() -> None:
+    with pytest.raises(ConfigError, match=r"splat_surface_sigma_scale .*'reflective', 0.5"):
+        MergeOptions(splat_surface_sigma_scale=(("reflective", 0.5),))

@@ -6,9 +6,9 @@ Gaussians whose geometry is trustworthy); the splats alone also go to export/spl
 converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
 3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable); the tileset also holds the survey points as a
 point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it). ``splat_surface``
-(``run --splat-surface``, off by default) adds the splat-surface points of the fill layer to the survey points
-(:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record; on a tiled project they
-are found tile by tile (:mod:`hybridsplat.tile_surface`).
+(on by default; ``run --no-splat-surface`` turns it off) adds the splat-surface points of the fill layer to the
+survey points (:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record; on a tiled
+project they are found tile by tile (:mod:`hybridsplat.tile_surface`).
 """
 
 from __future__ import annotations
@@ -122,7 +122,8 @@ class MergeStage(Stage):
         CliOption(
             "splat_surface",
             "--splat-surface/--no-splat-surface",
-            help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points.",
+            help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points "
+            "(on by default).",
         ),
         CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),
     )
@@ -369,11 +370,13 @@ def _add_splat_surface(
     (``splat_surface_support``; they are also the anchors of the σ model, :func:`fusion.splat_surface.sigma_model`),
     counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
     the MVS Gaussians and their ``needs`` flags)."""
+    from dataclasses import replace
+
     import numpy as np
 
     from fusion.convert_options import Source
     from fusion.splat_surface import as_point_set, front_depths_from_points, splat_surface_points
-    from fusion.survey import classes_of_points, with_splat_surface
+    from fusion.survey import class_names_of_points, classes_of_points, with_splat_surface
     from hybridsplat import project_io
     from hybridsplat.stages.tiles import tiling_on
 
@@ -391,16 +394,23 @@ def _add_splat_surface(
     else:
         front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
         found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points, anchors)
+    codes = project_io.read_needs_splats_class_codes(layout) if needs.any() else {}
+    predicted = None
+    if codes:
+        predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
+    if opts.splat_surface_sigma_scale and len(found):
+        # σ widened per predicted class: the σ model's interval is too narrow where the fill layer is biased alike
+        # in every view (mirrors, polished metal); the factors are MergeOptions'.
+        local = found.positions + (views.cameras.origin - mvs.origin)
+        names = class_names_of_points(local, mvs, needs, predicted, codes)
+        scale = dict(opts.splat_surface_sigma_scale)
+        found = replace(found, sigma=found.sigma * np.array([scale.get(n, 1.0) for n in names], np.float64))
     surface = as_point_set(found, views.cameras.origin)
     support = None
     if opts.splat_surface_support is not None:
         support = (mvs.with_origin(products.points.origin).means, opts.splat_surface_support * views.spacing)
     points, counts = with_splat_surface(products.points, surface, opts.splat_surface_keep_centres,
                                         0.5 * views.spacing, support)  # fmt: skip
-    codes = project_io.read_needs_splats_class_codes(layout) if needs.any() else {}
-    predicted = None
-    if codes:
-        predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
     added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
     per_class = classes_of_points(points.with_origin(mvs.origin).means[added], mvs, needs, predicted, codes)
     sigma = np.asarray(points.fields["sigma"], np.float64)[added]
