@@ -42,6 +42,7 @@ from scipy.spatial import cKDTree
 from classify.classes import UNLABELLED, load_classes
 from classify.fallback import fallback_predict
 from classify.features import FeatureGroup, FeatureOptions, FeatureTable
+from classify.features.registry import feature_group
 from classify.masks import MaskOptions, SeenInView, region_masks
 from classify.model import ForestOptions, predict, scores, train
 from classify.scoring import distance_to_cloud, pixel_truth
@@ -173,21 +174,15 @@ def _true_points_in_box(cams, view, depth: np.ndarray, lo: np.ndarray, hi: np.nd
 
 
 def ablation_groups() -> dict[str, tuple[FeatureGroup, ...]]:
-    """The issue's ablation, cumulative: today's features; + fusion evidence; + view-dependent; + image boundaries;
-    + image texture."""
-    today = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
-    extra = [g for g in FeatureGroup if g not in today]
-    out = {"today's features (geometric + radiometric + multi-view)": today}
-    for i in range(len(extra)):
-        out["+ " + " + ".join(x.value for x in extra[: i + 1])] = today + tuple(extra[: i + 1])
-    return out
+    """The ablation's groups beside ``geometric only`` (:func:`experiments`): today's features."""
+    return {"today's features (geometric + radiometric + multi-view)": ALL}
 
 
 def experiments(args, train_sets: dict[str, SceneData]) -> dict[str, tuple]:
     """label → (training scenes, feature groups, forest options, band ignored in training): the main model, the
     cumulative ablation, the band counted in training, geometric only, and each scale trained alone."""
     every = list(train_sets.values())
-    main_groups = tuple(FeatureGroup(g) for g in args.main_groups.split(","))
+    main_groups = tuple(feature_group(g) for g in args.main_groups.split(","))
     main = replace(DEFAULT_FOREST, n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     out: dict[str, tuple] = {"main": (every, main_groups, main, args.ignore_band)}
     for label, groups in ablation_groups().items():
@@ -288,19 +283,15 @@ def part_score(args) -> dict:
 
 def recipe_candidates(args) -> dict[str, tuple[FeatureOptions, ForestOptions, bool]]:
     """label → (features, forest options, band ignored in training): the recipes ``--part choose`` compares on the
-    training scenes alone — today's three groups, + fusion evidence, every group; the band kept or left out; today's
-    groups without the absolute colour (red, green, blue, hue: a layout's palette, not its material); the forest's
-    leaf size, depth, smoothing, class weights and tree count; the shipped recipe (unweighted classes) + image
-    texture and with every group."""
+    training scenes alone — today's three groups with the band kept or left out; without the absolute colour (red,
+    green, blue, hue: a layout's palette, not its material); the forest's leaf size, depth, smoothing, class
+    weights and tree count."""
     base = ForestOptions(n_estimators=args.trees, max_depth=args.depth, smooth_passes=args.smooth)
     today = FeatureOptions(groups=ALL)
-    fusion = FeatureOptions(groups=(*ALL, FeatureGroup.FUSION))
-    every = FeatureOptions(groups=tuple(FeatureGroup))
     no_colour = FeatureOptions(names=tuple(n for n in today.selected() if n not in ("red", "green", "blue", "hue")))
     out = {}
-    for groups_label, features in (("3 groups", today), ("3 groups + fusion", fusion), ("every group", every)):
-        for band_label, ignore in (("band kept", False), ("band ignored", True)):
-            out[f"{groups_label}, {band_label}"] = (features, base, ignore)
+    for band_label, ignore in (("band kept", False), ("band ignored", True)):
+        out[f"3 groups, {band_label}"] = (today, base, ignore)
     out["3 groups without absolute colour, band kept"] = (no_colour, base, False)
     out["3 groups, band kept, leaves >= 20"] = (today, replace(base, min_samples_leaf=20), False)
     out["3 groups, band kept, depth 10"] = (today, replace(base, max_depth=10), False)
@@ -312,9 +303,6 @@ def recipe_candidates(args) -> dict[str, tuple[FeatureOptions, ForestOptions, bo
     for passes in (2, 3):
         unweighted = replace(base, class_weight=None, smooth_passes=passes)
         out[f"3 groups, band kept, unweighted classes, {passes} smoothing passes"] = (today, unweighted, False)
-    texture = FeatureOptions(groups=(*ALL, FeatureGroup.IMAGE_TEXTURE))
-    out["3 groups + image texture, band kept, unweighted classes"] = (texture, replace(base, class_weight=None), False)
-    out["every group, band kept, unweighted classes"] = (every, replace(base, class_weight=None), False)
     return out
 
 

@@ -3,8 +3,7 @@
 Reads ``P/dense`` (``fused.ply`` + ``.vis``, the photos and depth maps of the dense reconstruction: held-out
 photos never take part) and times each feature group on the whole fused cloud: geometric (``compute_features``
 with that group alone: the space-filling-curve order, the finest k-NN every other group reuses, three scales),
-then each view-based group's own function on the same points (multiview, fusion, view_dependent,
-image_boundaries, image_texture), and ``compute_features`` with the default three groups and with all seven.
+then the multi-view group's own function on the same points, and ``compute_features`` with the three groups.
 Photos and depth maps are decoded once beforehand (their decode time is printed apart), so the figures compare the
 groups' work, not the file reads; each figure is the best of ``--repeat`` runs. A figure taken while something else
 runs on the machine is not a figure: the load (``uptime``) is printed before and after::
@@ -23,19 +22,13 @@ import numpy as np
 
 from classify.features import (
     ALL_GROUPS,
-    ALL_GROUPS_EXTENDED,
     FeatureGroup,
     FeatureOptions,
-    FeatureTable,
     ViewData,
     compute_features,
     views_from_workspace,
 )
-from classify.features.fusion_evidence import fusion_features
-from classify.features.image_boundaries import image_boundary_features
-from classify.features.image_texture import image_texture_features
 from classify.features.multiview import multiview_features
-from classify.features.view_dependent import view_dependent_features
 from core.pointcloud import PointCloud
 from hybridsplat.layout import ProjectLayout
 from recon.workspace import read_fused
@@ -77,19 +70,13 @@ def _warm(views: ViewData, cloud: PointCloud) -> float:
         views.depth(v.name)
     seconds = time.perf_counter() - t0
     small = _subset(cloud, 200)
-    compute_features(small, FeatureOptions(groups=ALL_GROUPS_EXTENDED), views)
+    compute_features(small, FeatureOptions(groups=ALL_GROUPS), views)
     return seconds
 
 
-def _group_runs(cloud: PointCloud, views: ViewData, geo: FeatureTable) -> dict[str, Callable[[], object]]:
+def _group_runs(cloud: PointCloud, views: ViewData) -> dict[str, Callable[[], object]]:
     pos, vis, mv = cloud.positions, cloud.visibility, FeatureOptions().multiview
-    return {
-        "multiview": lambda: multiview_features(pos, vis, views, mv),
-        "fusion": lambda: fusion_features(pos, vis, views, geo.spacing, geo.neighbours, mv),
-        "view_dependent": lambda: view_dependent_features(pos, vis, cloud.normals, views, mv),
-        "image_boundaries": lambda: image_boundary_features(pos, vis, views, geo.spacing, mv),
-        "image_texture": lambda: image_texture_features(pos, vis, views, mv),
-    }
+    return {"multiview": lambda: multiview_features(pos, vis, views, mv)}
 
 
 def main() -> None:
@@ -114,12 +101,11 @@ def main() -> None:
     rows: list[tuple[str, int, float]] = []
     t, geo = _best(lambda: compute_features(cloud, FeatureOptions(groups=(FeatureGroup.GEOMETRIC,))), args.repeat)
     rows.append(("geometric (+ k-NN)", len(geo.names), t))  # type: ignore[union-attr]
-    for name, fn in _group_runs(cloud, views, geo).items():  # type: ignore[arg-type]
+    for name, fn in _group_runs(cloud, views).items():
         t, cols = _best(fn, args.repeat)
         rows.append((name, len(cols), t))  # type: ignore[arg-type]
-    for label, groups in (("compute_features default 3", ALL_GROUPS), ("compute_features all 7", ALL_GROUPS_EXTENDED)):
-        t, table = _best(lambda g=groups: compute_features(cloud, FeatureOptions(groups=g), views), args.repeat)
-        rows.append((label, len(table.names), t))  # type: ignore[union-attr]
+    t, table = _best(lambda: compute_features(cloud, FeatureOptions(groups=ALL_GROUPS), views), args.repeat)
+    rows.append(("compute_features default 3", len(table.names), t))  # type: ignore[union-attr]
     t_mv = dict((r[0], r[2]) for r in rows)["multiview"]
     print(f"{'group':28} {'features':>8} {'seconds':>9} {'points/s':>12} {'point-views/s':>14} {'x multiview':>12}")
     for name, count, t in rows:

@@ -15,7 +15,6 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
 - ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
 - ``geometry_priors``: ``geometry`` and the MVS depth / normal priors at their defaults (``[train.training.priors]``).
-- ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
 - ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
   (weight 0.2 from 80 % of the steps), SmoothL1 + MS-SSIM instead of L1 + SSIM, hard-view mining, or MCMC
@@ -60,7 +59,6 @@ VARIANTS = (
     "splat_surface",
     "geometry",
     "geometry_priors",
-    "hole_region",
     "lpips_loss",
     "msssim_loss",
     "hard_views",
@@ -197,8 +195,6 @@ def variant_config(config, variant: str):
         if variant == "geometry_priors":
             training = replace(training, priors=PriorOptions())
         return config.with_stage_options("train", replace(train, training=training))
-    if variant == "hole_region":
-        return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
     if variant in ("lpips_loss", "msssim_loss", "hard_views", "mcmc"):
         from fusion.train.options import HardViewOptions, Photometric
         from fusion.train.strategy import MCMCStrategy

@@ -22,7 +22,6 @@ class HoleArea(str, Enum):
     HULL = "hull"
     BELOW = "below"
     ENCLOSED = "enclosed"
-    REGION = "region"
 
 
 class ExplainedBy(str, Enum):

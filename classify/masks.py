@@ -18,12 +18,8 @@ A mask pixel is set (255 in the PNG) where
   projection, "up" being the projection of the world ``up`` axis (sky lies above the scene in upright photos; a
   photo looking along ``up``, e.g. nadir, is all scene), so that unreconstructed surfaces outside the hull count
   as holes while the sky does not. ``"hull"`` and ``"below"`` are the two parts alone; ``"enclosed"``: only
-  uncovered regions enclosed by covered pixels (no sky, but border holes are missed). ``"region"``: the pixels
-  whose rays meet the survey region, the volume under the cloud's top surface over its footprint
-  (:mod:`classify.survey_region`): a rule from the geometry alone, under which a ray that leaves the region without
-  meeting the cloud (a backdrop behind a silhouette, the floor beyond the table, the sky) is background, never a
-  hole; no GrabCut growth or backdrop test applies to it. Otherwise (``grow_area`` > 0,
-  with the photo) the valid area grows by what *looks like* the reconstructed scene: OpenCV's GrabCut segments
+  uncovered regions enclosed by covered pixels (no sky, but border holes are missed). With ``grow_area`` > 0 and
+  the photo, the valid area grows by what *looks like* the reconstructed scene: OpenCV's GrabCut segments
   the photo from colour models of the pixels covered by points (certain scene), the rest of the valid area
   (probably scene) and the pixels outside it (probably not). The far part of a table or terrain seen at a
   grazing angle, which MVS did not reconstruct, lies above the cloud's outline but looks like the table or the
@@ -50,7 +46,6 @@ import numpy as np
 from scipy import ndimage
 
 from classify.mask_options import EXPLAINED_BY, HOLE_AREAS, ExplainedBy, HoleArea, MaskOptions  # noqa: F401 (re-exported)
-from classify.survey_region import SurveyRegion, rays_meeting_region, survey_region
 from core.cameras import Cameras, View
 from core.errors import DataError
 
@@ -359,12 +354,10 @@ def photo_mask(
     user_mask: np.ndarray | None = None,
     seen: SeenInView | None = None,
     gsd: float | None = None,
-    region: SurveyRegion | None = None,
 ) -> PhotoMask:
     """The mask of one view from the classified cloud (positions (N, 3) float64 in the cameras' frame,
     needs_splats (N,) bool, spacing metres). seen: what tells which points this photo sees (for
-    ``explained_by="seen"``; None: every point explains its pixels). region: the cloud's survey region for
-    ``hole_area="region"`` (:func:`hole_region`; built here when None)."""
+    ``explained_by="seen"``; None: every point explains its pixels)."""
     if spacing <= 0 or not np.isfinite(spacing):
         raise DataError(f"point spacing must be positive, got {spacing}")
     fx = cameras.camera_of(view).focal[0]
@@ -376,9 +369,7 @@ def photo_mask(
     from_points = _front_footprints(pr, np.asarray(needs_splats, dtype=bool)[pr.idx], radius, options)
     holes = np.zeros((h, w), dtype=bool)
     if options.holes and len(pr.idx):
-        if options.hole_area == HoleArea.REGION and region is None:
-            region = hole_region(cameras, positions, spacing, options, gsd)
-        holes = _mvs_holes(cameras, view, positions, pr, radius, fx, options, seen, gsd, region)
+        holes = _mvs_holes(cameras, view, positions, pr, radius, fx, options, seen, gsd)
     user = _user_pixels(user_mask, h, w)
     union = (from_points | holes | user).astype(np.uint8)
     mask, margin = _close_and_dilate(union, pr, spacing, fx, options)
@@ -416,7 +407,6 @@ def _mvs_holes(
     options: MaskOptions,
     seen: SeenInView | None,
     gsd: float | None,
-    region: SurveyRegion | None = None,
 ) -> np.ndarray:
     """(H, W) bool: pixels of the valid area that no (seen) point explains, without holes under ``min_hole_px``."""
     hole_radius = radius * (options.hole_footprint / options.footprint)
@@ -424,11 +414,7 @@ def _mvs_holes(
         g = gsd if gsd is not None and gsd > 0 else float(np.median(pr.z)) / fx
         hole_radius = options.hole_gsd * g * fx / pr.z
     covered = pr.draw(np.ones(len(pr.idx), dtype=bool), hole_radius)
-    if region is not None:
-        # A pixel near a projected point meets the cloud; the others meet the region when their rays go under it.
-        area = covered | rays_meeting_region(cameras, view, region, candidates=~covered)
-    else:
-        area = _valid_area(cameras, view, positions, pr, covered, options, seen)
+    area = _valid_area(cameras, view, positions, pr, covered, options, seen)
     if options.explained_by == "seen" and seen is not None:
         explained = seen.explains(view, pr.idx, pr.col, pr.row, (pr.w, pr.h), options.colour_tolerance)
         covered = pr.draw(explained, hole_radius)
@@ -540,28 +526,10 @@ def region_masks(
     if not (cloud_downscale >= 1.0 and np.isfinite(cloud_downscale)):
         raise DataError(f"cloud_downscale must be >= 1, got {cloud_downscale}")
     gsd = ground_sample_distance(cameras, pts, names) * cloud_downscale if options.hole_gsd > 0 else None
-    region = None
-    if options.holes and options.hole_area == HoleArea.REGION and len(pts):
-        region = hole_region(cameras, pts, spacing, options, gsd)
     out = []
     for view in cameras:
         if names is not None and view.name not in names:
             continue
         user = None if user_masks is None else user_masks.get(view.name)
-        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user, seen, gsd, region))
+        out.append(photo_mask(cameras, view, pts, flags, spacing, options, user, seen, gsd))
     return out
-
-
-def hole_region(
-    cameras: Cameras, positions: np.ndarray, spacing: float, options: MaskOptions, gsd: float | None = None
-) -> SurveyRegion:
-    """The survey region of ``hole_area="region"`` (:mod:`classify.survey_region`): the cloud's height field along
-    ``options.up`` with cells of the radius within which a point explains pixels (``hole_gsd`` × the cloud's GSD,
-    ``gsd`` or computed over ``cameras``; ``hole_footprint`` × ``spacing`` when ``hole_gsd`` is 0), and at least
-    the point ``spacing``, so that a sampled surface occupies neighbouring cells."""
-    cell = options.hole_footprint * spacing
-    if options.hole_gsd > 0:
-        g = gsd if gsd is not None and gsd > 0 else ground_sample_distance(cameras, positions)
-        if g > 0:
-            cell = options.hole_gsd * g
-    return survey_region(positions, np.asarray(options.up, dtype=np.float64), max(cell, spacing))

@@ -429,6 +429,25 @@ def _options_from_dict(d: dict[str, object]) -> FeatureOptions:
     )
 
 
+def _refuse_removed_groups(names: tuple[str, ...], options: object, path: Path) -> None:
+    """A :class:`FormatError` naming the removed feature groups (:data:`classify.features.registry.REMOVED_GROUPS`)
+    that a model's features or options use: it cannot be given its features any more."""
+    from classify.features.registry import REMOVED_WHY, removed_groups
+
+    listed = [*names]
+    if isinstance(options, dict):
+        for key in ("groups", "names"):
+            if isinstance(options.get(key), list):
+                listed += [str(x) for x in options[key]]  # type: ignore[union-attr]
+    gone = removed_groups(listed)
+    if gone:
+        raise FormatError(
+            f"the model was trained with the feature group(s) {', '.join(gone)}, {REMOVED_WHY}; train it again "
+            "without them (hybridsplat classify train)",
+            path,
+        )
+
+
 def same_forest(a: ClassifierModel, b: ClassifierModel) -> bool:
     """True when the two models' forests have the same trees node for node (structure, split features, thresholds,
     leaf values), the same features and classes. Two skops files of one forest differ in bytes (member names are
@@ -509,6 +528,7 @@ def load_model(path: str | PathLike[str]) -> ClassifierModel:
     try:
         meta = json.loads(payload["meta"])
         names = tuple(str(n) for n in meta["feature_names"])
+        _refuse_removed_groups(names, meta["feature_options"], path)
         options = _options_from_dict(meta["feature_options"])
         classes = ClassSet.from_dict(meta["classes"], path)
     except (KeyError, TypeError, ValueError) as err:

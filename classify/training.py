@@ -204,6 +204,7 @@ def train_from_projects(
     _check_label_sources(dense_dirs, scenes, labels_file, label_masks)
     classes = load_classes(classes_toml)
     options = FeatureOptions(names=feature_names, geometric=FeatureOptions().geometric)
+    options.selected()  # an unknown or removed feature name is refused before any cloud is read
     tables: list[FeatureTable] = []
     labels: list[np.ndarray] = []
     blocks: list[np.ndarray] = []

@@ -7,11 +7,18 @@ every table read from config.toml and to the options recorded in an old manifest
 loads, and its stages stay up to date when their effective options did not change.
 
 A key that is known under the new layout is left as it is: a table already in the new form passes unchanged.
+
+Options (and single values of options) that a version removed are listed in :data:`REMOVED`: a table that still
+sets one is refused by :func:`hybridsplat.options.options_from_table` with one :class:`core.errors.ConfigError`
+naming the key, the version and why (:func:`removed_setting`), whether it comes from config.toml, a manifest or the
+command line, instead of a traceback or a silently ignored value.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 NONE = "none"
@@ -134,3 +141,51 @@ def migrate_table(stage: str, table: dict[str, Any]) -> dict[str, Any]:
     if old_priors:
         _put(out, "training.priors", _train_priors(table))
     return out
+
+
+# -- removed options -------------------------------------------------------------------------------------------
+
+NEXT_VERSION = "0.4"
+"""The version that the removals of issue 54 (experiments the measurements went against) ship in."""
+
+
+@dataclass(frozen=True)
+class Removed:
+    """An option a version removed: ``key`` of the options dataclass ``options`` (``module.QualName``), as
+    config.toml spells it in ``section``; ``value``: the one value that was removed (None: the option itself);
+    ``why``: one clause; ``version``: the version that removed it. The record of its measurements stays in
+    docs/experiments/, the user's note in docs/migration.md."""
+
+    options: str
+    section: str
+    key: str
+    value: Any = None
+    why: str = ""
+    version: str = NEXT_VERSION
+
+    def message(self, prefix: str = "") -> str:
+        """``[section] key = value`` removed in ``version``: ``why``; see docs/migration.md."""
+        value = "" if self.value is None else f" = {json.dumps(self.value)}"
+        setting = f"[{self.section}] {prefix}{self.key}{value}"
+        return f"{setting} was removed in {self.version}: {self.why}; see docs/migration.md"
+
+
+REMOVED: tuple[Removed, ...] = (
+    Removed(
+        "classify.mask_options.MaskOptions",
+        "masks",
+        "hole_area",
+        "region",
+        "looking for holes only in the rays that meet the survey region cost the held-out picture more than it "
+        "bought the survey (use the default, hull_below)",
+    ),
+)
+
+
+def removed_setting(options_type: type, key: str, value: Any) -> Removed | None:
+    """The :class:`Removed` entry that ``key = value`` of ``options_type`` sets, or None when it is not removed."""
+    name = f"{options_type.__module__}.{options_type.__qualname__}"
+    for entry in REMOVED:
+        if entry.options == name and entry.key == key and (entry.value is None or entry.value == value):
+            return entry
+    return None

@@ -162,6 +162,7 @@ def options_from_table(
     except ConfigError as err:
         raise ConfigError(err.problem, where) from err
     known = {f.name: f for f in configurable_fields(options_type, runtime)}
+    _refuse_removed(options_type, table, where, prefix)
     unknown = sorted(set(table) - set(known))
     if unknown:
         spelled = ", ".join(prefix + k for k in unknown)
@@ -177,6 +178,17 @@ def options_from_table(
         raise ConfigError(f"{prefix.rstrip('.') + ': ' if prefix else ''}{err.problem}", where) from err
     except (TypeError, ValueError) as err:
         raise ConfigError(str(err), where) from err
+
+
+def _refuse_removed(options_type: type, table: dict[str, Any], where: Path | str, prefix: str) -> None:
+    """A :class:`ConfigError` naming the first key of ``table`` that sets an option or a value a version removed
+    (:data:`hybridsplat.config_migration.REMOVED`)."""
+    from hybridsplat.config_migration import removed_setting
+
+    for key, value in table.items():
+        entry = removed_setting(options_type, key, value)
+        if entry is not None:
+            raise ConfigError(entry.message(prefix), where)
 
 
 def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str, runtime: tuple[str, ...]) -> Any:

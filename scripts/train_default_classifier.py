@@ -32,6 +32,7 @@ from pathlib import Path
 
 from classify.classes import load_classes
 from classify.features import FeatureGroup, FeatureOptions
+from classify.features.registry import feature_group
 from classify.model import same_forest, save_model
 from classify.synthetic import load_scene_data
 from classify.training import DEFAULT_FOREST, DEFAULT_TRAINING_SCENES, SCENE_FOLDS, SynthTrainingScene, train_on_scenes
@@ -69,7 +70,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     classes = load_classes()
-    options = FeatureOptions(groups=tuple(FeatureGroup(g) for g in args.groups.split(",")))
+    options = FeatureOptions(groups=tuple(feature_group(g) for g in args.groups.split(",")))
     cached = FeatureOptions(groups=tuple(FeatureGroup))  # every group cached once; the model selects its own
     datas, build_s = [], 0.0
     t0 = time.perf_counter()

@@ -161,6 +161,28 @@ def test_registry_resolution_and_errors():
         resolve_names(("shininess",), 1, ())
 
 
+def test_removed_groups_and_their_features_are_refused_naming_the_group():
+    """The four view-based groups removed in 0.4: their names and their features' names are a ConfigError naming
+    the group (not "unknown feature"), through the registry and through FeatureOptions; the default selection is
+    the 51 features of the three remaining groups, none of them a removed one's."""
+    from classify.features.registry import REMOVED_GROUPS, feature_group
+
+    assert [g.value for g in FeatureGroup] == ["geometric", "radiometric", "multiview"]
+    default = FeatureOptions().selected()
+    assert len(default) == 51 and list(default) == list(feature_specs(3))
+    for group, features in REMOVED_GROUPS.items():
+        assert not set(features) & set(default)
+        for name in (group, features[0]):
+            with pytest.raises(ConfigError, match=f"feature group {group}: removed in 0.4") as err:
+                FeatureOptions(names=("planarity", name)).selected()
+            assert "docs/migration.md" in err.value.one_line()
+        with pytest.raises(ConfigError, match=f"feature group {group}: removed"):
+            feature_group(group)
+    assert feature_group("multiview") is FeatureGroup.MULTIVIEW
+    with pytest.raises(ConfigError, match="unknown feature group 'shininess'; known: geometric, radiometric"):
+        feature_group("shininess")
+
+
 def test_compute_features_table_and_missing_inputs():
     pts = _wavy_plane(2000)
     rng = np.random.default_rng(0)

@@ -67,8 +67,7 @@ def test_holes_inside_the_cloud_but_not_at_the_border():
     rows, cols = np.nonzero(pm.mask)
     assert cols.min() >= 30 and cols.max() <= 60 and rows.min() >= 20 and rows.max() <= 40
     assert not pm.mask[:, :5].any()
-    # hull_below: a nadir photo sees no sky, so the uncovered band at the border is a hole too (the region rule,
-    # opt-in, leaves it to the background: tests/test_survey_region.py).
+    # hull_below: a nadir photo sees no sky, so the uncovered band at the border is a hole too.
     nadir = photo_mask(
         cams,
         view,

@@ -175,6 +175,31 @@ def test_model_refuses_mismatched_features_and_bad_files(tmp_path):
         load_model(tmp_path / "none.skops")
 
 
+def test_a_model_trained_with_a_removed_group_is_refused_naming_the_group(tmp_path):
+    """A model file whose features or options name a feature group removed in 0.4 (written by an earlier version:
+    here the metadata of a saved model rewritten) does not load: a FormatError naming the file and the group."""
+    import json
+
+    import skops.io as sio
+
+    table, y = _toy_table(300)
+    model, _ = train(table, y, load_classes(), FeatureOptions(), ForestOptions(n_estimators=2, n_jobs=1))
+    path = save_model(model, tmp_path / "m.skops")
+    payload = sio.load(path, trusted=sio.get_untrusted_types(file=path))
+    meta = json.loads(payload["meta"])
+    for where, change in (
+        ("feature names", lambda m: m.update(feature_names=["planarity_s0", "texture_std_views"])),
+        ("groups", lambda m: m["feature_options"].update(groups=["geometric", "image_texture"])),
+    ):
+        old = json.loads(json.dumps(meta))
+        change(old)
+        sio.dump({**payload, "meta": json.dumps(old)}, tmp_path / "old.skops")
+        with pytest.raises(FormatError, match="feature group.s. image_texture, removed in 0.4") as err:
+            load_model(tmp_path / "old.skops")
+        assert "old.skops" in err.value.one_line(), where
+    assert load_model(path).feature_names == model.feature_names  # the unchanged file still loads
+
+
 def test_fallback_rules():
     names = FALLBACK_FEATURES
     rows = np.array(

@@ -3,8 +3,8 @@ classify/points.ply byte for byte over 16 cells with points exactly on their bor
 limit too small refused.
 
 The scene is tiny: 2 400 points on a wavy 2 m × 2 m surface seen by 3 synthetic views, a small forest trained on
-its features (every group: geometric at 2 scales with k = 8, radiometric, multi-view, fusion evidence (the spacing
-and the neighbours), view-dependent colour, image boundaries (the spacing)) that smooths its probabilities once. A
+its features (every group: geometric at 2 scales with k = 8, radiometric, multi-view) that smooths its
+probabilities once. A
 grid of 4 × 4 cells of 0.5 m is patched in (the memory plan cannot make several cells of so few points), with a
 halo too small for the coarse level (0.15 m) so that cells are redone with larger halos, as a real cloud's would
 be where the first halo is not enough.
@@ -17,7 +17,7 @@ import pytest
 
 import classify.stream as stream
 from classify.classes import load_classes
-from classify.features import ALL_GROUPS_EXTENDED, FeatureOptions, GeometricOptions, ViewData, compute_features
+from classify.features import ALL_GROUPS, FeatureOptions, GeometricOptions, ViewData, compute_features
 from classify.model import ForestOptions, train
 from classify.run import ClassifiedCloud, feature_options_for, predict_table, write_classified
 from core.cameras import Camera, Cameras, View
@@ -70,7 +70,7 @@ def scene():
     """The cloud, the views and a model trained on the cloud's own features (labels: the rough patch and a few
     points with a high red channel), smoothing once."""
     cloud, views, classes = _cloud(), _views(), load_classes()
-    opts = FeatureOptions(groups=ALL_GROUPS_EXTENDED, geometric=GeometricOptions(voxel_factors=(1.0, 3.0), k=8))
+    opts = FeatureOptions(groups=ALL_GROUPS, geometric=GeometricOptions(voxel_factors=(1.0, 3.0), k=8))
     table = compute_features(cloud, opts, views)
     labels = np.full(len(cloud), classes.collaborative_code, np.uint8)
     other = next(c.code for c in classes.classes if c.needs_splats)

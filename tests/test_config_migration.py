@@ -92,6 +92,29 @@ def test_config_errors_name_the_option_and_the_file(tmp_path):
         assert words in str(err.value) and "config.toml" in err.value.one_line(), text
 
 
+def test_a_removed_option_value_is_refused_naming_the_key_the_version_and_the_record(tmp_path):
+    """``[masks] hole_area = "region"`` (removed by issue 54): one ConfigError naming the key, the value, the version
+    and docs/migration.md, from config.toml and from the command line alike; the values that stay still load."""
+    from classify.mask_options import HOLE_AREAS, MaskOptions
+    from hybridsplat.config_migration import NEXT_VERSION
+    from hybridsplat.options import with_option
+
+    path = tmp_path / "config.toml"
+    path.write_text('[masks]\nhole_area = "region"\n')
+    with pytest.raises(ConfigError) as err:
+        read_config(path, stage_options_types())
+    line = err.value.one_line()
+    assert f'[masks] hole_area = "region" was removed in {NEXT_VERSION}' in line and "docs/migration.md" in line
+    assert "config.toml" in line and "\n" not in line
+    with pytest.raises(ConfigError, match='hole_area = "region" was removed') as err:
+        with_option(MaskOptions(), "hole_area", "region", "--hole-area")
+    assert "--hole-area" in err.value.one_line()
+    assert "region" not in HOLE_AREAS
+    for kept in HOLE_AREAS:
+        path.write_text(f'[masks]\nhole_area = "{kept}"\n')
+        assert read_config(path, stage_options_types()).stages["masks"].hole_area.value == kept
+
+
 def test_a_stage_recorded_by_0_2_is_current_when_its_options_did_not_move_in_value(tmp_path):
     clean = stage_named("clean")
     old = {"min_opacity": 0.02, "max_scale_scene": 0.2, "max_scale_spacing": -1.0, "cluster_eps_spacing": 50.0,

@@ -1,5 +1,4 @@
-"""Per-point features of a dense cloud: geometric (multi-scale), radiometric and multi-view, and four optional
-view-based groups (fusion evidence, view-dependent colour, image boundaries, image texture).
+"""Per-point features of a dense cloud: geometric (multi-scale), radiometric and multi-view.
 
 ``compute_features(cloud, options, views)`` returns a :class:`FeatureTable` (names + an (N, F) float32 matrix).
 Every feature is documented in :mod:`classify.features.registry` and selectable by name.
@@ -11,10 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from classify.features.fusion_evidence import fusion_features
 from classify.features.geometric import GeometricOptions, geometric_features, point_spacing, spatial_order
-from classify.features.image_boundaries import image_boundary_features
-from classify.features.image_texture import image_texture_features
 from classify.features.multiview import MultiViewOptions, ViewData, multiview_features, views_from_workspace
 from classify.features.radiometric import color_variance, rgb_hsv
 from classify.features.registry import (
@@ -24,13 +20,11 @@ from classify.features.registry import (
     resolve_names,
 )
 from classify.features.reorder import cube_of, gather_rows, renumber_neighbours, scatter_column
-from classify.features.view_dependent import view_dependent_features
 from core.errors import ConfigError, DataError
 from core.pointcloud import PointCloud
 
 __all__ = [
     "ALL_GROUPS",
-    "ALL_GROUPS_EXTENDED",
     "VIEW_GROUPS",
     "FeatureGroup",
     "FeatureOptions",
@@ -47,23 +41,8 @@ __all__ = [
 ]
 
 ALL_GROUPS = (FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW)
-# Every group, in registry order: the default three plus fusion evidence, view-dependent colour, image boundaries
-# and image texture (opt-in: the shipped model is trained on ALL_GROUPS).
-ALL_GROUPS_EXTENDED = (
-    *ALL_GROUPS,
-    FeatureGroup.FUSION,
-    FeatureGroup.VIEW_DEPENDENT,
-    FeatureGroup.IMAGE_BOUNDARIES,
-    FeatureGroup.IMAGE_TEXTURE,
-)
 # The groups that need the photos, cameras and depth maps of the dense workspace (``views``).
-VIEW_GROUPS = (
-    FeatureGroup.MULTIVIEW,
-    FeatureGroup.FUSION,
-    FeatureGroup.VIEW_DEPENDENT,
-    FeatureGroup.IMAGE_BOUNDARIES,
-    FeatureGroup.IMAGE_TEXTURE,
-)
+VIEW_GROUPS = (FeatureGroup.MULTIVIEW,)
 
 
 @dataclass(frozen=True)
@@ -71,10 +50,8 @@ class FeatureOptions:
     """Which features, and how.
 
     names: feature names (full names, geometric base names or group names; None = every feature of ``groups``).
-    groups: the groups used when ``names`` is None (default: geometric, radiometric, multiview;
-    :data:`ALL_GROUPS_EXTENDED` adds fusion, view_dependent, image_boundaries and image_texture).
-    geometric / multiview: their options. chunk_size applies to every chunked step; the four view-based groups
-    after multiview take their chunking, image cache and fallback depth tolerance from ``multiview`` too.
+    groups: the groups used when ``names`` is None (default: geometric, radiometric, multiview).
+    geometric / multiview: their options.
     """
 
     names: tuple[str, ...] | None = None
@@ -138,8 +115,8 @@ def compute_features(
     point whose neighbourhoods lie inside the part then gets the features it has in the whole cloud, bit for bit
     (:mod:`classify.stream` proves which do); None: ``cloud`` is the whole cloud.
 
-    Radiometric features need colours; the view-based groups (:data:`VIEW_GROUPS`) need ``views`` (and use
-    ``cloud.visibility``; view_dependent also ``cloud.normals``).
+    Radiometric features need colours; the view-based group (:data:`VIEW_GROUPS`) needs ``views`` (and uses
+    ``cloud.visibility``).
     A missing input for a selected feature raises :class:`ConfigError` naming it. Non-finite values are
     replaced by 0 (counted: a :class:`DataError` if more than 1 % of a column is non-finite, which means a bug).
     """
@@ -185,7 +162,7 @@ def compute_features(
     if geo.neighbours is not None:  # back to the cloud's order: row order[i] has neighbours order[neigh[i]]
         neighbours = renumber_neighbours(geo.neighbours, order)
     del geo
-    columns = _view_columns(cloud, groups, views, options, spacing, neighbours) if need_views else {}
+    columns = multiview_features(cloud.positions, cloud.visibility, views, options.multiview) if need_views else {}
     values = np.empty((len(cloud), len(names)), dtype=np.float32)
     for j, name in enumerate(names):
         in_order = name in sorted_columns
@@ -201,30 +178,3 @@ def compute_features(
         else:
             values[:, j] = col
     return FeatureTable(names, values, spacing, neighbours)
-
-
-def _view_columns(
-    cloud: PointCloud,
-    groups: set[FeatureGroup],
-    views: ViewData | None,
-    options: FeatureOptions,
-    spacing: float,
-    neighbours: np.ndarray | None,
-) -> dict[str, np.ndarray]:
-    """The columns (each (N,), the cloud's order) of the selected view-based groups; ``neighbours``: the finest
-    geometric neighbourhood in the cloud's order (fusion's plane offset reuses it; None: searched again)."""
-    if views is None:
-        raise ConfigError("view-based features need the photos and cameras (a dense workspace)")
-    pos, vis, mv = cloud.positions, cloud.visibility, options.multiview
-    columns: dict[str, np.ndarray] = {}
-    if FeatureGroup.MULTIVIEW in groups:
-        columns.update(multiview_features(pos, vis, views, mv))
-    if FeatureGroup.FUSION in groups:
-        columns.update(fusion_features(pos, vis, views, spacing, neighbours, mv, k=options.geometric.k))
-    if FeatureGroup.VIEW_DEPENDENT in groups:
-        columns.update(view_dependent_features(pos, vis, cloud.normals, views, mv))
-    if FeatureGroup.IMAGE_BOUNDARIES in groups:
-        columns.update(image_boundary_features(pos, vis, views, spacing, mv))
-    if FeatureGroup.IMAGE_TEXTURE in groups:
-        columns.update(image_texture_features(pos, vis, views, mv))
-    return columns

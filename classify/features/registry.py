@@ -5,7 +5,7 @@ stores the names it was trained on and refuses data whose names differ. Geometri
 scale; their names carry the scale index (``linearity_s0``, ``linearity_s1``...). The table below is the
 documentation users see (``hybridsplat classify features`` prints it).
 
-Groups, in registry order (``FeatureOptions()`` selects the first three; ``ALL_GROUPS_EXTENDED`` all seven):
+Groups, in registry order (``FeatureOptions()`` selects all three):
 
 ================ ===================== ===================================================================
 group            module                what it measures
@@ -13,16 +13,14 @@ group            module                what it measures
 geometric        geometric.py          shape of the k-NN neighbourhood at three scales (eigenvalues, height)
 radiometric      radiometric.py        the point's colour and its spread over the finest neighbourhood
 multiview        multiview.py          photos and depth maps of the frustum / fusing views at the point
-fusion           fusion_evidence.py    disagreement of the fusing depth maps; offset from the neighbours' plane
-view_dependent   view_dependent.py     luminance against viewing direction across the fusing views
-image_boundaries image_boundaries.py   photo edges (Sobel, Canny distance) at the point's projections
-image_texture    image_texture.py      grey-level spread and corner strength in the MVS window at the projections
 ================ ===================== ===================================================================
 
 Units: ``1`` dimensionless (lengths divided by the cloud's median point spacing among them, as the meaning says),
 ``px`` photo pixels.
-The newer groups (fusion, view_dependent, image_boundaries, image_texture) need the views, like multiview; each has a
-documented neutral value for a point without the evidence (no fusing view, fewer than 2 or 3 views, no normal).
+
+Four view-based groups were removed in 0.4 (:data:`REMOVED_GROUPS`, issue 54): a name of one of them, or of one of
+their features, is a :class:`ConfigError` naming the group (:func:`refuse_removed`), and a model trained with one
+does not load.
 """
 
 from __future__ import annotations
@@ -39,10 +37,43 @@ class FeatureGroup(str, Enum):
     GEOMETRIC = "geometric"
     RADIOMETRIC = "radiometric"
     MULTIVIEW = "multiview"
-    FUSION = "fusion"
-    VIEW_DEPENDENT = "view_dependent"
-    IMAGE_BOUNDARIES = "image_boundaries"
-    IMAGE_TEXTURE = "image_texture"
+
+
+REMOVED_GROUPS: dict[str, tuple[str, ...]] = {
+    "fusion": ("fusion_backproj_dist", "fusion_reproj_px", "fusion_plane_offset"),
+    "view_dependent": ("lum_cv_views", "lum_peak_views", "lum_lobe_corr", "specular_up_corr"),
+    "image_boundaries": ("edge_strength_views", "edge_distance_px", "edge_distance_spacing"),
+    "image_texture": ("texture_std_views", "texture_corner_views", "texture_log_spread"),
+}
+"""The feature groups removed in 0.4 (issue 54) and the names of their features."""
+
+REMOVED_WHY = (
+    "removed in 0.4: the out-of-fold evaluation found it not improving the model, and the classifier's mistakes "
+    "cost the product too little for a feature to matter; see docs/migration.md"
+)
+
+
+def removed_groups(names: tuple[str, ...] | list[str]) -> list[str]:
+    """The removed groups (:data:`REMOVED_GROUPS`) that ``names`` (group or feature names) name, in registry order."""
+    given = set(names)
+    return [g for g, features in REMOVED_GROUPS.items() if g in given or given.intersection(features)]
+
+
+def refuse_removed(names: tuple[str, ...] | list[str], what: str = "feature group") -> None:
+    """A :class:`ConfigError` naming the removed groups that ``names`` (group or feature names) name, if any."""
+    gone = removed_groups(names)
+    if gone:
+        raise ConfigError(f"{what} {', '.join(gone)}: {REMOVED_WHY}")
+
+
+def feature_group(value: str) -> FeatureGroup:
+    """The group named ``value``; a :class:`ConfigError` naming it when it was removed or is unknown."""
+    refuse_removed([value])
+    try:
+        return FeatureGroup(value)
+    except ValueError:
+        known = ", ".join(g.value for g in FeatureGroup)
+        raise ConfigError(f"unknown feature group {value!r}; known: {known}") from None
 
 
 @dataclass(frozen=True)
@@ -56,8 +87,6 @@ class FeatureSpec:
 
 
 _G, _R, _M = FeatureGroup.GEOMETRIC, FeatureGroup.RADIOMETRIC, FeatureGroup.MULTIVIEW
-_F, _V, _B = FeatureGroup.FUSION, FeatureGroup.VIEW_DEPENDENT, FeatureGroup.IMAGE_BOUNDARIES
-_T = FeatureGroup.IMAGE_TEXTURE
 
 # Geometric features per scale; e1 >= e2 >= e3 are the covariance eigenvalues divided by their sum.
 GEOMETRIC_BASE: tuple[FeatureSpec, ...] = (
@@ -107,91 +136,6 @@ MULTIVIEW: tuple[FeatureSpec, ...] = (
     FeatureSpec("depth_residual", "1", _M, "mean |d_map - z| / z over the fusing views, clipped at 1 (1: none)"),
 )
 
-FUSION: tuple[FeatureSpec, ...] = (
-    FeatureSpec(
-        "fusion_backproj_dist",
-        "1",
-        _F,
-        "mean distance in spacings from the point to each fusing view's depth-map point on its ray, capped at 50 "
-        "(50: no valid depth)",
-    ),
-    FeatureSpec(
-        "fusion_reproj_px",
-        "px",
-        _F,
-        "RMS pixel offset in each other fusing view of those depth-map points (linearised), capped at 50 (50: no "
-        "pair of views)",
-    ),
-    FeatureSpec(
-        "fusion_plane_offset",
-        "1",
-        _F,
-        "signed distance in spacings along the mean viewing ray to the PCA plane of the k - 1 nearest other points, "
-        "+ when the point is in front of it, clipped to +-50 (0: no fusing view)",
-    ),
-)
-
-VIEW_DEPENDENT: tuple[FeatureSpec, ...] = (
-    FeatureSpec("lum_cv_views", "1", _V, "std / mean (mean >= 0.02) of the luminance over the fusing views (0: < 2)"),
-    FeatureSpec("lum_peak_views", "1", _V, "max - median luminance over the fusing views: a highlight (0: < 2 views)"),
-    FeatureSpec(
-        "lum_lobe_corr",
-        "1",
-        _V,
-        "correlation of the other views' luminance with the cosine of their ray to the brightest view's ray "
-        "(0: < 3 others)",
-    ),
-    FeatureSpec(
-        "specular_up_corr",
-        "1",
-        _V,
-        "correlation of the luminance with the up (+z) part of the view ray mirrored about the MVS normal "
-        "(0: no normal or < 3 views)",
-    ),
-)
-
-IMAGE_BOUNDARIES: tuple[FeatureSpec, ...] = (
-    FeatureSpec(
-        "edge_strength_views",
-        "1/px",
-        _B,
-        "mean Sobel gradient magnitude (grey / 255 per px) at the point's projections in the fusing views (0: none)",
-    ),
-    FeatureSpec(
-        "edge_distance_px",
-        "px",
-        _B,
-        "mean distance from the projections to the nearest Canny edge pixel, capped at 32 (32: no fusing view)",
-    ),
-    FeatureSpec(
-        "edge_distance_spacing",
-        "1",
-        _B,
-        "that distance per view in metres at the point's depth (px z / f) / spacing, averaged, capped at 32 (32: none)",
-    ),
-)
-
-IMAGE_TEXTURE: tuple[FeatureSpec, ...] = (
-    FeatureSpec(
-        "texture_std_views",
-        "1",
-        _T,
-        "mean grey std (0-1) in the MVS window (7 x 7 px) at the point's projections in the fusing views (0: none)",
-    ),
-    FeatureSpec(
-        "texture_corner_views",
-        "1/px",
-        _T,
-        "mean sqrt of the smaller structure-tensor eigenvalue in that window (grey / 255 per px; 0: none)",
-    ),
-    FeatureSpec(
-        "texture_log_spread",
-        "1",
-        _T,
-        "std over the fusing views of ln(window grey std + 0.004): unlike texture between views (0: < 2 views)",
-    ),
-)
-
 
 def geometric_name(base: str, scale: int) -> str:
     """Name of a geometric feature at scale index ``scale`` (``linearity_s0``)."""
@@ -205,7 +149,7 @@ def feature_specs(n_scales: int) -> dict[str, FeatureSpec]:
         for spec in GEOMETRIC_BASE + (COARSE_BASE if s >= 1 else ()):
             name = geometric_name(spec.name, s)
             out[name] = FeatureSpec(name, spec.unit, spec.group, f"{spec.meaning} (scale {s})")
-    for spec in RADIOMETRIC + MULTIVIEW + FUSION + VIEW_DEPENDENT + IMAGE_BOUNDARIES + IMAGE_TEXTURE:
+    for spec in RADIOMETRIC + MULTIVIEW:
         out[spec.name] = spec
     return out
 
@@ -214,7 +158,8 @@ def resolve_names(selected: tuple[str, ...] | None, n_scales: int, groups: tuple
     """The feature names to compute: ``selected`` validated, or every feature of ``groups`` (registry order).
 
     A selected name may be a full name (``planarity_s1``), a geometric base name (``planarity``: every scale) or a
-    group name (``radiometric``). Unknown names raise :class:`ConfigError` listing the known ones.
+    group name (``radiometric``). Unknown names raise :class:`ConfigError` listing the known ones; names of a removed
+    group (:data:`REMOVED_GROUPS`) one naming the group.
     """
     specs = feature_specs(n_scales)
     if selected is None:
@@ -229,6 +174,7 @@ def resolve_names(selected: tuple[str, ...] | None, n_scales: int, groups: tuple
         elif name in {g.value for g in FeatureGroup}:
             new = [n for n, s in specs.items() if s.group.value == name]
         else:
+            refuse_removed([name])
             raise ConfigError(f"unknown feature {name!r}; known: {', '.join(specs)} (or a base name / group)")
         picked += [n for n in new if n not in picked]
     order = list(specs)

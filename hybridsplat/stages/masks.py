@@ -18,8 +18,7 @@ from classify.mask_options import MaskOptions
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext, StageResult
 
-HOLE_AREA_HELP = ("Where MVS holes are looked for: hull_below | hull | below | enclosed | region (the rays that "
-                  "meet the survey region; the others are background).")  # fmt: skip
+HOLE_AREA_HELP = "Where MVS holes are looked for: hull_below | hull | below | enclosed."
 
 
 @dataclass(frozen=True)
