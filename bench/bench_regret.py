@@ -14,7 +14,6 @@ upstream of the change reused from the copy (the runner finds it current) and ev
   *Product regret* = oracle − shipped.
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
 - ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
-- ``geometry_priors``: ``geometry`` and the MVS depth / normal priors at their defaults (``[train.training.priors]``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
 - ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
@@ -59,7 +58,6 @@ VARIANTS = (
     "oracle",
     "splat_surface",
     "geometry",
-    "geometry_priors",
     "hole_region",
     "lpips_loss",
     "msssim_loss",
@@ -181,7 +179,7 @@ def point_truth(cloud, scene, classes):
 
 def variant_config(config, variant: str):
     """The shipped project's configuration with ``variant``'s one change (``a+b``: both changes)."""
-    from fusion.train.options import GeometryOptions, PriorOptions
+    from fusion.train.options import GeometryOptions
 
     if "+" in variant:
         for part in variant.split("+"):
@@ -191,11 +189,9 @@ def variant_config(config, variant: str):
         return config
     if variant == "splat_surface":
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
-    if variant in ("geometry", "geometry_priors"):
+    if variant == "geometry":
         train = config.stages["train"]
         training = replace(train.training, flat=True, geometry=GeometryOptions())
-        if variant == "geometry_priors":
-            training = replace(training, priors=PriorOptions())
         return config.with_stage_options("train", replace(train, training=training))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))

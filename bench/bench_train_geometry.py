@@ -102,18 +102,16 @@ def build_scene(args: argparse.Namespace):
 
 
 def configurations(cadences: list[int]):
-    """{name: (GeometryOptions | None, PriorOptions | None)} in table order."""
-    from fusion.train import GeometryOptions, PriorOptions
+    """{name: GeometryOptions | None} in table order."""
+    from fusion.train import GeometryOptions
 
-    out = {"off": (None, None)}
+    out = {"off": None}
     for k in cadences:
-        out[f"every {k}"] = (GeometryOptions(every=k), None)
-    k = GeometryOptions().every  # the default cadence, with the depth prior too
-    out[f"every {k} + prior"] = (GeometryOptions(every=k), PriorOptions(normal_weight=0.0))
+        out[f"every {k}"] = GeometryOptions(every=k)
     return out
 
 
-def timed_run(args, scene, geometry, priors) -> tuple[float, float, float]:
+def timed_run(args, scene, geometry) -> tuple[float, float, float]:
     """(wall s per step, CPU s per step, final depth–normal inconsistency or NaN) of one training run."""
     from fusion.train import DefaultStrategy, TrainOptions, train_splats
 
@@ -125,8 +123,8 @@ def timed_run(args, scene, geometry, priors) -> tuple[float, float, float]:
             marks[info.step] = (time.perf_counter(), time.process_time())
 
     opts = TrainOptions(iterations=args.steps, sh_degree=1, sh_degree_interval=10, flat=True, min_iterations=10**6,
-                        eval_every=args.steps, strategy=DefaultStrategy(refine_start=10_000), geometry=geometry,
-                        priors=priors)  # fmt: skip
+                        eval_every=args.steps, strategy=DefaultStrategy(refine_start=10_000),
+                        geometry=geometry)  # fmt: skip
     result = train_splats(cams, photos, masks, init, context=context, options=opts, progress=progress)
     n = args.steps - args.skip
     wall = (marks[args.steps][0] - marks[args.skip][0]) / n
@@ -153,10 +151,10 @@ def main() -> None:
     confs = configurations([int(k) for k in args.cadences.split(",")])
     names = list(confs)
     times: dict[str, list[tuple[float, float, float]]] = {k: [] for k in names}
-    timed_run(args, scene, *confs[names[-1]])  # warm-up: numba caches of every kernel
+    timed_run(args, scene, confs[names[-1]])  # warm-up: numba caches of every kernel
     for rep in range(args.repeats):
         for name in names[rep % len(names) :] + names[: rep % len(names)]:
-            times[name].append(timed_run(args, scene, *confs[name]))
+            times[name].append(timed_run(args, scene, confs[name]))
     print(f"load after:  {_uptime()}")
     mask_px = sum(int(m.sum()) for m in scene[2].values())
     print(f"\n{len(scene[3])} trainable + {len(scene[4])} frozen Gaussians, {args.views} views {args.size} "

@@ -7,12 +7,22 @@ every table read from config.toml and to the options recorded in an old manifest
 loads, and its stages stay up to date when their effective options did not change.
 
 A key that is known under the new layout is left as it is: a table already in the new form passes unchanged.
+
+Options removed since (issue 54: experiments without a measured gain are deleted, :data:`REMOVED`) are left out
+when they are off, as every config.toml and manifest of an earlier version spells them; set to anything else they
+are refused with one error that names them and why they went (docs/migration.md).
 """
 
 from __future__ import annotations
 
+import copy
+import json
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
+
+from core.errors import ConfigError
 
 NONE = "none"
 
@@ -94,43 +104,106 @@ _MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
     "eval": {"tau_m": ("tau_m", _off_if_zero)},
 }
 
-#: the train stage's five prior weights of 0.2 became one optional table, ``[train.training.priors]``
-_OLD_PRIOR_KEYS = ("depth_prior", "normal_prior", "prior_border_px", "prior_edge_scale", "prior_hull_share")
 
-
-def _train_priors(old: dict[str, Any]) -> Any:
-    depth, normal = float(old.get("depth_prior", 0.0)), float(old.get("normal_prior", 0.0))
-    if depth <= 0 and normal <= 0:
-        return NONE
-    border, edge, hull = (
-        old.get("prior_border_px", 8.0),
-        old.get("prior_edge_scale", 0.1),
-        old.get("prior_hull_share", 0.8),
-    )
-    return {
-        "depth_weight": max(depth, 0.0),
-        "normal_weight": max(normal, 0.0),
-        "border_px": border if border > 0 else NONE,
-        "edge_scale": edge if edge > 0 else NONE,
-        "hull_share": hull if hull >= 0 else NONE,
-    }
-
-
-def migrate_table(stage: str, table: dict[str, Any]) -> dict[str, Any]:
-    """The stage table ``table`` with the keys of hybridsplat 0.2 moved to their 0.3 places (see the module)."""
+def migrate_table(stage: str, table: dict[str, Any], where: Path | str | None = None) -> dict[str, Any]:
+    """The stage table ``table`` with the keys of hybridsplat 0.2 moved to their 0.3 places and the removed options
+    at their "off" value left out (see the module); a removed option set to anything else is a :class:`ConfigError`
+    naming it and ``where`` (the file)."""
+    table = drop_removed(stage, table, where)
     moved = _MOVED.get(stage, {})
-    old_priors = stage == "train" and any(k in table for k in _OLD_PRIOR_KEYS)
-    if not old_priors and not any(k in table and not isinstance(table[k], dict) for k in moved):
+    if not any(k in table and not isinstance(table[k], dict) for k in moved):
         return {k: _none_as_word(v) for k, v in table.items()}
     out: dict[str, Any] = {}
     for key, value in table.items():
-        if key in _OLD_PRIOR_KEYS and stage == "train":
-            continue
         if key in moved and not (moved[key][0] == key and isinstance(value, dict)):
             path, transform = moved[key]
             _put(out, path, transform(_none_as_word(value) if value is None else value))
         else:
             _put(out, key, _none_as_word(value))
-    if old_priors:
-        _put(out, "training.priors", _train_priors(table))
+    return out
+
+
+# -- removed options ---------------------------------------------------------------------------------------------
+
+#: the version whose configuration no longer has the options of :data:`REMOVED`
+REMOVED_IN = "0.4"
+
+
+def _is_none(value: Any) -> bool:
+    """Spelled None: a table that is off (``"none"`` / ``"off"`` in config.toml, null in an old manifest)."""
+    return value is None or (isinstance(value, str) and value.lower() in ("none", "off"))
+
+
+def _not_positive(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value <= 0
+
+
+def _any(value: Any) -> bool:
+    """Any value: an option that only acts together with a removed switch (which is checked on its own)."""
+    return True
+
+
+@dataclass(frozen=True)
+class Removed:
+    """A removed option: ``why`` it went (one clause, for the error) and ``off``, whether a value is one that asks
+    for what the pipeline does anyway (config.toml files and manifests of earlier versions spell every option, the
+    removed ones at those values: they are left out without a word)."""
+
+    why: str
+    off: Callable[[Any], bool]
+
+
+_PRIORS = "the MVS depth / normal priors: no measured gain worth their training time"
+
+#: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
+_REMOVED_TRAINING: dict[str, Removed] = {
+    "training.priors": Removed(_PRIORS, _is_none),
+}
+
+#: per stage: removed option (dotted path inside the stage's table, or a key of 0.2's flat tables) → :class:`Removed`
+REMOVED: dict[str, dict[str, Removed]] = {
+    **{stage: dict(_REMOVED_TRAINING) for stage in ("train", "background", "appearance", "baseline")},
+}
+REMOVED["train"].update({
+    # 0.2's flat [train] table: its prior weights (0 = off) and the prior's shape, which acted only with them
+    "depth_prior": Removed(_PRIORS, _not_positive),
+    "normal_prior": Removed(_PRIORS, _not_positive),
+    **{key: Removed(_PRIORS, _any) for key in ("prior_border_px", "prior_edge_scale", "prior_hull_share")},
+})  # fmt: skip
+
+
+def _spelled(value: Any) -> str:
+    """A value as config.toml spells it (a table as ``{...}``)."""
+    return "{...}" if isinstance(value, dict) else json.dumps(value)
+
+
+def drop_removed(stage: str, table: dict[str, Any], where: Path | str | None = None) -> dict[str, Any]:
+    """``table`` (a stage's table of config.toml, or the options a manifest recorded) without the removed options
+    (:data:`REMOVED`) that are off. Any removed option set otherwise is refused in one :class:`ConfigError` naming
+    each one (``stage.path = value``), why it was removed and where the record is."""
+    removed = REMOVED.get(stage, {})
+    out = table
+    refused = []
+    for path, rule in removed.items():
+        *parents, last = path.split(".")
+        node: Any = table
+        for part in parents:
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or last not in node:
+            continue
+        if not rule.off(node[last]):
+            refused.append(f"{stage}.{path} = {_spelled(node[last])} ({rule.why})")
+            continue
+        if out is table:
+            out = copy.deepcopy(table)
+        target = out
+        for part in parents:
+            target = target[part]
+        del target[last]
+    if refused:
+        raise ConfigError(
+            f"option(s) removed in {REMOVED_IN}: {'; '.join(refused)}; delete them (docs/migration.md says what "
+            "each did and where its record is)",
+            where,
+        )
     return out

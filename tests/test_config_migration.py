@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from core.errors import ConfigError
-from fusion.train.options import HardViewOptions, PriorOptions
+from fusion.train.options import HardViewOptions
 from hybridsplat.config import ProjectConfig, read_config
 from hybridsplat.config_migration import migrate_table
 from hybridsplat.manifest import StageRecord
@@ -25,7 +25,7 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
     train, baseline = config.stages["train"], config.stages["baseline"]
     assert train.training.iterations == 600 and train.training.strategy.cap == 60_000
     assert train.training.strategy.refine_start == 100 and train.init.rays_per_view == 400
-    assert train.snapshot_iterations == (500, 1000, 1500) and train.training.priors is None
+    assert train.snapshot_iterations == (500, 1000, 1500)
     assert train.training.hard_views is None and train.max_image_size == 640
     assert baseline.enabled and baseline.training.iterations == 1000 and baseline.checkpoints == ()
     assert config.stages["mvs"].num_threads is None and config.stages["mvs"].fusion.min_num_pixels == 3
@@ -52,9 +52,8 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
 
 
 def test_old_switches_become_the_new_optional_tables():
-    table = {"iterations": 50, "depth_prior": 0.3, "normal_prior": 0.0, "prior_border_px": -1.0, "hard_views": True}
+    table = {"iterations": 50, "hard_views": True}
     options = options_from_table(stage_options_types()["train"], migrate_table("train", table), "config.toml")
-    assert options.training.priors == PriorOptions(depth_weight=0.3, normal_weight=0.0, border_px=None)
     assert options.training.hard_views == HardViewOptions()
     merge = options_from_table(stage_options_types()["merge"], migrate_table("merge", {"points_min_views": -1,
                                "points_max_rim_spacing": -1.0}), "config.toml")  # fmt: skip
@@ -66,14 +65,16 @@ def test_the_new_form_round_trips_none_tables_and_enums(tmp_path):
     stages = {
         "train": options_with(
             types["train"],
-            {"training.priors": {"depth_weight": 0.2}, "training.hard_views": {}, "training.strategy.cap": 1234},
+            {"training.hard_views": {}, "training.strategy.cap": 1234},
         ),  # fmt: skip
         "clean": options_with(types["clean"], {"min_opacity": "none", "max_scale_spacing": 3.0}),
         "mvs": options_with(types["mvs"], {"backend": "cpu", "num_threads": 1}),
     }
     (tmp_path / "config.toml").write_text(ProjectConfig(stages=stages).to_toml())
     text = (tmp_path / "config.toml").read_text()
-    assert 'min_opacity = "none"' in text and "[train.training.priors]" in text and 'kind = "DefaultStrategy"' in text
+    assert (
+        'min_opacity = "none"' in text and "[train.training.hard_views]" in text and 'kind = "DefaultStrategy"' in text
+    )
     back = read_config(tmp_path / "config.toml", types)
     assert back.stages == stages
 
@@ -102,3 +103,48 @@ def test_a_stage_recorded_by_0_2_is_current_when_its_options_did_not_move_in_val
     changed = {"options": options_digest(dataclasses.replace(clean.Options(), min_cluster_size=4)), "fingerprint": {}}
     assert not record_is_current(record, clean, {"a": "h"}, changed, tmp_path)
     assert not record_is_current(record, clean, {"a": "other"}, now, tmp_path)
+
+
+# -- removed options (issue 54) -----------------------------------------------------------------------------------
+#: (stage, the option as the error spells it, its stage table with the option off, the same with it on)
+REMOVED_CASES = {
+    "priors": ("train", "train.training.priors", {"training": {"priors": "none"}},
+               {"training": {"priors": {"depth_weight": 0.2}}}),
+    "priors of 0.2": ("train", "train.depth_prior", {"depth_prior": 0.0, "prior_border_px": 8.0}, {"depth_prior": 0.3}),
+    "baseline priors": ("baseline", "baseline.training.priors", {"training": {"priors": "none"}},
+                        {"training": {"priors": {}}}),
+}  # fmt: skip
+
+
+def _write_table(path: Path, stage: str, table: dict) -> None:
+    from hybridsplat.options import _toml_tables
+
+    path.write_text("\n".join(_toml_tables(stage, table)), encoding="utf-8")
+
+
+@pytest.mark.parametrize("case", sorted(REMOVED_CASES))
+def test_a_removed_option_off_is_left_out_and_on_is_one_error_naming_it(case, tmp_path):
+    """What earlier versions wrote (every option, the removed ones off) still loads, to today's defaults; a removed
+    option set on fails with one line naming the file, the option, the version and the migration notes."""
+    stage, spelled, off, on = REMOVED_CASES[case]
+    types = stage_options_types()
+    path = tmp_path / "config.toml"
+    _write_table(path, stage, off)
+    assert read_config(path, types).options(stage, types[stage]) == types[stage]()
+    _write_table(path, stage, on)
+    with pytest.raises(ConfigError) as err:
+        read_config(path, types)
+    line = err.value.one_line()
+    assert line.startswith(f"{path}: ") and f"{spelled} = " in line, line
+    assert "removed in 0.4" in line and "docs/migration.md" in line and "\n" not in line
+
+
+def test_a_stage_recorded_with_removed_options_off_stays_current(tmp_path):
+    train = stage_named("train")
+    recorded = options_digest(train.Options())
+    recorded["training"] = {**recorded["training"], "priors": "none"}
+    record = StageRecord(name="train", config={"options": recorded, "fingerprint": {}}, inputs={"a": "h"})
+    now = {"options": options_digest(train.Options()), "fingerprint": {}}
+    assert record_is_current(record, train, {"a": "h"}, now, tmp_path)
+    recorded["training"]["priors"] = {"depth_weight": 0.2}  # it trained with priors: rerun without them
+    assert not record_is_current(record, train, {"a": "h"}, now, tmp_path)

@@ -14,7 +14,7 @@ from test_train_trainer import alpha_masks, render_all, ring_cameras
 from core.errors import ConfigError
 from core.gaussians import SH_C0, GaussianSet
 from fusion.render import render
-from fusion.train import DefaultStrategy, GeometryOptions, PriorOptions, TrainOptions, train_splats
+from fusion.train import DefaultStrategy, GeometryOptions, TrainOptions, train_splats
 from fusion.train.params import context_from_set, make_parameters, tensors_from_set
 from fusion.train.render import project_context, render_step
 from fusion.train.schedule import TrainSchedule
@@ -68,13 +68,11 @@ def inconsistency(splats: GaussianSet, cameras, photos, masks) -> float:
 
 
 # -- options and schedule -----------------------------------------------------------------------------------------
-def test_geometry_options_schedule_and_how_priors_map_onto_them() -> None:
+def test_geometry_options_and_schedule() -> None:
     assert TrainOptions().geometric is None and TrainOptions().geometry is None
     assert TrainOptions(geometry=GeometryOptions(normal_consistency_weight=0.0)).geometric is None  # nothing on
     on = GeometryOptions(start=0.25, every=3)
     assert TrainOptions(geometry=on).geometric is on and on.depth == "plane" and on.normal_consistency_weight == 0.05
-    priors_only = TrainOptions(priors=PriorOptions()).geometric  # the priors alone: default cadence, no consistency
-    assert priors_only == GeometryOptions(normal_consistency_weight=0.0)
     s = TrainSchedule.from_options(TrainOptions(iterations=20, geometry=on), 1.0, 3, 64)
     assert [t for t in range(20) if s.geometry_on(t)] == [5, 8, 11, 14, 17]
     off = TrainSchedule.from_options(TrainOptions(iterations=20), 1.0, 3, 64)
@@ -176,36 +174,6 @@ def test_depth_normal_consistency_makes_the_layer_flat_and_still_fits_the_photos
     history = result[True].history
     assert history[-1].loss < 0.6 * history[0].loss and history[-1].holdout_psnr > history[0].holdout_psnr + 2
     assert history[-1].normal_consistency < 0.3 * history[0].normal_consistency
-
-
-def test_mvs_depth_prior_on_the_rendered_depth_pulls_a_textureless_fill_onto_the_surface() -> None:
-    """A grey (textureless) disc in a plane, grey around it too: the frozen context is the plane around it, the
-    trainable splats start 4 cm in front. Photos cannot place grey on grey; the prior (the plane interpolated into the
-    hole, weight 1) on the rendered plane depth brings them to 7 mm of z = 0 in 60 steps (16.5 mm without)."""
-    cams = ring_cameras(6)
-    context = plane_set(16, 0.45, seed=2)
-    hole = np.linalg.norm(context.means[:, :2], axis=1) < 0.17
-    context = context.subset(~hole)
-    near = np.linalg.norm(context.means[:, :2], axis=1) < 0.3
-    context.sh_dc[near] = 0.0  # grey around the disc too: its rim cannot place it either
-    fill = plane_set(6, 0.12, grey=True)
-    truth = GaussianSet(*(np.concatenate([getattr(fill, k), getattr(context, k)]) for k in
-                          ("means", "log_scales", "quats", "logit_opacities", "sh_dc")))  # fmt: skip
-    photos = render_all(truth, cams)
-    masks = alpha_masks(fill, cams, 0.5)
-    init = fill.subset(slice(None))
-    init.means = init.means + np.array([0.0, 0.0, 0.04])
-    heights = {}
-    prior = PriorOptions(depth_weight=1.0, normal_weight=0.0, border_px=None, edge_scale=None, hull_share=None)
-    for priors in (None, prior):
-        opts = TrainOptions(iterations=60, sh_degree=0, seed=0, flat=True, priors=priors, lr_means=2e-3,
-                            geometry=GeometryOptions(normal_consistency_weight=0.0, every=1), eval_every=12,
-                            strategy=DefaultStrategy(refine_start=10_000))  # fmt: skip
-        r = train_splats(cams, photos, masks, init, context=context, options=opts)
-        heights[priors is not None] = float(np.abs(r.splats.means[:, 2]).mean())
-        if priors is not None:
-            assert r.prior_views == 6 and r.history[-1].prior_depth < r.history[0].prior_depth
-    assert heights[True] < 0.01 and heights[True] < 0.5 * heights[False], heights
 
 
 def test_geometry_options_are_a_config_table() -> None:

@@ -101,7 +101,7 @@ def test_eval_window_psnr_and_means() -> None:
     w.add_loss(0.4)
     c = w.checkpoint(step=7, gaussians=30, seconds=1.0)
     assert (c.step, c.gaussians, c.loss) == (7, 30, pytest.approx(0.3))
-    assert math.isnan(c.prior_depth) and math.isnan(c.prior_normal)
+    assert math.isnan(c.normal_consistency)  # no geometric step in the window
 
 
 # -- view sampler -------------------------------------------------------------------------------------------------
@@ -162,7 +162,7 @@ def test_step_loss_adds_the_regularisers_in_order() -> None:
     sigma = state.params["log_scales"].detach().exp()
     expected = (loss.terms.loss.detach() + 0.5 * sigma.mean() / scene.scale
                 + 2.0 * sigma.amin(dim=1).mean() / scene.scale)  # fmt: skip
-    assert float(loss.total.detach()) == pytest.approx(float(expected), rel=1e-6) and loss.prior is None
+    assert float(loss.total.detach()) == pytest.approx(float(expected), rel=1e-6) and loss.consistency is None
 
 
 @dataclass(frozen=True)
@@ -217,9 +217,9 @@ def test_options_and_strategies_are_configured_without_torch() -> None:
 
     code = (
         "import sys\n"
-        "from fusion.train.options import TrainOptions, PriorOptions, HardViewOptions\n"
+        "from fusion.train.options import TrainOptions, HardViewOptions\n"
         "from fusion.train.strategy import MCMCStrategy\n"
-        "TrainOptions(priors=PriorOptions(), hard_views=HardViewOptions(), strategy=MCMCStrategy(cap=10))\n"
+        "TrainOptions(hard_views=HardViewOptions(), strategy=MCMCStrategy(cap=10))\n"
         "print('torch' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

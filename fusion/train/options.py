@@ -1,5 +1,4 @@
-"""The trainer's configuration: :class:`TrainOptions`, with the depth / normal prior options :class:`PriorOptions`
-(used by :mod:`fusion.train.priors`), the geometric-loss options :class:`GeometryOptions`
+"""The trainer's configuration: :class:`TrainOptions`, with the geometric-loss options :class:`GeometryOptions`
 (:mod:`fusion.train.geometry_loss`), the hard-view mining options :class:`HardViewOptions` and the seeding options
 :class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
 
@@ -22,48 +21,6 @@ from core.options import enum_choice
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy
 
 
-@dataclass(frozen=True)
-class PriorOptions:
-    """Options of the depth / normal priors (weights relative to the photometric loss, which is ~0.05–0.3).
-
-    The terms act per pixel on the rendered depth and normal of the geometric steps (:class:`GeometryOptions`;
-    until issue 31 they acted on the splat centres, with the same names and weights).
-    depth_weight: weight of the edge-aware log-L1 depth term (DN-Splatter: 0.2; 0 disables it).
-    normal_weight: weight of the normal term, 1 − cos between the rendered and the prior normal (DN-Splatter: 0.1
-    on normals; 0 disables it).
-    border_px: decay length (px at the training resolution) of the prior's weight from the mask's edge inwards;
-        None applies it with weight 1 over the whole mask.
-    band_px: width (px) of the band around the mask whose trusted MVS depths are interpolated.
-    edge_scale: image-gradient magnitude (colour units per px, [0, 1] images) at which the edge-aware weight has
-        fallen to 1/e; None disables edge awareness.
-    hull_share: keep the prior only where its surface point lands inside the masks of at least this share of the
-        other views that see it (:func:`fusion.train.priors.hull_consistent`); None disables the test.
-    """
-
-    depth_weight: float = 0.2
-    normal_weight: float = 0.1
-    border_px: float | None = 8.0
-    band_px: int = 6
-    edge_scale: float | None = 0.1
-    hull_share: float | None = 0.8
-
-    def __post_init__(self) -> None:
-        if self.depth_weight < 0 or self.normal_weight < 0:
-            raise ConfigError(f"prior weights must be >= 0, got {self.depth_weight}, {self.normal_weight}")
-        if self.border_px is not None and not self.border_px > 0:
-            raise ConfigError(f"border_px must be > 0 or None, got {self.border_px}")
-        if self.band_px < 1:
-            raise ConfigError(f"band_px must be >= 1, got {self.band_px}")
-        if self.edge_scale is not None and not self.edge_scale > 0:
-            raise ConfigError(f"edge_scale must be > 0 or None, got {self.edge_scale}")
-        if self.hull_share is not None and not 0.0 <= self.hull_share <= 1.0:
-            raise ConfigError(f"hull_share must lie in [0, 1] or be None, got {self.hull_share}")
-
-    @property
-    def active(self) -> bool:
-        return self.depth_weight > 0 or self.normal_weight > 0
-
-
 class GeometryDepth(str, Enum):
     """The rendered depth the geometric losses read (:class:`fusion.render.types.RenderGeometry`): ``plane`` = where
     the pixel's ray meets the blended plane (PGSR; exact for a layer of flat splats), ``median`` = the z of the
@@ -81,8 +38,7 @@ class GeometryOptions:
     also composites the normals and plane distances (``render(..., render_geometry=True)``) and the loss adds
     ``normal_consistency_weight × (1 − cos(rendered normal, normal of the rendered depth))`` averaged over the
     view's loss pixels where both are defined (:func:`fusion.train.geometry_loss.depth_normal_consistency`; 2DGS:
-    0.05; 0 = off). The depth priors of :class:`PriorOptions` (``TrainOptions.priors``) are taken on the same steps
-    and the same rendered depth. Use with ``TrainOptions.flat`` (the flatness term): the normal of a splat is the
+    0.05; 0 = off). Use with ``TrainOptions.flat`` (the flatness term): the normal of a splat is the
     axis of its smallest scale, meaningful only when the splat is flat.
 
     depth: which rendered depth feeds the terms (:class:`GeometryDepth`; ``plane`` by default). start: share of the
@@ -165,10 +121,6 @@ class TrainOptions:
     lpips_weight: weight of an LPIPS term on the loss pixels (:mod:`fusion.train.perceptual`; needs the
     ``lpips`` network argument of :func:`fusion.train.train_splats`) from step ``ceil(lpips_start × iterations)`` on;
     0 = off. lpips_margin: context pixels around the loss pixels' bounding box.
-    priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
-    (:mod:`fusion.train.priors`): per pixel on the rendered depth and normal of the geometric steps (cadence and
-    depth from ``geometry``, or :class:`GeometryOptions` with its consistency weight 0 when that is None); None =
-    off (the whole-scene baseline has no context and never uses them).
     geometry: the geometric losses (:class:`GeometryOptions`); None = off (the default: no geometry is rendered).
     """
 
@@ -197,7 +149,6 @@ class TrainOptions:
     refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    priors: PriorOptions | None = None
     geometry: GeometryOptions | None = None
     hard_views: HardViewOptions | None = None
     photometric: Photometric = Photometric.L1_SSIM
@@ -231,13 +182,9 @@ class TrainOptions:
 
     @property
     def geometric(self) -> GeometryOptions | None:
-        """The geometric steps' options when any geometric term is on (consistency or depth / normal prior),
-        else None: ``geometry``, or its defaults with the consistency weight 0 when only the priors are on."""
-        prior_on = self.priors is not None and self.priors.active
-        if self.geometry is not None and (self.geometry.normal_consistency_weight > 0 or prior_on):
+        """The geometric steps' options when the depth–normal consistency term is on, else None."""
+        if self.geometry is not None and self.geometry.normal_consistency_weight > 0:
             return self.geometry
-        if self.geometry is None and prior_on:
-            return GeometryOptions(normal_consistency_weight=0.0)
         return None
 
 

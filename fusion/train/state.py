@@ -1,11 +1,11 @@
 """What a training run works on: the fixed :class:`TrainScene` and the mutable :class:`TrainState`.
 
 :class:`TrainScene` (built once by :func:`prepare_scene`) holds what never changes during a run: the training views
-(:mod:`fusion.train.views`), the frozen context's per-view projections (:mod:`fusion.train.render`), the depth /
-normal priors (:mod:`fusion.train.priors`), the training frame (the cameras' local frame shifted by the mean camera
-centre, float64, then float32) and the scene scale. :class:`TrainState` (built by :func:`initial_state`) holds what
-each step changes: the trainable parameters and their Adam optimiser, the strategy's state, the seeded generators
-(torch for the strategy, NumPy inside the view sampler), the step counter and the last hold-out PSNR.
+(:mod:`fusion.train.views`), the frozen context's per-view projections (:mod:`fusion.train.render`), the training
+frame (the cameras' local frame shifted by the mean camera centre, float64, then float32) and the scene scale.
+:class:`TrainState` (built by :func:`initial_state`) holds what each step changes: the trainable parameters and
+their Adam optimiser, the strategy's state, the seeded generators (torch for the strategy, NumPy inside the view
+sampler), the step counter and the last hold-out PSNR.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ from core.gaussians import GaussianSet
 from fusion.train.options import TrainOptions
 from fusion.train.params import context_from_set, make_optimizer, make_parameters, tensors_from_set
 from fusion.train.perceptual import PerceptualCrop, prepare_crop
-from fusion.train.priors import ViewPrior, view_priors
 from fusion.train.render import ContextProjection, project_context
 from fusion.train.sampler import ViewSampler
 from fusion.train.schedule import TrainSchedule, initial_learning_rates
@@ -43,7 +42,7 @@ class TrainScene:
     """The fixed inputs of a run, in the training frame.
 
     views: the training views (sorted by name). caches: per view, the frozen context's projection (None: no
-    context). priors: per view, its depth / normal prior (None: priors off). origin: (3,) float64 the cameras'
+    context). origin: (3,) float64 the cameras'
     origin; centre: (3,) float64 the training frame's offset from it (metres, cameras' local frame). scale: the
     scene scale (metres, :func:`scene_scale`). background: (3,) float32 colour in [0, 1]. context_total /
     context_culled: frozen Gaussians given / in no view's active tiles.
@@ -51,7 +50,6 @@ class TrainScene:
 
     views: list[TrainView]
     caches: list[ContextProjection | None]
-    priors: list[ViewPrior | None] | None
     origin: np.ndarray
     centre: np.ndarray
     scale: float
@@ -90,11 +88,8 @@ def prepare_scene(
             if cache is not None:
                 used[cache.index] = True
         context_culled = int((~used).sum())
-    priors = None
-    if options.priors is not None and options.priors.active and frozen is not None:
-        priors = view_priors(views, frozen.means.numpy(), options.priors)
     background = torch.tensor(options.background, dtype=torch.float32)
-    return TrainScene(views, caches, priors, origin, centre, scale, background, context_total, context_culled)
+    return TrainScene(views, caches, origin, centre, scale, background, context_total, context_culled)
 
 
 @dataclass

@@ -5,7 +5,7 @@ pixels (0.8 · L1 + 0.2 · (1 − SSIM), :mod:`fusion.train.loss`, or SmoothL1 +
 then, added one after the other in this order, the LPIPS term (:mod:`fusion.train.perceptual`), the scale and
 flatness regularisers (relative to the scene scale), the strategy's own regulariser and, on the geometric steps
 (:class:`fusion.train.options.GeometryOptions`: the render has its geometry), the depth–normal consistency
-(:func:`geometric_loss`) and the depth / normal prior on the rendered depth and normal (:mod:`fusion.train.priors`).
+(:func:`geometric_loss`).
 :func:`train_step` takes step ``state.step`` on one view: sets the means' learning rate, renders trainable + frozen
 Gaussians (:mod:`fusion.train.render`, with geometry on the geometric steps), backpropagates (only the trainable
 tensors have gradients), hands the screen-space gradients to the strategy, steps Adam and counts the step.
@@ -24,7 +24,6 @@ from fusion.train.loss import LossTerms, masked_photometric_loss
 from fusion.train.msssim import smoothl1_msssim_loss
 from fusion.train.options import GeometryDepth, GeometryOptions, TrainOptions
 from fusion.train.perceptual import PerceptualCrop, PerceptualNetwork, perceptual_loss
-from fusion.train.priors import PriorOptions, PriorTerms, ViewPrior, prior_loss
 from fusion.train.render import StepRender, render_step
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState
@@ -34,25 +33,22 @@ from fusion.train.views import TrainView
 
 @dataclass(frozen=True)
 class StepLoss:
-    """The loss of one step: ``total`` (0-d, with its graph), the photometric ``terms`` inside it, the prior
-    terms when they entered it (None: no prior, or no valid rendered pixel had a prior weight) and the
+    """The loss of one step: ``total`` (0-d, with its graph), the photometric ``terms`` inside it and the
     depth–normal inconsistency (detached, mean 1 − cos) when that term entered it (None otherwise)."""
 
     total: torch.Tensor
     terms: LossTerms
-    prior: PriorTerms | None
     consistency: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
 class StepOutcome:
-    """What one step did: the view index, its render, the photometric loss (float), the prior terms (or None) and
-    the depth–normal inconsistency (float, None when the step had no such term)."""
+    """What one step did: the view index, its render, the photometric loss (float) and the depth–normal
+    inconsistency (float, None when the step had no such term)."""
 
     view: int
     render: StepRender
     loss: float
-    prior: PriorTerms | None
     consistency: float | None = None
 
 
@@ -96,12 +92,11 @@ def step_loss(
     scene_scale: float,
     strategy: Strategy,
     lpips: tuple[PerceptualCrop, PerceptualNetwork] | None = None,
-    prior: tuple[ViewPrior | None, PriorOptions] | None = None,
 ) -> StepLoss:
     """The loss of ``render`` of ``params`` (training frame) on ``view`` (see the module docstring).
 
     scene_scale: metres (the regularisers are σ / scene scale). lpips: the view's crop and the network when the
-    LPIPS term is on. prior: the view's prior (None: no prior there) and the prior options when priors are on.
+    LPIPS term is on.
     The geometric terms enter only when ``render`` has its geometry (``options.geometric`` decides the steps).
     """
     terms = photometric_terms(render.colour, view, options)
@@ -113,21 +108,12 @@ def step_loss(
     if options.flat:
         loss = loss + options.flat_reg * params["log_scales"].exp().amin(dim=1).mean() / scene_scale
     loss = loss + strategy.regularisation(params)
-    used = consistency = None
     geometry = options.geometric
     if render.geometry is None or geometry is None:
-        return StepLoss(loss, terms, None)
-    if geometry.normal_consistency_weight > 0:
-        term = geometric_loss(render, view, geometry)
-        loss = loss + geometry.normal_consistency_weight * term
-        consistency = term.detach()
-    if prior is not None:
-        depth, valid = rendered_depth(render, geometry)
-        p_terms = prior_loss(render.geometry.normal, depth, valid, view, prior[0], prior[1], render.window)
-        if p_terms.pixels:
-            loss = loss + p_terms.loss
-            used = p_terms
-    return StepLoss(loss, terms, used, consistency)
+        return StepLoss(loss, terms)
+    term = geometric_loss(render, view, geometry)
+    loss = loss + geometry.normal_consistency_weight * term
+    return StepLoss(loss, terms, term.detach())
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, group: str, lr: float) -> None:
@@ -158,15 +144,14 @@ def train_step(
     if crop is not None and lpips is None:
         raise ConfigError("lpips_weight > 0 needs the LPIPS network (eval.lpips.LPIPS with its weights file)")
     perceptual = (crop, lpips) if crop is not None and lpips is not None else None
-    prior = (scene.priors[index], options.priors) if scene.priors is not None and options.priors is not None else None
-    loss = step_loss(state.params, view, render, options, scene.scale, schedule.strategy, perceptual, prior)
+    loss = step_loss(state.params, view, render, options, scene.scale, schedule.strategy, perceptual)
     loss.total.backward()
     schedule.strategy.after_backward(state.strategy_state, render.means2d, view.width, view.height, step)
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
     state.step += 1
     consistency = None if loss.consistency is None else float(loss.consistency)
-    return StepOutcome(index, render, float(loss.terms.loss.detach()), loss.prior, consistency)
+    return StepOutcome(index, render, float(loss.terms.loss.detach()), consistency)
 
 
 def refine_after_step(state: TrainState, scene: TrainScene, schedule: TrainSchedule) -> RefineCounts:

@@ -3,7 +3,7 @@
 :func:`train_splats` is a short loop over parts that are each usable and testable alone:
 
 - :class:`fusion.train.state.TrainScene` / :class:`fusion.train.state.TrainState` — the fixed inputs (views,
-  context projections, priors, training frame) and the mutable state (parameters, Adam, strategy state, generators);
+  context projections, training frame) and the mutable state (parameters, Adam, strategy state, generators);
 - :class:`fusion.train.sampler.ViewSampler` — the view of each step (a seeded permutation per epoch, hard-view
   mining inside its window);
 - :func:`fusion.train.step.train_step` — one step: render trainable + frozen Gaussians (:mod:`fusion.train.render`),
@@ -80,8 +80,6 @@ class TrainResult:
     scene_scale: float
     resolution: tuple[int, int]
     view_steps: tuple[int, ...] = ()  # steps spent on each view (views sorted by name)
-    prior_views: int = 0  # views with a depth / normal prior
-    prior_pixels: int = 0  # their pixels with a prior weight > 0
     snapshot_seconds: dict[int, float] = field(default_factory=dict)  # per snapshot step, seconds since the start
 
     @property
@@ -122,8 +120,6 @@ def _trained_set(state: TrainState, scene: TrainScene) -> GaussianSet:
 
 def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: StepOutcome) -> None:
     """Fold a finished step into the evaluation window and the sampler's running losses."""
-    if outcome.prior is not None:
-        window.add_prior(outcome.prior)
     if outcome.consistency is not None:
         window.add_consistency(outcome.consistency)
     window.add_holdout(outcome.render.colour, scene.views[outcome.view])
@@ -207,7 +203,6 @@ def train_splats(
                 break
         if progress is not None:
             progress(StepInfo(step, opts.iterations, outcome.loss, state.holdout_psnr, state.gaussians))
-    priors = scene.priors if scene.priors is not None else []
     return TrainResult(
         splats=_trained_set(state, scene),
         snapshots=snapshots,
@@ -225,7 +220,5 @@ def train_splats(
         scene_scale=scene.scale,
         resolution=(scene.views[0].width, scene.views[0].height),
         view_steps=tuple(int(c) for c in state.sampler.counts),
-        prior_views=sum(p is not None for p in priors),
-        prior_pixels=sum(p.pixels for p in priors if p is not None),
         snapshot_seconds=snapshot_seconds,
     )

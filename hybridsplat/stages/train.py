@@ -49,10 +49,10 @@ class TrainResult(StageResult):
     """What the train stage made: ``trained`` splats after ``iterations`` steps (``stopped_early``: by the early
     stop, else its whole budget), their masked PSNR on the held-back pixels (dB; NaN without an evaluation), at
     photo ``downscale`` and ``resolution`` (W, H px) within ``cap`` splats; the views used and those without a
-    mask pixel, the mask pixels, the frozen MVS ``context_gaussians`` and how many were culled, the views and
-    pixels with a depth / normal prior, the ``seeds``, the strategy's ``refine`` counts (summed over the run),
-    the training's seconds, the LPIPS weights file (None without the LPIPS term) and the neighbours' splats
-    frozen beside a tile (``neighbour_context``). ``reason``: why nothing was trained, when nothing was."""
+    mask pixel, the mask pixels, the frozen MVS ``context_gaussians`` and how many were culled, the ``seeds``,
+    the strategy's ``refine`` counts (summed over the run), the training's seconds, the LPIPS weights file (None
+    without the LPIPS term) and the neighbours' splats frozen beside a tile (``neighbour_context``). ``reason``:
+    why nothing was trained, when nothing was."""
 
     trained: int = 0
     downscale: int = 1
@@ -65,8 +65,6 @@ class TrainResult(StageResult):
     mask_pixels: int = 0
     context_gaussians: int = 0
     context_culled: int = 0
-    prior_views: int = 0
-    prior_pixels: int = 0
     seeds: TrainSeeds = field(default_factory=TrainSeeds)
     refine: RefineCounts = field(default_factory=RefineCounts)
     resolution: tuple[int, ...] = ()
@@ -217,8 +215,6 @@ def _result(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | No
         mask_pixels=result.mask_pixels,
         context_gaussians=result.context_total,
         context_culled=result.context_culled,
-        prior_views=result.prior_views,
-        prior_pixels=result.prior_pixels,
         seeds=TrainSeeds(seeds.from_mvs, seeds.from_sfm, seeds.from_rays, seeds.rays_without_depth),
         refine=result.refine,
         resolution=result.resolution,
