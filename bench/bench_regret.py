@@ -13,7 +13,6 @@ upstream of the change reused from the copy (the runner finds it current) and ev
   needs-splats farther than τ), everything else identical. This path exists only here: no user option gives it.
   *Product regret* = oracle − shipped.
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
-- ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
 - ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
@@ -57,7 +56,6 @@ DEFAULT_LAYOUTS = "random-object:120-125,random-aerial:120-125,demo:0"
 VARIANTS = (
     "oracle",
     "splat_surface",
-    "geometry",
     "hole_region",
     "lpips_loss",
     "msssim_loss",
@@ -179,8 +177,6 @@ def point_truth(cloud, scene, classes):
 
 def variant_config(config, variant: str):
     """The shipped project's configuration with ``variant``'s one change (``a+b``: both changes)."""
-    from fusion.train.options import GeometryOptions
-
     if "+" in variant:
         for part in variant.split("+"):
             config = variant_config(config, part)
@@ -189,10 +185,6 @@ def variant_config(config, variant: str):
         return config
     if variant == "splat_surface":
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
-    if variant == "geometry":
-        train = config.stages["train"]
-        training = replace(train.training, flat=True, geometry=GeometryOptions())
-        return config.with_stage_options("train", replace(train, training=training))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
     if variant in ("lpips_loss", "msssim_loss", "hard_views", "mcmc"):

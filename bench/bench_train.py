@@ -607,7 +607,6 @@ def hybrid_options(args: argparse.Namespace) -> Any:
     paths = {
         **shared_training(args),
         "training.iterations": args.iterations,
-        "training.flat": args.flat,
         "training.hard_views": {} if args.hard_views else "none",
         "training.photometric": args.photometric,
         "init.rays_per_view": args.rays,
@@ -809,7 +808,6 @@ def main() -> None:
     t.add_argument("--sh-degree", type=int, default=3)
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
-    t.add_argument("--flat", action="store_true")
     t.add_argument("--hard-views", action="store_true")
     t.add_argument("--photometric", choices=("l1_ssim", "smoothl1_msssim"), default="l1_ssim")
     t.add_argument("--seed", type=int, default=0)

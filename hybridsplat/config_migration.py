@@ -73,7 +73,6 @@ _MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
     "mvs": {"threads": ("num_threads", _off_if_zero), "min_num_pixels": ("fusion.min_num_pixels", _same)},
     "train": {
         **_TRAINING,
-        "flat": ("training.flat", _same),
         "photometric": ("training.photometric", _same),
         "lpips_weight": ("training.lpips_weight", _same),
         "lpips_start": ("training.lpips_start", _same),
@@ -138,6 +137,10 @@ def _not_positive(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and value <= 0
 
 
+def _is_false(value: Any) -> bool:
+    return value is False
+
+
 def _any(value: Any) -> bool:
     """Any value: an option that only acts together with a removed switch (which is checked on its own)."""
     return True
@@ -154,10 +157,14 @@ class Removed:
 
 
 _PRIORS = "the MVS depth / normal priors: no measured gain worth their training time"
+_GEOMETRY = "flat fill splats and the geometric losses: no measured gain worth their training time"
 
 #: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
 _REMOVED_TRAINING: dict[str, Removed] = {
     "training.priors": Removed(_PRIORS, _is_none),
+    "training.geometry": Removed(_GEOMETRY, _is_none),
+    "training.flat": Removed(_GEOMETRY, _is_false),
+    "training.flat_reg": Removed(_GEOMETRY, _any),
 }
 
 #: per stage: removed option (dotted path inside the stage's table, or a key of 0.2's flat tables) → :class:`Removed`
@@ -165,6 +172,7 @@ REMOVED: dict[str, dict[str, Removed]] = {
     **{stage: dict(_REMOVED_TRAINING) for stage in ("train", "background", "appearance", "baseline")},
 }
 REMOVED["train"].update({
+    "flat": Removed(_GEOMETRY, _is_false),  # 0.2's flat [train] table
     # 0.2's flat [train] table: its prior weights (0 = off) and the prior's shape, which acted only with them
     "depth_prior": Removed(_PRIORS, _not_positive),
     "normal_prior": Removed(_PRIORS, _not_positive),

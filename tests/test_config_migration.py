@@ -113,6 +113,11 @@ REMOVED_CASES = {
     "priors of 0.2": ("train", "train.depth_prior", {"depth_prior": 0.0, "prior_border_px": 8.0}, {"depth_prior": 0.3}),
     "baseline priors": ("baseline", "baseline.training.priors", {"training": {"priors": "none"}},
                         {"training": {"priors": {}}}),
+    "geometry": ("train", "train.training.geometry",
+                 {"training": {"geometry": "none", "flat": False, "flat_reg": 10.0}},
+                 {"training": {"geometry": {"every": 2}}}),
+    "flat": ("background", "background.training.flat", {"training": {"flat": False}}, {"training": {"flat": True}}),
+    "flat of 0.2": ("train", "train.flat", {"flat": False}, {"flat": True}),
 }  # fmt: skip
 
 

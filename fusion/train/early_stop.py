@@ -29,7 +29,6 @@ class Checkpoint:
     holdout_psnr: float
     gaussians: int
     seconds: float
-    normal_consistency: float = float("nan")  # window mean of the depth–normal 1 − cos (NaN: term off)
 
 
 @dataclass
@@ -37,16 +36,13 @@ class EvalWindow:
     """Sums over the steps of one evaluation window.
 
     sq_err / n_err: summed squared error (colour units², [0, 1] images) over the hold-out pixel channels rendered
-    and their count; loss_sum / n_loss: summed photometric loss and step count; consistency /
-    consistency_steps: summed depth–normal inconsistency over the steps that had the term, and their count.
+    and their count; loss_sum / n_loss: summed photometric loss and step count.
     """
 
     sq_err: float = 0.0
     n_err: int = 0
     loss_sum: float = 0.0
     n_loss: int = 0
-    consistency: float = 0.0
-    consistency_steps: int = 0
 
     def add_holdout(self, colour: torch.Tensor, view: TrainView) -> None:
         """Add the error of a render (H, W, 3) on ``view``'s hold-out pixels (clamped to [0, 1] first)."""
@@ -62,11 +58,6 @@ class EvalWindow:
         self.loss_sum += loss
         self.n_loss += 1
 
-    def add_consistency(self, value: float) -> None:
-        """Add one geometric step's depth–normal inconsistency (mean 1 − cos)."""
-        self.consistency += value
-        self.consistency_steps += 1
-
     def holdout_psnr(self) -> float:
         """PSNR (dB) of the window's hold-out pixels (MSE floored at 1e-10); NaN when none was rendered."""
         if not self.n_err:
@@ -75,9 +66,7 @@ class EvalWindow:
 
     def checkpoint(self, step: int, gaussians: int, seconds: float) -> Checkpoint:
         """The window's :class:`Checkpoint` after ``step`` finished steps with ``gaussians`` trainable splats."""
-        psnr = self.holdout_psnr()
-        nc = self.consistency / self.consistency_steps if self.consistency_steps else math.nan
-        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), psnr, gaussians, seconds, nc)
+        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), self.holdout_psnr(), gaussians, seconds)
 
 
 @dataclass

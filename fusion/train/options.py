@@ -1,6 +1,5 @@
-"""The trainer's configuration: :class:`TrainOptions`, with the geometric-loss options :class:`GeometryOptions`
-(:mod:`fusion.train.geometry_loss`), the hard-view mining options :class:`HardViewOptions` and the seeding options
-:class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
+"""The trainer's configuration: :class:`TrainOptions`, with the hard-view mining options :class:`HardViewOptions`,
+and the seeding options :class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
 
 Frozen dataclasses of hyper-parameters only (learning rates per step as in 3DGS / gsplat, lengths in metres,
 shares of the run in [0, 1]); they are validated on construction and never hold running state. What the options
@@ -19,49 +18,6 @@ import numpy as np
 from core.errors import ConfigError
 from core.options import enum_choice
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy
-
-
-class GeometryDepth(str, Enum):
-    """The rendered depth the geometric losses read (:class:`fusion.render.types.RenderGeometry`): ``plane`` = where
-    the pixel's ray meets the blended plane (PGSR; exact for a layer of flat splats), ``median`` = the z of the
-    pixel's median Gaussian (2DGS)."""
-
-    PLANE = "plane"
-    MEDIAN = "median"
-
-
-@dataclass(frozen=True)
-class GeometryOptions:
-    """Geometric losses on the rendered depth and normals of the trainable + frozen render (issue 31; PGSR / 2DGS).
-
-    On the steps that have them (every ``every``-th step from ``ceil(start × iterations)`` on), the training render
-    also composites the normals and plane distances (``render(..., render_geometry=True)``) and the loss adds
-    ``normal_consistency_weight × (1 − cos(rendered normal, normal of the rendered depth))`` averaged over the
-    view's loss pixels where both are defined (:func:`fusion.train.geometry_loss.depth_normal_consistency`; 2DGS:
-    0.05; 0 = off). Use with ``TrainOptions.flat`` (the flatness term): the normal of a splat is the
-    axis of its smallest scale, meaningful only when the splat is flat.
-
-    depth: which rendered depth feeds the terms (:class:`GeometryDepth`; ``plane`` by default). start: share of the
-    run before the first geometric step (2DGS and PGSR start at ~0.23 of theirs; 0 = from the first step). every:
-    cadence in steps (1 = every step). A geometric step renders 8 features forward and backward (the per-pixel
-    terms on the region's bounding box only); the default 2 keeps a run within issue 31's time budget for the
-    geometric losses, 4 is the choice when time matters more than the term's strength (the costs measured:
-    docs/experiments/2026-11-27-pipeline-defaults.md, "Geometric losses: the cadence ``every``").
-    """
-
-    normal_consistency_weight: float = 0.05
-    depth: GeometryDepth = GeometryDepth.PLANE
-    start: float = 0.0
-    every: int = 2
-
-    def __post_init__(self) -> None:
-        if not self.normal_consistency_weight >= 0:
-            raise ConfigError(f"normal_consistency_weight must be >= 0, got {self.normal_consistency_weight}")
-        object.__setattr__(self, "depth", enum_choice(GeometryDepth, self.depth, "depth"))
-        if not 0.0 <= self.start <= 1.0:
-            raise ConfigError(f"geometry start must lie in [0, 1], got {self.start}")
-        if self.every < 1:
-            raise ConfigError(f"geometry every must be >= 1 (steps), got {self.every}")
 
 
 class Photometric(str, Enum):
@@ -106,9 +62,7 @@ class TrainOptions:
     iterations: maximum number of steps (1000 keep a CPU run of a dozen photos within minutes). downscale: integer
     factor for photos, masks and intrinsics (2 on a CPU: a quarter of the pixels). sh_degree: highest SH degree,
     reached one degree per ``sh_degree_interval`` steps.
-    scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
-    of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale; PGSR's flatness term, the
-    companion of ``geometry``'s depth–normal consistency); normals = that axis.
+    scale_reg: weight of mean(σ) / scene scale (keeps splats small).
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping
     (:mod:`fusion.train.early_stop`).
     refine_until: share of ``iterations`` after which the strategy no longer densifies (its ``refine_stop`` is
@@ -121,7 +75,6 @@ class TrainOptions:
     lpips_weight: weight of an LPIPS term on the loss pixels (:mod:`fusion.train.perceptual`; needs the
     ``lpips`` network argument of :func:`fusion.train.train_splats`) from step ``ceil(lpips_start × iterations)`` on;
     0 = off. lpips_margin: context pixels around the loss pixels' bounding box.
-    geometry: the geometric losses (:class:`GeometryOptions`); None = off (the default: no geometry is rendered).
     """
 
     iterations: int = 1000
@@ -138,8 +91,6 @@ class TrainOptions:
     lr_sh_dc: float = 2.5e-3
     lr_sh_rest: float = 2.5e-3 / 20
     scale_reg: float = 0.0
-    flat: bool = False
-    flat_reg: float = 10.0
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     holdout_fraction: float = 0.05
     eval_every: int = 100
@@ -149,7 +100,6 @@ class TrainOptions:
     refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    geometry: GeometryOptions | None = None
     hard_views: HardViewOptions | None = None
     photometric: Photometric = Photometric.L1_SSIM
     smoothl1_beta: float = 0.05
@@ -179,13 +129,6 @@ class TrainOptions:
                 f"need lpips_weight >= 0, lpips_start in [0, 1] and lpips_margin >= 0, got {self.lpips_weight}, "
                 f"{self.lpips_start}, {self.lpips_margin}"
             )
-
-    @property
-    def geometric(self) -> GeometryOptions | None:
-        """The geometric steps' options when the depth–normal consistency term is on, else None."""
-        if self.geometry is not None and self.geometry.normal_consistency_weight > 0:
-            return self.geometry
-        return None
 
 
 @dataclass(frozen=True)

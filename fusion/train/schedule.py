@@ -4,8 +4,7 @@ It owns every step-dependent decision that follows from :class:`fusion.train.opt
 learning rates (means: ``lr_means`` × scene scale decaying exponentially to ``lr_means_final`` of it over the run,
 as in 3DGS; the other groups constant), the SH degree (one more every ``sh_degree_interval`` steps), when the LPIPS
 term starts, the hard-view mining window, the evaluation windows (whole epochs), the snapshots, and when
-densification runs (the strategy's ``refine_stop`` lowered to ``refine_until`` of the run), and which steps render
-geometry for the geometric losses (every ``every``-th step from ``start`` of the run on). It is a frozen value
+densification runs (the strategy's ``refine_stop`` lowered to ``refine_until`` of the run). It is a frozen value
 built once per run; its methods are pure functions of the step.
 
 Steps: ``step`` is the 0-based index of the step being taken; ``done`` the 1-based count of finished steps.
@@ -53,8 +52,7 @@ class TrainSchedule:
     lpips_from: first step with the LPIPS term (``iterations + 1`` = never). mining: [start, stop) steps of hard-view
     mining ((0, 0) = none). eval_window: steps per evaluation window (whole epochs of ``n_views``).
     strategy: the densification strategy with its refinement window clipped. densifying_until: the step at which
-    densification ends (0 when it never runs). geometry_from: first step with the geometric losses (``iterations +
-    1`` = never); geometry_every: their cadence in steps.
+    densification ends (0 when it never runs).
     """
 
     iterations: int
@@ -68,8 +66,6 @@ class TrainSchedule:
     snapshot_steps: tuple[int, ...]
     strategy: DefaultStrategy | MCMCStrategy
     densifying_until: int
-    geometry_from: int = 0
-    geometry_every: int = 1
 
     @classmethod
     def from_options(cls, options: TrainOptions, scene_scale: float, n_views: int, smallest_side: int) -> TrainSchedule:
@@ -82,7 +78,6 @@ class TrainSchedule:
             raise ConfigError(f"the LPIPS term needs training images of at least {MIN_SIZE}×{MIN_SIZE} pixels")
         strategy = clip_refinement(options.strategy, options.refine_until, it)
         hard = options.hard_views
-        geo = options.geometric
         return cls(
             iterations=it,
             sh_degree=options.sh_degree,
@@ -95,8 +90,6 @@ class TrainSchedule:
             snapshot_steps=tuple(options.snapshot_iterations),
             strategy=strategy,
             densifying_until=strategy.refine_stop if strategy.refine_start < strategy.refine_stop else 0,
-            geometry_from=math.ceil(geo.start * it) if geo is not None else it + 1,
-            geometry_every=geo.every if geo is not None else 1,
         )
 
     def lr_means(self, step: int) -> float:
@@ -114,10 +107,6 @@ class TrainSchedule:
     def mining_on(self, step: int) -> bool:
         """Whether step ``step`` draws its view by hard-view mining."""
         return self.mining[0] <= step < self.mining[1]
-
-    def geometry_on(self, step: int) -> bool:
-        """Whether step ``step`` renders geometry and adds the geometric losses."""
-        return step >= self.geometry_from and (step - self.geometry_from) % self.geometry_every == 0
 
     def snapshot_after(self, done: int) -> bool:
         """Whether a snapshot of the trainable set is kept after ``done`` finished steps."""

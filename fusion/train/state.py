@@ -79,7 +79,7 @@ def prepare_scene(
     if not views:
         raise DataError("no training view has mask pixels: nothing to train")
     frozen = context_from_set(context.with_origin(origin), centre, 0) if context is not None and len(context) else None
-    caches = [project_context(frozen, v, options.geometric is not None) for v in views]
+    caches = [project_context(frozen, v) for v in views]
     context_total = len(frozen) if frozen is not None else 0
     context_culled = 0
     if frozen is not None:

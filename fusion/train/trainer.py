@@ -120,8 +120,6 @@ def _trained_set(state: TrainState, scene: TrainScene) -> GaussianSet:
 
 def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: StepOutcome) -> None:
     """Fold a finished step into the evaluation window and the sampler's running losses."""
-    if outcome.consistency is not None:
-        window.add_consistency(outcome.consistency)
     window.add_holdout(outcome.render.colour, scene.views[outcome.view])
     window.add_loss(outcome.loss)
     state.sampler.record_loss(outcome.view, outcome.loss)

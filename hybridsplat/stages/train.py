@@ -14,23 +14,10 @@ from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import MaskedTrainingOptions
-from fusion.train.options import GeometryOptions
 from fusion.train.strategy import RefineCounts
 from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
-
-_GEOMETRY_OPTIONS = (
-    CliOption("training.geometry.normal_consistency_weight", "--geometry",
-              value=GeometryOptions().normal_consistency_weight,
-              help="Geometric losses on (depth-normal consistency at its default weight; config: "
-                   "train.training.geometry)."),
-    CliOption("training.geometry.normal_consistency_weight", "--normal-consistency-weight",
-              help="Geometric losses with this depth-normal consistency weight (0: the term off)."),
-)  # fmt: skip
-"""The geometric losses of masked training (:class:`fusion.train.options.GeometryOptions`, off by default) on the
-``train`` and ``run`` commands: ``--geometry`` turns them on with their defaults, ``--normal-consistency-weight W``
-with weight W (given both, W wins)."""
 
 
 @dataclass(frozen=True)
@@ -87,15 +74,10 @@ class TrainStage(Stage):
         CliOption("training.iterations", help="Maximum training steps (early stop on hold-out pixels)."),
         CliOption("training.downscale", help="Integer downscale of photos and masks for training (at least)."),
         CliOption("training.strategy.cap", "--cap", help="Hard budget of trained splats."),
-        CliOption("training.flat", "--flat/--no-flat", help="Surface-aligned (flat) splats."),
-        *_GEOMETRY_OPTIONS,
     )
     run_options = (
         CliOption("training.iterations", "--train-iterations",
                   help="Most splat-training steps (default: the train stage's; it stops early on a plateau)."),
-        CliOption("training.flat", "--train-flat/--no-train-flat",
-                  help="Surface-aligned (flat) fill splats (the companion of --geometry)."),
-        *_GEOMETRY_OPTIONS,
     )  # fmt: skip
 
     def inputs(self, ctx: StageContext) -> list[Path]:
