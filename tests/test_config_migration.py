@@ -118,6 +118,11 @@ REMOVED_CASES = {
                  {"training": {"geometry": {"every": 2}}}),
     "flat": ("background", "background.training.flat", {"training": {"flat": False}}, {"training": {"flat": True}}),
     "flat of 0.2": ("train", "train.flat", {"flat": False}, {"flat": True}),
+    "lpips": ("train", "train.training.lpips_weight",
+              {"lpips_weights": "", "training": {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_margin": 16}},
+              {"training": {"lpips_weight": 0.1}}),
+    "lpips of 0.2": ("appearance", "appearance.training.lpips_weight", {"training": {"lpips_weight": 0}},
+                     {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
 }  # fmt: skip
 
 

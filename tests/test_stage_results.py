@@ -26,7 +26,7 @@ OLD_MANIFEST = Path(__file__).parent / "data" / "manifest_0_3_demo.json"
 the stage results were typed (the inputs, configuration and outputs of each record left out, the classifier's path
 shortened to its name)."""
 
-REMOVED_FIELDS = {"train": {"prior_views", "prior_pixels"}}
+REMOVED_FIELDS = {"train": {"prior_views", "prior_pixels", "lpips_weights"}}
 """Result fields of 0.3.1 that 0.4 removed with their options (docs/migration.md): read and dropped."""
 
 OLD_SUMMARIES = {
@@ -141,7 +141,7 @@ def _samples() -> list[StageResult]:
                        seconds=1.5, figures=("classify/figures/classes.png",), memory_limit_mb=1024.0,
                        peak_rss_mb=600.0, cells=9, regrown=1),
         TrainResult(trained=5, downscale=2, cap=100, iterations=24, holdout_psnr_db=20.5, resolution=(48, 36),
-                    seeds=TrainSeeds(1, 2, 3, 4), lpips_weights="w.npz", neighbour_context=3),
+                    seeds=TrainSeeds(1, 2, 3, 4), neighbour_context=3),
         BackgroundResult(share=0.1, gaussians=7, shell_scores={"8": ShellScore(0.1, 26)}, holdout_psnr_db=None),
         AppearanceResult(gaussians=100, iterations=30, sh_degree=3, context_refined=20, background_refined=False,
                          survey_unrefined=0, fill_unrefined=1, tiles=1, per_tile=(tile,), peak_mb_with_workers=900.0),

@@ -72,9 +72,6 @@ class TrainOptions:
     hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
     photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
     ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
-    lpips_weight: weight of an LPIPS term on the loss pixels (:mod:`fusion.train.perceptual`; needs the
-    ``lpips`` network argument of :func:`fusion.train.train_splats`) from step ``ceil(lpips_start × iterations)`` on;
-    0 = off. lpips_margin: context pixels around the loss pixels' bounding box.
     """
 
     iterations: int = 1000
@@ -103,9 +100,6 @@ class TrainOptions:
     hard_views: HardViewOptions | None = None
     photometric: Photometric = Photometric.L1_SSIM
     smoothl1_beta: float = 0.05
-    lpips_weight: float = 0.0
-    lpips_start: float = 0.8
-    lpips_margin: int = 16
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -124,11 +118,6 @@ class TrainOptions:
             raise ConfigError(f"smoothl1_beta must be > 0, got {self.smoothl1_beta}")
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
-        if not (self.lpips_weight >= 0 and 0.0 <= self.lpips_start <= 1.0 and self.lpips_margin >= 0):
-            raise ConfigError(
-                f"need lpips_weight >= 0, lpips_start in [0, 1] and lpips_margin >= 0, got {self.lpips_weight}, "
-                f"{self.lpips_start}, {self.lpips_margin}"
-            )
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ sampler), the step counter and the last hold-out PSNR.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -21,7 +21,6 @@ from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.train.options import TrainOptions
 from fusion.train.params import context_from_set, make_optimizer, make_parameters, tensors_from_set
-from fusion.train.perceptual import PerceptualCrop, prepare_crop
 from fusion.train.render import ContextProjection, project_context
 from fusion.train.sampler import ViewSampler
 from fusion.train.schedule import TrainSchedule, initial_learning_rates
@@ -100,8 +99,7 @@ class TrainState:
     object stays). optimizer: Adam with one group per name. strategy_state: the strategy's running state.
     generator: the seeded torch generator the strategy draws from. sampler: the view sampler (owns the NumPy
     generator). initial_gaussians: the trainable count at the start (after the cap). step: finished steps.
-    holdout_psnr: the last closed window's hold-out PSNR (dB; NaN before the first). lpips_crops: per view, its
-    LPIPS crop, prepared on first use.
+    holdout_psnr: the last closed window's hold-out PSNR (dB; NaN before the first).
     """
 
     params: dict[str, torch.nn.Parameter]
@@ -112,18 +110,11 @@ class TrainState:
     initial_gaussians: int
     step: int = 0
     holdout_psnr: float = float("nan")
-    lpips_crops: dict[int, PerceptualCrop | None] = field(default_factory=dict)
 
     @property
     def gaussians(self) -> int:
         """The current trainable count."""
         return int(self.params["means"].shape[0])
-
-    def lpips_crop(self, index: int, view: TrainView, margin: int) -> PerceptualCrop | None:
-        """The LPIPS crop of view ``index`` (``margin`` px of context), prepared once."""
-        if index not in self.lpips_crops:
-            self.lpips_crops[index] = prepare_crop(view, margin)
-        return self.lpips_crops[index]
 
 
 def initial_state(init: GaussianSet, scene: TrainScene, schedule: TrainSchedule, options: TrainOptions) -> TrainState:

@@ -11,8 +11,8 @@
   backward (only the trainable tensors have gradients), Adam step; then the densification strategy's refinement
   (:mod:`fusion.train.strategy`, :func:`fusion.train.step.refine_after_step`);
 - :class:`fusion.train.schedule.TrainSchedule` — learning rates (means: ``lr_means`` × scene scale decaying
-  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), LPIPS start,
-  mining window, evaluation windows, snapshots and the end of densification;
+  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), mining
+  window, evaluation windows, snapshots and the end of densification;
 - :class:`fusion.train.early_stop.EvalWindow` / :class:`fusion.train.early_stop.EarlyStop` — early stop: a seeded
   ``holdout_fraction`` of each view's mask pixels never enters the loss; the PSNR on them is accumulated over whole
   epochs, and training stops when it has not improved by ``min_improvement_db`` for ``patience`` evaluation windows
@@ -40,7 +40,6 @@ from fusion.render.projection import quat_to_rotmat
 from fusion.train.early_stop import Checkpoint, EarlyStop, EvalWindow
 from fusion.train.options import HardViewOptions, TrainOptions
 from fusion.train.params import clamp_to_viewer_range, set_from_tensors
-from fusion.train.perceptual import PerceptualNetwork
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState, initial_state, prepare_scene, scene_scale
 from fusion.train.step import StepOutcome, refine_after_step, train_step
@@ -152,7 +151,6 @@ def train_splats(
     context: GaussianSet | None = None,
     options: TrainOptions | None = None,
     progress: Callable[[StepInfo], None] | None = None,
-    lpips: PerceptualNetwork | None = None,
     max_scales: np.ndarray | None = None,
 ) -> TrainResult:
     """Train ``init`` (any origin) against ``images`` inside ``masks``, with ``context`` frozen beside it.
@@ -160,21 +158,16 @@ def train_splats(
     images: name → (H, W, 3) photo at its camera's size (uint8 or float in [0, 1]); only names with a camera and,
     with masks, a non-empty mask are used. masks: name → (H, W) bool, or None for whole images. Returns a
     :class:`TrainResult`; deterministic for a given seed on the CPU.
-    lpips: the frozen LPIPS network (an :class:`eval.lpips.LPIPS`), needed when ``options.lpips_weight`` > 0 and
-    never called otherwise.
     max_scales: (N,) per Gaussian of ``init``, metres (inf: no bound): after every step each σ is clamped to at
     most it (a projection onto the bound, as the appearance refinement of the survey layer needs); the set must keep
     its count and order, so the strategy must not densify and ``init`` must fit its cap.
     """
     opts = options or TrainOptions()
     t0 = time.perf_counter()
-    if opts.lpips_weight > 0 and lpips is None:
-        raise ConfigError("lpips_weight > 0 needs the LPIPS network (eval.lpips.LPIPS with its weights file)")
     if len(init) == 0:
         raise DataError("no initial splats to train (the regions got no seeds)")
     scene = prepare_scene(cameras, images, masks, context, opts)
-    side = min(min(v.width, v.height) for v in scene.views)
-    schedule = TrainSchedule.from_options(opts, scene.scale, len(scene.views), side)
+    schedule = TrainSchedule.from_options(opts, scene.scale, len(scene.views))
     bounds = _log_scale_bounds(max_scales, init, schedule)
     state = initial_state(init, scene, schedule, opts)
     early_stop = EarlyStop.from_options(opts, schedule.densifying_until)
@@ -183,7 +176,7 @@ def train_splats(
     snapshot_seconds: dict[int, float] = {}
     while state.step < opts.iterations:
         index = state.sampler.next(state.step, schedule.mining_on(state.step))
-        outcome = train_step(state, scene, schedule, opts, index, lpips)
+        outcome = train_step(state, scene, schedule, opts, index)
         refine_after_step(state, scene, schedule)
         clamp_to_viewer_range(state.params)
         if bounds is not None:
