@@ -15,9 +15,8 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
-- ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with SmoothL1 + MS-SSIM instead
-  of L1 + SSIM, hard-view mining, or MCMC densification (its window and cap as the default strategy's), each at its
-  defaults otherwise.
+- ``hard_views``, ``mcmc``: the fill's training (the train stage) with hard-view mining or MCMC densification (its
+  window and cap as the default strategy's), each at its defaults otherwise.
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -57,7 +56,6 @@ VARIANTS = (
     "oracle",
     "splat_surface",
     "hole_region",
-    "msssim_loss",
     "hard_views",
     "mcmc",
 )
@@ -186,15 +184,13 @@ def variant_config(config, variant: str):
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
-    if variant in ("msssim_loss", "hard_views", "mcmc"):
-        from fusion.train.options import HardViewOptions, Photometric
+    if variant in ("hard_views", "mcmc"):
+        from fusion.train.options import HardViewOptions
         from fusion.train.strategy import MCMCStrategy
 
         train = config.stages["train"]
         training = train.training
-        if variant == "msssim_loss":
-            training = replace(training, photometric=Photometric.SMOOTHL1_MSSSIM)
-        elif variant == "hard_views":
+        if variant == "hard_views":
             training = replace(training, hard_views=HardViewOptions())
         else:
             s = training.strategy

@@ -28,8 +28,7 @@
     fusion.train.masked.train_whole_scene: same trainer, mask = whole image, no context, SfM init, same cap) and the
     held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole image) of merged, MVS-only
     and baseline, with times. Every figure is printed with the machine load. Options:
-    ``--hard-views``,
-    ``--photometric smoothl1_msssim``; per-material geometry of MVS-only, the splat centres, merged with every splat
+    ``--hard-views``; per-material geometry of MVS-only, the splat centres, merged with every splat
     and the merged survey points is printed and written to OUT/geometry.json. The products go where a project keeps
     them (hybridsplat.layout.ProjectLayout of OUT): the merged set, the trained splats and the baseline.
 
@@ -608,7 +607,6 @@ def hybrid_options(args: argparse.Namespace) -> Any:
         **shared_training(args),
         "training.iterations": args.iterations,
         "training.hard_views": {} if args.hard_views else "none",
-        "training.photometric": args.photometric,
         "init.rays_per_view": args.rays,
     }
     if args.splats_per_mask_pixel is not None:
@@ -809,7 +807,6 @@ def main() -> None:
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
     t.add_argument("--hard-views", action="store_true")
-    t.add_argument("--photometric", choices=("l1_ssim", "smoothl1_msssim"), default="l1_ssim")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")

@@ -121,8 +121,15 @@ REMOVED_CASES = {
     "lpips": ("train", "train.training.lpips_weight",
               {"lpips_weights": "", "training": {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_margin": 16}},
               {"training": {"lpips_weight": 0.1}}),
-    "lpips of 0.2": ("appearance", "appearance.training.lpips_weight", {"training": {"lpips_weight": 0}},
-                     {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
+    "photometric": ("baseline", "baseline.training.photometric",
+                    {"training": {"photometric": "l1_ssim", "smoothl1_beta": 0.05}},
+                    {"training": {"photometric": "smoothl1_msssim"}}),
+    "photometric of 0.2": ("train", "train.photometric", {"photometric": "l1_ssim"},
+                           {"photometric": "smoothl1_msssim"}),
+    "lpips in appearance": ("appearance", "appearance.training.lpips_weight", {"training": {"lpips_weight": 0}},
+                            {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
+    "lpips of 0.2": ("train", "train.lpips_weight", {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_weights": ""},
+                     {"lpips_weight": 0.1}),
 }  # fmt: skip
 
 

@@ -11,20 +11,11 @@ line can read, write and check the options without loading it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 
 from core.errors import ConfigError
-from core.options import enum_choice
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy
-
-
-class Photometric(str, Enum):
-    """The photometric loss: 3DGS's 0.8 · L1 + 0.2 · (1 − SSIM), or SmoothL1 + MS-SSIM (:mod:`fusion.train.msssim`)."""
-
-    L1_SSIM = "l1_ssim"
-    SMOOTHL1_MSSSIM = "smoothl1_msssim"
 
 
 @dataclass(frozen=True)
@@ -70,8 +61,6 @@ class TrainOptions:
     replaces each Gaussian by two unfitted halves. Early stopping waits for the end of densification too.
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
     hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
-    photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
-    ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
     """
 
     iterations: int = 1000
@@ -98,8 +87,6 @@ class TrainOptions:
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
     hard_views: HardViewOptions | None = None
-    photometric: Photometric = Photometric.L1_SSIM
-    smoothl1_beta: float = 0.05
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
@@ -113,9 +100,6 @@ class TrainOptions:
             raise ConfigError(f"refine_until must lie in (0, 1], got {self.refine_until}")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
-        object.__setattr__(self, "photometric", enum_choice(Photometric, self.photometric, "photometric"))
-        if not self.smoothl1_beta > 0:
-            raise ConfigError(f"smoothl1_beta must be > 0, got {self.smoothl1_beta}")
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
 

@@ -110,8 +110,8 @@ def render_step(
     """Render trainable splats (``params`` as in :mod:`fusion.train.params`) plus the cached context into ``view``.
 
     loss_pixels_only: composite only ``view.render_pixels`` (the pixels the L1 + D-SSIM loss reads; the others get
-    the background and no gradient). Exact for that loss, which reads nothing else; a loss with a wider reach
-    (MS-SSIM, an LPIPS crop) renders every pixel.
+    the background and no gradient). Exact for that loss, which reads nothing else (the trainer's steps); False
+    renders every pixel.
     """
     if backend not in ("cpu", "reference"):
         raise ConfigError(f"training renders with the 'cpu' or 'reference' backend, got {backend!r}")

@@ -1,7 +1,7 @@
 """One optimisation step of the trainer: render, loss, backward, Adam step; then the strategy's refinement.
 
 :func:`step_loss` is the loss of one render (pure given its inputs): the photometric term over the view's loss
-pixels (0.8 · L1 + 0.2 · (1 − SSIM), :mod:`fusion.train.loss`, or SmoothL1 + MS-SSIM, :mod:`fusion.train.msssim`),
+pixels (0.8 · L1 + 0.2 · (1 − SSIM), :mod:`fusion.train.loss`),
 then the scale regulariser (relative to the scene scale) and the strategy's own regulariser.
 :func:`train_step` takes step ``state.step`` on one view: sets the means' learning rate, renders trainable + frozen
 Gaussians (:mod:`fusion.train.render`), backpropagates (only the trainable
@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import torch
 
 from fusion.train.loss import LossTerms, masked_photometric_loss
-from fusion.train.msssim import smoothl1_msssim_loss
 from fusion.train.options import TrainOptions
 from fusion.train.render import StepRender, render_step
 from fusion.train.schedule import TrainSchedule
@@ -44,9 +43,7 @@ class StepOutcome:
 
 def photometric_terms(colour: torch.Tensor, view: TrainView, options: TrainOptions) -> LossTerms:
     """The photometric loss of a render (H, W, 3, [0, 1]) against ``view``'s photo over its loss pixels."""
-    if options.photometric == "l1_ssim":
-        return masked_photometric_loss(colour, view.image, view.loss_mask, options.ssim_lambda)
-    return smoothl1_msssim_loss(colour, view.image, view.loss_mask, options.ssim_lambda, options.smoothl1_beta)
+    return masked_photometric_loss(colour, view.image, view.loss_mask, options.ssim_lambda)
 
 
 def step_loss(
@@ -86,9 +83,8 @@ def train_step(
     """Take step ``state.step`` on view ``index`` of ``scene`` and count it (``state.step`` + 1 on return)."""
     step, view = state.step, scene.views[index]
     set_learning_rate(state.optimizer, "means", schedule.lr_means(step))
-    loss_pixels_only = options.photometric == "l1_ssim"
     render = render_step(state.params, view, scene.caches[index], schedule.sh_degree_at(step), scene.background,
-                         options.backend, loss_pixels_only)  # fmt: skip
+                         options.backend, loss_pixels_only=True)  # fmt: skip
     loss = step_loss(state.params, view, render, options, scene.scale, schedule.strategy)
     loss.total.backward()
     schedule.strategy.after_backward(state.strategy_state, render.means2d, view.width, view.height, step)
