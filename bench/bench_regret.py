@@ -15,8 +15,8 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
-- ``hard_views``, ``mcmc``: the fill's training (the train stage) with hard-view mining or MCMC densification (its
-  window and cap as the default strategy's), each at its defaults otherwise.
+- ``mcmc``: the fill's training (the train stage) with MCMC densification (its window and cap as the default
+  strategy's), at its defaults otherwise.
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -56,7 +56,6 @@ VARIANTS = (
     "oracle",
     "splat_surface",
     "hole_region",
-    "hard_views",
     "mcmc",
 )
 DISTANCE_BINS_TAU = (0.0, 1.0, 2.0, 4.0, np.inf)
@@ -184,22 +183,15 @@ def variant_config(config, variant: str):
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
-    if variant in ("hard_views", "mcmc"):
-        from fusion.train.options import HardViewOptions
+    if variant == "mcmc":
         from fusion.train.strategy import MCMCStrategy
 
         train = config.stages["train"]
-        training = train.training
-        if variant == "hard_views":
-            training = replace(training, hard_views=HardViewOptions())
-        else:
-            s = training.strategy
-            training = replace(
-                training,
-                strategy=MCMCStrategy(
-                    cap=s.cap, refine_start=s.refine_start, refine_stop=s.refine_stop, refine_every=s.refine_every
-                ),
-            )
+        s = train.training.strategy
+        mcmc = MCMCStrategy(
+            cap=s.cap, refine_start=s.refine_start, refine_stop=s.refine_stop, refine_every=s.refine_every
+        )
+        training = replace(train.training, strategy=mcmc)
         return config.with_stage_options("train", replace(train, training=training))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
 

@@ -28,7 +28,7 @@
     fusion.train.masked.train_whole_scene: same trainer, mask = whole image, no context, SfM init, same cap) and the
     held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole image) of merged, MVS-only
     and baseline, with times. Every figure is printed with the machine load. Options:
-    ``--hard-views``; per-material geometry of MVS-only, the splat centres, merged with every splat
+    per-material geometry of MVS-only, the splat centres, merged with every splat
     and the merged survey points is printed and written to OUT/geometry.json. The products go where a project keeps
     them (hybridsplat.layout.ProjectLayout of OUT): the merged set, the trained splats and the baseline.
 
@@ -606,7 +606,6 @@ def hybrid_options(args: argparse.Namespace) -> Any:
     paths = {
         **shared_training(args),
         "training.iterations": args.iterations,
-        "training.hard_views": {} if args.hard_views else "none",
         "init.rays_per_view": args.rays,
     }
     if args.splats_per_mask_pixel is not None:
@@ -806,7 +805,6 @@ def main() -> None:
     t.add_argument("--sh-degree", type=int, default=3)
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
-    t.add_argument("--hard-views", action="store_true")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")

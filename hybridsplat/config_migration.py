@@ -73,7 +73,6 @@ _MOVED: dict[str, dict[str, tuple[str, Callable[[Any], Any]]]] = {
     "mvs": {"threads": ("num_threads", _off_if_zero), "min_num_pixels": ("fusion.min_num_pixels", _same)},
     "train": {
         **_TRAINING,
-        "hard_views": ("training.hard_views", lambda v: {} if v else NONE),
         "rays_per_view": ("init.rays_per_view", _same),
     },
     "clean": {
@@ -156,6 +155,7 @@ class Removed:
 _PRIORS = "the MVS depth / normal priors: no measured gain worth their training time"
 _GEOMETRY = "flat fill splats and the geometric losses: no measured gain worth their training time"
 _PHOTOMETRIC = "the SmoothL1 + MS-SSIM loss: never shown to help (L1 + SSIM is the loss)"
+_HARD_VIEWS = "hard-view mining: never shown to help (every view is seen once per epoch)"
 _LPIPS = "the LPIPS training term lowered the held-out PSNR (LPIPS stays an evaluation metric: [eval] lpips_weights)"
 
 #: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
@@ -168,6 +168,7 @@ _REMOVED_TRAINING: dict[str, Removed] = {
     **{f"training.{key}": Removed(_LPIPS, _any) for key in ("lpips_start", "lpips_margin")},
     "training.photometric": Removed(_PHOTOMETRIC, lambda value: value == "l1_ssim"),
     "training.smoothl1_beta": Removed(_PHOTOMETRIC, _any),
+    "training.hard_views": Removed(_HARD_VIEWS, _is_none),
 }
 
 #: per stage: removed option (dotted path inside the stage's table, or a key of 0.2's flat tables) → :class:`Removed`
@@ -179,6 +180,7 @@ REMOVED["train"].update({
     "lpips_weight": Removed(_LPIPS, _not_positive),
     "lpips_start": Removed(_LPIPS, _any),
     "photometric": Removed(_PHOTOMETRIC, lambda value: value == "l1_ssim"),
+    "hard_views": Removed(_HARD_VIEWS, _is_false),
     "lpips_weights": Removed(_LPIPS, _any),  # the weights of the LPIPS term (0.2 and 0.3 alike)
     # 0.2's flat [train] table: its prior weights (0 = off) and the prior's shape, which acted only with them
     "depth_prior": Removed(_PRIORS, _not_positive),

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from core.errors import ConfigError
-from fusion.train.options import HardViewOptions
 from hybridsplat.config import ProjectConfig, read_config
 from hybridsplat.config_migration import migrate_table
 from hybridsplat.manifest import StageRecord
@@ -26,7 +25,7 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
     assert train.training.iterations == 600 and train.training.strategy.cap == 60_000
     assert train.training.strategy.refine_start == 100 and train.init.rays_per_view == 400
     assert train.snapshot_iterations == (500, 1000, 1500)
-    assert train.training.hard_views is None and train.max_image_size == 640
+    assert train.max_image_size == 640
     assert baseline.enabled and baseline.training.iterations == 1000 and baseline.checkpoints == ()
     assert config.stages["mvs"].num_threads is None and config.stages["mvs"].fusion.min_num_pixels == 3
     assert config.stages["sfm"].align_threshold_m is None
@@ -52,9 +51,6 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
 
 
 def test_old_switches_become_the_new_optional_tables():
-    table = {"iterations": 50, "hard_views": True}
-    options = options_from_table(stage_options_types()["train"], migrate_table("train", table), "config.toml")
-    assert options.training.hard_views == HardViewOptions()
     merge = options_from_table(stage_options_types()["merge"], migrate_table("merge", {"points_min_views": -1,
                                "points_max_rim_spacing": -1.0}), "config.toml")  # fmt: skip
     assert merge.points.min_views == 0 and merge.points.max_rim_spacing is None
@@ -65,16 +61,14 @@ def test_the_new_form_round_trips_none_tables_and_enums(tmp_path):
     stages = {
         "train": options_with(
             types["train"],
-            {"training.hard_views": {}, "training.strategy.cap": 1234},
+            {"training.strategy.cap": 1234},
         ),  # fmt: skip
         "clean": options_with(types["clean"], {"min_opacity": "none", "max_scale_spacing": 3.0}),
         "mvs": options_with(types["mvs"], {"backend": "cpu", "num_threads": 1}),
     }
     (tmp_path / "config.toml").write_text(ProjectConfig(stages=stages).to_toml())
     text = (tmp_path / "config.toml").read_text()
-    assert (
-        'min_opacity = "none"' in text and "[train.training.hard_views]" in text and 'kind = "DefaultStrategy"' in text
-    )
+    assert 'min_opacity = "none"' in text and "[train.training.strategy]" in text and 'kind = "DefaultStrategy"' in text
     back = read_config(tmp_path / "config.toml", types)
     assert back.stages == stages
 
@@ -126,6 +120,9 @@ REMOVED_CASES = {
                     {"training": {"photometric": "smoothl1_msssim"}}),
     "photometric of 0.2": ("train", "train.photometric", {"photometric": "l1_ssim"},
                            {"photometric": "smoothl1_msssim"}),
+    "hard views": ("train", "train.training.hard_views", {"training": {"hard_views": "none"}},
+                   {"training": {"hard_views": {"start": 0.2}}}),
+    "hard views of 0.2": ("train", "train.hard_views", {"hard_views": False}, {"hard_views": True}),
     "lpips in appearance": ("appearance", "appearance.training.lpips_weight", {"training": {"lpips_weight": 0}},
                             {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
     "lpips of 0.2": ("train", "train.lpips_weight", {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_weights": ""},

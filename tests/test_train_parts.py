@@ -11,7 +11,7 @@ import pytest
 import torch
 from test_train_trainer import blob_set, perturbed, render_all, ring_cameras
 
-from fusion.train import DefaultStrategy, HardViewOptions, TrainOptions, train_splats
+from fusion.train import DefaultStrategy, TrainOptions, train_splats
 from fusion.train.early_stop import EarlyStop, EvalWindow
 from fusion.train.render import render_step
 from fusion.train.sampler import ViewSampler
@@ -41,18 +41,15 @@ def test_means_learning_rate_follows_the_closed_form_exponential_decay() -> None
     assert s.lr_means(0) == start and s.lr_means(1000) == pytest.approx(0.01 * start, rel=1e-12)
 
 
-def test_sh_degree_mining_windows_and_snapshots() -> None:
-    hard = HardViewOptions(start=0.2, stop=0.5)
-    opts = TrainOptions(iterations=100, sh_degree=2, sh_degree_interval=30, eval_every=10, hard_views=hard,
-                        snapshot_iterations=(40, 100))  # fmt: skip
+def test_sh_degree_evaluation_windows_and_snapshots() -> None:
+    opts = TrainOptions(
+        iterations=100, sh_degree=2, sh_degree_interval=30, eval_every=10, snapshot_iterations=(40, 100)
+    )
     s = TrainSchedule.from_options(opts, 1.0, n_views=4)
     assert [s.sh_degree_at(t) for t in (0, 29, 30, 59, 60, 99)] == [0, 0, 1, 1, 2, 2]
-    assert [t for t in range(100) if s.mining_on(t)] == list(range(20, 50))
     assert s.eval_window == 12  # eval_every 10 rounded up to whole epochs of 4 views
     assert [d for d in range(1, 101) if s.evaluate_after(d)] == [*range(12, 100, 12), 100]
     assert [d for d in range(1, 101) if s.snapshot_after(d)] == [40, 100]
-    off = TrainSchedule.from_options(TrainOptions(iterations=100), 1.0, 4)
-    assert off.mining == (0, 0) and not any(off.mining_on(t) for t in range(100))
 
 
 def test_refinement_window_is_clipped_to_refine_until() -> None:
@@ -101,22 +98,12 @@ def test_eval_window_psnr_and_means() -> None:
 
 # -- view sampler -------------------------------------------------------------------------------------------------
 def test_sampler_visits_every_view_once_per_epoch() -> None:
-    s = ViewSampler.start(5, np.random.default_rng(0), None)
-    epochs = [[s.next(step, mining=False) for step in range(e * 5, e * 5 + 5)] for e in range(4)]
+    s = ViewSampler.start(5, np.random.default_rng(0))
+    epochs = [[s.next(step) for step in range(e * 5, e * 5 + 5)] for e in range(4)]
     assert all(sorted(e) == list(range(5)) for e in epochs) and len({tuple(e) for e in epochs}) > 1
     assert s.counts.tolist() == [4] * 5
-    s.record_loss(0, 1.0)
-    assert np.isnan(s.running).all()  # running losses are only kept with mining options
-
-
-def test_sampler_mines_the_view_with_the_highest_running_loss() -> None:
-    s = ViewSampler.start(4, np.random.default_rng(1), HardViewOptions(uniform_mix=0.2, ema=0.5))
-    for v, loss in enumerate((0.1, 0.1, 1.0, 0.1)):
-        s.record_loss(v, loss)
-    s.record_loss(2, 0.6)
-    assert s.running[2] == pytest.approx(0.8)  # 0.5 · 1.0 + 0.5 · 0.6
-    picks = [s.next(t, mining=True) for t in range(400)]
-    assert np.bincount(picks, minlength=4).argmax() == 2 and picks.count(2) > 200
+    rng = np.random.default_rng(0)  # the same seeded sequence: one permutation per epoch, drawn at its start
+    assert epochs == [rng.permutation(5).tolist() for _ in range(4)]
 
 
 # -- one step -----------------------------------------------------------------------------------------------------
@@ -211,9 +198,9 @@ def test_options_and_strategies_are_configured_without_torch() -> None:
 
     code = (
         "import sys\n"
-        "from fusion.train.options import TrainOptions, HardViewOptions\n"
+        "from fusion.train.options import TrainOptions\n"
         "from fusion.train.strategy import MCMCStrategy\n"
-        "TrainOptions(hard_views=HardViewOptions(), strategy=MCMCStrategy(cap=10))\n"
+        "TrainOptions(strategy=MCMCStrategy(cap=10))\n"
         "print('torch' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -203,35 +203,6 @@ def test_splat_normals_are_the_rotated_smallest_axis_and_come_with_the_trained_s
     np.testing.assert_allclose(written, splat_normals(trained), atol=1e-6)
 
 
-def test_hard_view_probabilities_follow_the_running_losses() -> None:
-    from fusion.train import HardViewOptions
-
-    h = HardViewOptions(uniform_mix=0.2, power=1.0)
-    p = h.probabilities(np.array([1.0, 3.0, np.nan, 2.0]))  # the unseen view counts with the mean, 2
-    np.testing.assert_allclose(p, 0.8 * np.array([1, 3, 2, 2]) / 8 + 0.05)
-    assert h.probabilities(np.full(3, np.nan)) == pytest.approx(np.full(3, 1 / 3))
-    with pytest.raises(ConfigError):
-        HardViewOptions(start=0.9, stop=0.1)
-
-
-def test_hard_view_mining_visits_the_worst_fitted_view_more() -> None:
-    from fusion.train import HardViewOptions
-
-    cams = ring_cameras(4)
-    truth = blob_set(80, 3)
-    photos = render_all(truth, cams)
-    rng = np.random.default_rng(0)
-    hard_name = sorted(photos)[2]
-    photos[hard_name] = rng.uniform(0, 1, photos[hard_name].shape)  # noise: no Gaussian set can fit it
-    common = dict(iterations=80, sh_degree=0, seed=1, strategy=DefaultStrategy(refine_start=10_000))
-    plain = train_splats(cams, photos, None, truth, options=TrainOptions(**common))
-    assert plain.view_steps == (20, 20, 20, 20)  # one visit per view and epoch
-    mined = train_splats(cams, photos, None, truth,
-                         options=TrainOptions(**common, hard_views=HardViewOptions(start=0.0, stop=1.0)))  # fmt: skip
-    steps = mined.view_steps
-    assert sum(steps) == 80 and steps[2] == max(steps) and steps[2] > 30, steps
-
-
 def test_densification_stops_at_refine_until_share_of_the_run() -> None:
     """Gaussians added late are never fitted: with refine_until 0.5 the count is frozen over the second half (with
     1.0 it still grows there), and early stopping cannot end a run before densification has ended."""

@@ -1,5 +1,5 @@
-"""The trainer's configuration: :class:`TrainOptions`, with the hard-view mining options :class:`HardViewOptions`,
-and the seeding options :class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
+"""The trainer's configuration: :class:`TrainOptions`, and the seeding options :class:`InitOptions`
+(:func:`fusion.train.init.seed_splats`).
 
 Frozen dataclasses of hyper-parameters only (learning rates per step as in 3DGS / gsplat, lengths in metres,
 shares of the run in [0, 1]); they are validated on construction and never hold running state. What the options
@@ -12,38 +12,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from core.errors import ConfigError
 from fusion.train.strategy import DefaultStrategy, MCMCStrategy
-
-
-@dataclass(frozen=True)
-class HardViewOptions:
-    """Hard-view mining (as in the industrial digital-twin 3DGS study): between ``start`` and ``stop`` (shares of
-    ``iterations``) each step's view is drawn with probability ``(1 − uniform_mix) · L_v^power / Σ L^power +
-    uniform_mix / V``, L_v the view's running loss (exponential average with weight ``ema`` on the newest value;
-    views not yet seen count with the mean), so the views the model fits worst are seen more often while every view
-    keeps a floor. Outside the window, seeded per-epoch permutations as without mining."""
-
-    start: float = 0.3
-    stop: float = 0.8
-    power: float = 1.0
-    uniform_mix: float = 0.3
-    ema: float = 0.5
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.start <= self.stop <= 1.0:
-            raise ConfigError(f"need 0 <= start <= stop <= 1, got {self.start}, {self.stop}")
-        if not (self.power >= 0 and 0.0 <= self.uniform_mix <= 1.0 and 0.0 < self.ema <= 1.0):
-            raise ConfigError("need power >= 0, uniform_mix in [0, 1] and ema in (0, 1]")
-
-    def probabilities(self, running: np.ndarray) -> np.ndarray:
-        """(V,) sampling probabilities from the views' running losses (V,) (NaN = not seen yet)."""
-        seen = np.isfinite(running)
-        fill = float(running[seen].mean()) if seen.any() else 1.0
-        loss = np.maximum(np.where(seen, running, fill), 1e-12) ** self.power
-        return (1.0 - self.uniform_mix) * loss / loss.sum() + self.uniform_mix / len(loss)
 
 
 @dataclass(frozen=True)
@@ -60,7 +30,6 @@ class TrainOptions:
     lowered to it; 3DGS: 15 000 of 30 000 steps). Gaussians added late are never fitted: a split at the last step
     replaces each Gaussian by two unfitted halves. Early stopping waits for the end of densification too.
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
-    hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
     """
 
     iterations: int = 1000
@@ -86,7 +55,6 @@ class TrainOptions:
     refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    hard_views: HardViewOptions | None = None
     strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:

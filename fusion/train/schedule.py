@@ -2,10 +2,9 @@
 
 It owns every step-dependent decision that follows from :class:`fusion.train.options.TrainOptions` alone: the
 learning rates (means: ``lr_means`` × scene scale decaying exponentially to ``lr_means_final`` of it over the run,
-as in 3DGS; the other groups constant), the SH degree (one more every ``sh_degree_interval`` steps), the hard-view
-mining window, the evaluation windows (whole epochs), the snapshots, and when
-densification runs (the strategy's ``refine_stop`` lowered to ``refine_until`` of the run). It is a frozen value
-built once per run; its methods are pure functions of the step.
+as in 3DGS; the other groups constant), the SH degree (one more every ``sh_degree_interval`` steps), the evaluation
+windows (whole epochs), the snapshots, and when densification runs (the strategy's ``refine_stop`` lowered to
+``refine_until`` of the run). It is a frozen value built once per run; its methods are pure functions of the step.
 
 Steps: ``step`` is the 0-based index of the step being taken; ``done`` the 1-based count of finished steps.
 """
@@ -47,9 +46,9 @@ class TrainSchedule:
     """The step-dependent plan of one run (see the module docstring; steps in iterations).
 
     lr_means_start: the means' learning rate at step 0 (metres per step). lr_means_decay: its factor per step.
-    mining: [start, stop) steps of hard-view mining ((0, 0) = none). eval_window: steps per evaluation window
-    (whole epochs of ``n_views``). strategy: the densification strategy with its refinement window clipped.
-    densifying_until: the step at which densification ends (0 when it never runs).
+    eval_window: steps per evaluation window (whole epochs of ``n_views``). strategy: the densification strategy
+    with its refinement window clipped. densifying_until: the step at which densification ends (0 when it never
+    runs).
     """
 
     iterations: int
@@ -57,7 +56,6 @@ class TrainSchedule:
     sh_degree_interval: int
     lr_means_start: float
     lr_means_decay: float
-    mining: tuple[int, int]
     eval_window: int
     snapshot_steps: tuple[int, ...]
     strategy: DefaultStrategy | MCMCStrategy
@@ -69,14 +67,12 @@ class TrainSchedule:
         metres."""
         it = options.iterations
         strategy = clip_refinement(options.strategy, options.refine_until, it)
-        hard = options.hard_views
         return cls(
             iterations=it,
             sh_degree=options.sh_degree,
             sh_degree_interval=options.sh_degree_interval,
             lr_means_start=options.lr_means * scene_scale,
             lr_means_decay=options.lr_means_final ** (1.0 / max(1, it)),
-            mining=(int(hard.start * it), int(hard.stop * it)) if hard is not None else (0, 0),
             eval_window=n_views * math.ceil(options.eval_every / n_views),  # whole epochs: comparable windows
             snapshot_steps=tuple(options.snapshot_iterations),
             strategy=strategy,
@@ -90,10 +86,6 @@ class TrainSchedule:
     def sh_degree_at(self, step: int) -> int:
         """The SH degree rendered at step ``step``."""
         return min(self.sh_degree, step // self.sh_degree_interval)
-
-    def mining_on(self, step: int) -> bool:
-        """Whether step ``step`` draws its view by hard-view mining."""
-        return self.mining[0] <= step < self.mining[1]
 
     def snapshot_after(self, done: int) -> bool:
         """Whether a snapshot of the trainable set is kept after ``done`` finished steps."""

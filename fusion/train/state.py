@@ -133,6 +133,6 @@ def initial_state(init: GaussianSet, scene: TrainScene, schedule: TrainSchedule,
         optimizer=optimizer,
         strategy_state=schedule.strategy.initial_state(len(init)),
         generator=generator,
-        sampler=ViewSampler.start(len(scene.views), rng, options.hard_views),
+        sampler=ViewSampler.start(len(scene.views), rng),
         initial_gaussians=len(init),
     )

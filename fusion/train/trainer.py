@@ -4,15 +4,14 @@
 
 - :class:`fusion.train.state.TrainScene` / :class:`fusion.train.state.TrainState` — the fixed inputs (views,
   context projections, training frame) and the mutable state (parameters, Adam, strategy state, generators);
-- :class:`fusion.train.sampler.ViewSampler` — the view of each step (a seeded permutation per epoch, hard-view
-  mining inside its window);
+- :class:`fusion.train.sampler.ViewSampler` — the view of each step (a seeded permutation per epoch);
 - :func:`fusion.train.step.train_step` — one step: render trainable + frozen Gaussians (:mod:`fusion.train.render`),
   loss = 0.8 · L1 + 0.2 · (1 − SSIM) over the view's loss pixels (:mod:`fusion.train.loss`) + regularisers,
   backward (only the trainable tensors have gradients), Adam step; then the densification strategy's refinement
   (:mod:`fusion.train.strategy`, :func:`fusion.train.step.refine_after_step`);
 - :class:`fusion.train.schedule.TrainSchedule` — learning rates (means: ``lr_means`` × scene scale decaying
-  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), mining
-  window, evaluation windows, snapshots and the end of densification;
+  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), evaluation
+  windows, snapshots and the end of densification;
 - :class:`fusion.train.early_stop.EvalWindow` / :class:`fusion.train.early_stop.EarlyStop` — early stop: a seeded
   ``holdout_fraction`` of each view's mask pixels never enters the loss; the PSNR on them is accumulated over whole
   epochs, and training stops when it has not improved by ``min_improvement_db`` for ``patience`` evaluation windows
@@ -38,7 +37,7 @@ from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.render.projection import quat_to_rotmat
 from fusion.train.early_stop import Checkpoint, EarlyStop, EvalWindow
-from fusion.train.options import HardViewOptions, TrainOptions
+from fusion.train.options import TrainOptions
 from fusion.train.params import clamp_to_viewer_range, set_from_tensors
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState, initial_state, prepare_scene, scene_scale
@@ -47,7 +46,6 @@ from fusion.train.strategy import RefineCounts
 
 __all__ = [
     "Checkpoint",
-    "HardViewOptions",
     "StepInfo",
     "TrainOptions",
     "TrainResult",
@@ -118,10 +116,9 @@ def _trained_set(state: TrainState, scene: TrainScene) -> GaussianSet:
 
 
 def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: StepOutcome) -> None:
-    """Fold a finished step into the evaluation window and the sampler's running losses."""
+    """Fold a finished step into the evaluation window."""
     window.add_holdout(outcome.render.colour, scene.views[outcome.view])
     window.add_loss(outcome.loss)
-    state.sampler.record_loss(outcome.view, outcome.loss)
 
 
 def _log_scale_bounds(max_scales: np.ndarray | None, init: GaussianSet, schedule: TrainSchedule) -> torch.Tensor | None:
@@ -175,7 +172,7 @@ def train_splats(
     snapshots: dict[int, GaussianSet] = {}
     snapshot_seconds: dict[int, float] = {}
     while state.step < opts.iterations:
-        index = state.sampler.next(state.step, schedule.mining_on(state.step))
+        index = state.sampler.next(state.step)
         outcome = train_step(state, scene, schedule, opts, index)
         refine_after_step(state, scene, schedule)
         clamp_to_viewer_range(state.params)
