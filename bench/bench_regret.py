@@ -15,8 +15,6 @@ upstream of the change reused from the copy (the runner finds it current) and ev
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
 - ``hole_region``: the masks' holes looked for in the rays that meet the survey region (``[masks] hole_area``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
-- ``mcmc``: the fill's training (the train stage) with MCMC densification (its window and cap as the default
-  strategy's), at its defaults otherwise.
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -56,7 +54,6 @@ VARIANTS = (
     "oracle",
     "splat_surface",
     "hole_region",
-    "mcmc",
 )
 DISTANCE_BINS_TAU = (0.0, 1.0, 2.0, 4.0, np.inf)
 """Bins of a misclassified point's distance to the nearest true surface, in τ (the truth's threshold)."""
@@ -183,16 +180,6 @@ def variant_config(config, variant: str):
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
     if variant == "hole_region":
         return config.with_stage_options("masks", replace(config.stages["masks"], hole_area="region"))
-    if variant == "mcmc":
-        from fusion.train.strategy import MCMCStrategy
-
-        train = config.stages["train"]
-        s = train.training.strategy
-        mcmc = MCMCStrategy(
-            cap=s.cap, refine_start=s.refine_start, refine_stop=s.refine_stop, refine_every=s.refine_every
-        )
-        training = replace(train.training, strategy=mcmc)
-        return config.with_stage_options("train", replace(train, training=training))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
 
 

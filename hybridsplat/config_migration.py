@@ -156,6 +156,7 @@ _PRIORS = "the MVS depth / normal priors: no measured gain worth their training 
 _GEOMETRY = "flat fill splats and the geometric losses: no measured gain worth their training time"
 _PHOTOMETRIC = "the SmoothL1 + MS-SSIM loss: never shown to help (L1 + SSIM is the loss)"
 _HARD_VIEWS = "hard-view mining: never shown to help (every view is seen once per epoch)"
+_MCMC = "MCMC densification: never shown to help (DefaultStrategy is the strategy)"
 _LPIPS = "the LPIPS training term lowered the held-out PSNR (LPIPS stays an evaluation metric: [eval] lpips_weights)"
 
 #: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
@@ -169,6 +170,7 @@ _REMOVED_TRAINING: dict[str, Removed] = {
     "training.photometric": Removed(_PHOTOMETRIC, lambda value: value == "l1_ssim"),
     "training.smoothl1_beta": Removed(_PHOTOMETRIC, _any),
     "training.hard_views": Removed(_HARD_VIEWS, _is_none),
+    "training.strategy.kind": Removed(_MCMC, lambda value: value == "DefaultStrategy"),
 }
 
 #: per stage: removed option (dotted path inside the stage's table, or a key of 0.2's flat tables) → :class:`Removed`

@@ -164,22 +164,19 @@ class _RecordingStrategy:
     def after_backward(self, state, means2d, width, height, step, **_):
         self.calls.append(("after_backward", step, means2d.grad is not None))
 
-    def refine(self, state, params, optimizer, step, total_steps, scene_scale, generator, lr_means=0.0, **_):
-        self.calls.append(("refine", step, lr_means))
+    def refine(self, state, params, optimizer, step, total_steps, scene_scale, generator, **_):
+        self.calls.append(("refine", step, total_steps))
         return RefineCounts()
 
 
 def test_trainer_drives_the_strategy_interface_each_step() -> None:
     rec = _RecordingStrategy()
     cams, photos, init, opts = _tiny(iterations=3, strategy=rec)
-    result = train_splats(cams, photos, None, init, options=opts)
-    schedule = TrainSchedule.from_options(opts, result.scene_scale, 4)
-    assert rec.calls == [
-        call for t in range(3) for call in (("after_backward", t, True), ("refine", t + 1, schedule.lr_means(t)))
-    ]
+    train_splats(cams, photos, None, init, options=opts)
+    assert rec.calls == [call for t in range(3) for call in (("after_backward", t, True), ("refine", t + 1, 3))]
 
 
-def test_refine_after_step_passes_the_finished_step_and_its_learning_rate() -> None:
+def test_refine_after_step_passes_the_finished_steps_and_the_run_length() -> None:
     rec = _RecordingStrategy()
     cams, photos, init, opts = _tiny(strategy=rec)
     scene = prepare_scene(cams, photos, None, None, opts)
@@ -187,7 +184,7 @@ def test_refine_after_step_passes_the_finished_step_and_its_learning_rate() -> N
     state = initial_state(init, scene, schedule, opts)
     state.step = 5
     refine_after_step(state, scene, schedule)
-    assert rec.calls == [("refine", 5, schedule.lr_means(4))]
+    assert rec.calls == [("refine", 5, opts.iterations)]
 
 
 def test_options_and_strategies_are_configured_without_torch() -> None:
@@ -199,8 +196,8 @@ def test_options_and_strategies_are_configured_without_torch() -> None:
     code = (
         "import sys\n"
         "from fusion.train.options import TrainOptions\n"
-        "from fusion.train.strategy import MCMCStrategy\n"
-        "TrainOptions(strategy=MCMCStrategy(cap=10))\n"
+        "from fusion.train.strategy import DefaultStrategy\n"
+        "TrainOptions(strategy=DefaultStrategy(cap=10))\n"
         "print('torch' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -4,7 +4,7 @@
   state (:mod:`~fusion.train.state`), a step (:mod:`~fusion.train.step`), a schedule (:mod:`~fusion.train.schedule`),
   early stopping (:mod:`~fusion.train.early_stop`) and a view sampler (:mod:`~fusion.train.sampler`).
 - :class:`TrainOptions` — its options (:mod:`fusion.train.options`).
-- :class:`DefaultStrategy` / :class:`MCMCStrategy` — capped densification (:mod:`fusion.train.strategy`).
+- :class:`DefaultStrategy` — capped densification (:mod:`fusion.train.strategy`).
 - :func:`masked_photometric_loss` — 0.8 · L1 + 0.2 · (1 − SSIM) over mask pixels (:mod:`fusion.train.loss`).
 
 The names are imported lazily (:func:`core.lazy.lazy_exports`): ``import fusion.train`` or a torch-free
@@ -22,13 +22,12 @@ if TYPE_CHECKING:
     from fusion.train.loss import masked_photometric_loss, ssim_map
     from fusion.train.options import TrainOptions
     from fusion.train.state import scene_scale
-    from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
+    from fusion.train.strategy import DefaultStrategy, RefineCounts
     from fusion.train.trainer import StepInfo, TrainResult, splat_normals, train_splats
 
 #: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
 _EXPORTS: dict[str, str] = {
     "DefaultStrategy": "strategy",
-    "MCMCStrategy": "strategy",
     "RefineCounts": "strategy",
     "StepInfo": "trainer",
     "TrainOptions": "options",
@@ -42,7 +41,6 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "DefaultStrategy",
-    "MCMCStrategy",
     "RefineCounts",
     "StepInfo",
     "TrainOptions",

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from core.errors import ConfigError
-from fusion.train.strategy import DefaultStrategy, MCMCStrategy
+from fusion.train.strategy import DefaultStrategy
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class TrainOptions:
     refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
+    strategy: DefaultStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
         if self.iterations < 1:

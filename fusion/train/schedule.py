@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, replace
 
 from fusion.train.options import TrainOptions
-from fusion.train.strategy import DefaultStrategy, MCMCStrategy
+from fusion.train.strategy import DefaultStrategy
 
 
 def initial_learning_rates(options: TrainOptions, scene_scale: float) -> dict[str, float]:
@@ -30,9 +30,7 @@ def initial_learning_rates(options: TrainOptions, scene_scale: float) -> dict[st
     }
 
 
-def clip_refinement(
-    strategy: DefaultStrategy | MCMCStrategy, refine_until: float, iterations: int
-) -> DefaultStrategy | MCMCStrategy:
+def clip_refinement(strategy: DefaultStrategy, refine_until: float, iterations: int) -> DefaultStrategy:
     """``strategy`` with its ``refine_stop`` lowered to ``int(refine_until × iterations)`` steps (never below its
     ``refine_start``); unchanged when it already stops earlier."""
     last_refine = int(refine_until * iterations)
@@ -58,7 +56,7 @@ class TrainSchedule:
     lr_means_decay: float
     eval_window: int
     snapshot_steps: tuple[int, ...]
-    strategy: DefaultStrategy | MCMCStrategy
+    strategy: DefaultStrategy
     densifying_until: int
 
     @classmethod

@@ -95,8 +95,8 @@ def train_step(
 
 
 def refine_after_step(state: TrainState, scene: TrainScene, schedule: TrainSchedule) -> RefineCounts:
-    """The strategy's refinement after ``state.step`` finished steps (with the learning rate of the step taken)."""
+    """The strategy's refinement after ``state.step`` finished steps."""
     return schedule.strategy.refine(
         state.strategy_state, state.params, state.optimizer, state.step, schedule.iterations, scene.scale,
-        state.generator, lr_means=schedule.lr_means(state.step - 1),
+        state.generator,
     )  # fmt: skip
