@@ -118,5 +118,5 @@ def read_config(path: str | PathLike[str], stage_options: dict[str, type]) -> Pr
             raise ConfigError(f"unknown section [{name}] (stages: {', '.join(stage_options)})", path)
         if not isinstance(table, dict):
             raise ConfigError(f"[{name}] must be a table", path)
-        stages[name] = options_from_table(stage_options[name], migrate_table(name, table), path)
+        stages[name] = options_from_table(stage_options[name], migrate_table(name, table, path), path)
     return ProjectConfig(input=input_options, seed=seed, stages=stages)
