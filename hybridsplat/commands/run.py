@@ -39,6 +39,12 @@ def _run_input(
     ),
     units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
     crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N), written to sidecars and LAS."),
+    control: Path | None = typer.Option(
+        None, help="Ground control and check points (CSV: id,X,Y,Z[,sigma_xy,sigma_z],role): adjust to them."
+    ),
+    marks: Path | None = typer.Option(
+        None, help="Hand-made marks of those points in the photos (CSV: image,point_id,u,v), over the detected ones."
+    ),
     holdout: int = typer.Option(
         -1, help="Hold out every N-th photo for evaluation (default: the input's own test views, else 8; 0: none)."
     ),
@@ -71,8 +77,9 @@ def _run_parameters() -> list[inspect.Parameter]:
     return params
 
 
-def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks,
-         feature_masks, seed: int, force: list[str], quiet: bool, **stage_values: Any) -> None:  # fmt: skip
+def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units, crs, control, marks, holdout,
+         splat_masks, feature_masks, seed: int, force: list[str], quiet: bool,
+         **stage_values: Any) -> None:  # fmt: skip
     from hybridsplat.commands.stages import apply_cli_values
     from hybridsplat.config import ProjectConfig
     from hybridsplat.pipeline import run_pipeline
@@ -86,7 +93,18 @@ def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units
     }
     config = ProjectConfig(
         input=input_options_from_cli(
-            input_path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks, feature_masks
+            input_path,
+            model,
+            cameras,
+            full_sfm,
+            reference,
+            units,
+            crs,
+            holdout,
+            splat_masks,
+            feature_masks,
+            control,
+            marks,
         ),
         seed=seed,
         stages=stages,
