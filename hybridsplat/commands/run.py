@@ -128,8 +128,9 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="Seed of the scene and the pipeline."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """The main job on the built-in synthetic scene: generate it, then run every stage on it."""
-        from data_synth import generate_scene
+        """The main job on the built-in synthetic scene: generate it, then run every stage on it (held to the scene's
+        coded targets when it has them)."""
+        from data_synth import SceneLayout, generate_scene
         from hybridsplat.config import InputOptions, ProjectConfig
         from hybridsplat.pipeline import run_pipeline
         from hybridsplat.terminal import Terminal
@@ -142,8 +143,10 @@ def register(app: typer.Typer) -> None:
         else:
             terminal.line(f"hybridsplat demo: using the scene in {scene}")
         project = out / "project"
+        gcp = SceneLayout(scene).gcp_csv  # the scene's coded targets: the run is held to them
+        control = str(gcp.resolve()) if gcp.is_file() else None
         config = ProjectConfig(
-            input=InputOptions(path=str(scene.resolve())),
+            input=InputOptions(path=str(scene.resolve()), control=control),
             seed=seed,
             stages=stage_options_from_cli(**DEMO_STAGES),
         )
