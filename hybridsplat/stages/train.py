@@ -15,6 +15,7 @@ from typing import Any
 
 from fusion.train.masked import MaskedTrainingOptions
 from fusion.train.strategy import RefineCounts
+from hybridsplat.project_io import sparse_model
 from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
@@ -119,7 +120,7 @@ class TrainStage(Stage):
         layout = ctx.layout
         ws = layout.dense_workspace
         cameras, _ = project_io.read_project_model(layout, ws.sparse)
-        _, sfm = project_io.read_project_model(layout, layout.sparse)
+        _, sfm = project_io.read_project_model(layout, sparse_model(layout))
         held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
         masks = project_io.read_region_masks(layout, cameras, training=True)
         masks = {k: m for k, m in masks.items() if k not in held_out}  # never train on those
