@@ -185,7 +185,7 @@ def products(layout: ProjectLayout) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in files}
 
 
-def test_merge_stage_adds_splat_surface_points_on_the_plane_unless_turned_off(tmp_path, monkeypatch) -> None:
+def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_path, monkeypatch) -> None:
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
     ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=False))
@@ -208,7 +208,7 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_unless_turned_off(tm
     assert stage.run(ctx) == off and products(layout) == before
     monkeypatch.undo()
 
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions())
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
     on = stage.run(ctx)
     c = on.splat_surface
     points = read_point_cloud(layout.merged_points_ply)
@@ -247,14 +247,14 @@ def test_the_new_options_round_trip_through_config_tables() -> None:
     assert table["splat_surface_sigma_scale"] == [["reflective", 1.5], ["thin", 2.0]]
     assert options_from_table(MergeOptions, table, "test") == merge
     default = tomllib.loads("\n".join(toml_tables("merge", MergeOptions())))["merge"]
-    assert default["splat_surface"] is True and options_from_table(MergeOptions, default, "test") == MergeOptions()
+    assert default["splat_surface"] is False and options_from_table(MergeOptions, default, "test") == MergeOptions()
 
 
 def test_splat_surface_flag_on_run() -> None:
     from hybridsplat.commands.stages import apply_cli_values
 
-    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": False})
-    assert merge == MergeOptions(splat_surface=False)
+    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": True})
+    assert merge == MergeOptions(splat_surface=True)
     assert apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": None}) == MergeOptions()
 
 
@@ -313,13 +313,18 @@ def test_eval_scores_the_splat_surface_points_per_material_and_the_report_shows_
 def test_the_sigma_scale_of_a_class_multiplies_the_sigma_of_its_points_only(tmp_path) -> None:
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
     stage.run(ctx)
     plain = read_point_cloud(layout.merged_points_ply)
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("reflective", 3.0),)))
+    ctx.config = ctx.config.with_stage_options(
+        "merge", MergeOptions(splat_surface=True, splat_surface_sigma_scale=(("reflective", 3.0),))
+    )
     stage.run(ctx)
     other = read_point_cloud(layout.merged_points_ply)  # the plane's points are predicted textureless: unchanged
     assert np.array_equal(np.asarray(other.fields["sigma"]), np.asarray(plain.fields["sigma"]))
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("textureless", 2.5),)))
+    ctx.config = ctx.config.with_stage_options(
+        "merge", MergeOptions(splat_surface=True, splat_surface_sigma_scale=(("textureless", 2.5),))
+    )
     stage.run(ctx)
     scaled = read_point_cloud(layout.merged_points_ply)
     surface = np.asarray(plain.fields["source"]) == Source.SPLAT_SURFACE
