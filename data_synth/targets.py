@@ -209,6 +209,8 @@ def place_targets(
     least = min(placement.min_views, max(2, len(cameras) // 2))
     keep = seen >= max(least, int(0.5 * seen.max())) if len(seen) else seen > 0  # the better-seen spots
     centres, yaws = centres[keep], yaws[keep]
+    if len(centres) == 0:
+        return ()
     order = _farthest_points(centres[:, :2], count, 1.5 * size, rng)
     n_control = (len(order) + 1) // 2
     return tuple(
@@ -238,6 +240,8 @@ def _flat_surface(tracer, xy: np.ndarray, size: float, top: float) -> tuple[np.n
 def _views_seeing(tracer, cameras: Cameras, centres: np.ndarray, size: float) -> np.ndarray:
     """(N,) number of training views that see a target at the spot whole: a 6 × 6 grid of points over its square
     (corners included), inside the image by a tenth of a target and unoccluded."""
+    if len(centres) == 0:  # no flat spot on the support (a tiny or cluttered layout): no target is seen
+        return np.zeros(0, dtype=np.int64)
     g = np.linspace(-size / 2, size / 2, 6)
     gx, gy = np.meshgrid(g, g)
     offsets = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
