@@ -109,10 +109,22 @@ def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units
         seed=seed,
         stages=stages,
     )
+    _check_control_files(config.input)
     terminal = Terminal(quiet=quiet)
     terminal.line(f"hybridsplat run: {input_path} -> {out}")
     manifest = run_pipeline(out, config, terminal=terminal, force=force)
     print_result(terminal, out, manifest)
+
+
+def _check_control_files(inp: Any) -> None:
+    """Read the GCP and marks files before any stage runs: a bad one stops the run at once, naming its line (the
+    control stage checks the marks against the photos later)."""
+    from core.io.control import read_gcp_csv, read_marks_csv
+
+    if inp.control:
+        read_gcp_csv(inp.control, inp.units, inp.crs)
+    if inp.marks:
+        read_marks_csv(inp.marks)
 
 
 def register(app: typer.Typer) -> None:
