@@ -23,8 +23,6 @@ def _bench_module():
 
 @pytest.mark.slow
 def test_adaptive_renders_better_than_paper_on_the_tiny_scene(tmp_path):
-    pytest.importorskip("data_synth.generate")
-    pytest.importorskip("fusion.render.scene")
     from data_synth import generate_scene, load_scene
     from fusion.convert import convert_points
 

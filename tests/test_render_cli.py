@@ -10,12 +10,9 @@ import torch
 
 from core.cameras import Camera, Cameras, View
 from core.gaussians import GaussianSet
+from core.io import colmap, gaussian_ply, images
 from fusion.render import render_gaussian_set
 from fusion.render.synthetic import random_scene
-
-colmap = pytest.importorskip("core.io.colmap", reason="core.io.colmap not available yet")
-gaussian_ply = pytest.importorskip("core.io.gaussian_ply", reason="core.io.gaussian_ply not available yet")
-images = pytest.importorskip("core.io.images", reason="core.io.images not available yet")
 
 
 @pytest.fixture()

@@ -16,10 +16,9 @@ import torch
 
 from core.cameras import Camera, View
 from core.gaussians import GaussianSet
+from core.io import gaussian_ply
 from fusion.render import render_brute_force, render_gaussian_set
 from fusion.render.synthetic import random_scene
-
-gaussian_ply = pytest.importorskip("core.io.gaussian_ply", reason="core.io.gaussian_ply not available yet")
 
 ORIGIN = np.array([512345.678, 5212345.123, 234.5])
 
