@@ -2,7 +2,7 @@
 
 Each interruption must exit 130 with "interrupted" and no traceback, and the next ``run`` on the same
 project must complete with the same fused cloud and the same metrics as an uninterrupted run. One seeded
-random moment in the normal suite; ten in the slow test.
+random moment in the normal suite; four more in the slow test, one in each quarter of the run's first 60 %.
 """
 
 from __future__ import annotations
@@ -55,10 +55,12 @@ def test_interrupted_run_resumes_to_the_same_result(reference, tmp_path) -> None
 
 
 @pytest.mark.slow
-def test_ten_interruptions_at_random_moments(reference, tmp_path) -> None:
+def test_four_interruptions_spread_over_the_run(reference, tmp_path) -> None:
     scene, expected, seconds = reference
-    # within the first 60 % of the reference's duration: runs after it are faster (warm caches, less load)
-    delays = np.random.default_rng(2026).uniform(0.05, 0.6, 10) * seconds
+    # one random moment in each quarter of the first 60 % of the reference's duration (runs after it are faster:
+    # warm caches, less load), so that early, middle and late stages are all hit without ten whole runs
+    edges = np.linspace(0.05, 0.6, 5)
+    delays = np.random.default_rng(2026).uniform(edges[:-1], edges[1:]) * seconds
     hit = [interrupt_then_resume(scene, tmp_path / f"p{i}", float(d), expected) for i, d in enumerate(delays)]
     print(f"reference run {seconds:.1f} s; interrupted at {[round(float(d), 1) for d in delays]} s: {hit}")
-    assert sum(hit) >= 8  # a moment past the end of a (faster) run finishes instead; it must still match
+    assert sum(hit) >= 3  # a moment past the end of a (faster) run finishes instead; it must still match
