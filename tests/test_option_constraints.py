@@ -17,6 +17,16 @@ from classify.model import ForestOptions
 from classify.options import ClassifyOptions
 from classify.stream import ClassifyStreamOptions
 from core.constraints import Constrained, ConstraintError
+from core.errors import ConfigError
+from fusion.mesh.options import (
+    DecimateOptions,
+    MeshOptions,
+    OrientedPointOptions,
+    PoissonOptions,
+    SnapshotOptions,
+)
+from fusion.mesh.tsdf import TSDFOptions
+from hybridsplat.stages.mesh import MeshStageOptions
 
 NAN, INF = math.nan, math.inf
 
@@ -49,6 +59,40 @@ REFUSED = [
     (ClassifyOptions, "threshold", [0.0, 1.0, -0.1, 1.5, NAN]),
     (ClassifyStreamOptions, "points_per_cell", [0, -1, 2.5]),
     (ClassifyStreamOptions, "chunk_size", [0]),
+    (OrientedPointOptions, "min_opacity", [-0.01, 1.0, NAN]),
+    (OrientedPointOptions, "full_weight_opacity", [0.0, 1.01, NAN]),
+    (OrientedPointOptions, "sample_spacing", [0.0, -1.0, NAN, INF]),
+    (OrientedPointOptions, "footprint_sigmas", [0.0, NAN, INF]),
+    (OrientedPointOptions, "max_samples_per_gaussian", [0]),
+    (OrientedPointOptions, "isotropy_ratio", [0.0, 1.5]),
+    (OrientedPointOptions, "normal_neighbors", [2]),
+    (OrientedPointOptions, "normal_fallback", ["guess"]),
+    (PoissonOptions, "depth", [1, 15]),
+    (PoissonOptions, "min_depth", [1, 15]),
+    (PoissonOptions, "max_depth", [15, 1]),
+    (PoissonOptions, "cell_factor", [0.0, NAN, INF]),
+    (PoissonOptions, "scale", [0.99, NAN]),
+    (PoissonOptions, "point_weight", [-0.1, NAN]),
+    (PoissonOptions, "density_quantile", [-0.1, 1.0]),
+    (PoissonOptions, "support_factor", [0.0, NAN, INF]),
+    (PoissonOptions, "support_neighbors", [0]),
+    (PoissonOptions, "min_component_fraction", [1.0, -0.5]),
+    (DecimateOptions, "method", ["vertex-clustering"]),
+    (DecimateOptions, "tolerance", [1.0, -0.01]),
+    (DecimateOptions, "max_attempts", [0]),
+    (SnapshotOptions, "region_radius", [0.0, NAN, INF]),
+    (SnapshotOptions, "min_opacity", [1.0, -1.0]),
+    (MeshOptions, "budget", [0, -5, 2.5, True, "10"]),
+    (MeshOptions, "source", ["lidar"]),
+    (MeshOptions, "mvs_priority", [-1.0, NAN, INF]),
+    (MeshOptions, "color_neighbors", [0]),
+    (TSDFOptions, "voxel_size", [0.0, NAN, INF]),
+    (TSDFOptions, "trunc_voxels", [0.0, -1.0, NAN]),
+    (TSDFOptions, "min_alpha", [0.0, 1.1]),
+    (TSDFOptions, "depth_max", [0.0, -1.0, NAN]),
+    (MeshStageOptions, "budget", [-1, True, 1.5]),
+    (MeshStageOptions, "formats", [(), ("stl",), ("ply", "fbx")]),
+    (MeshStageOptions, "method", ["marching"]),
 ]
 
 ACCEPTED = [
@@ -72,6 +116,25 @@ ACCEPTED = [
     (ForestOptions, "class_weight", [None, "balanced", "balanced_subsample"]),
     (ClassifyOptions, "threshold", [None, 1e-9, 0.5, 0.999]),
     (ClassifyStreamOptions, "points_per_cell", [None, 1]),
+    (OrientedPointOptions, "min_opacity", [0.0, 0.99]),
+    (OrientedPointOptions, "full_weight_opacity", [1.0]),
+    (OrientedPointOptions, "isotropy_ratio", [1.0]),
+    (OrientedPointOptions, "normal_neighbors", [3]),
+    (PoissonOptions, "depth", [None, 2, 10]),
+    (PoissonOptions, "scale", [1.0]),
+    (PoissonOptions, "point_weight", [0.0]),
+    (PoissonOptions, "density_quantile", [0.0, 0.5]),
+    (PoissonOptions, "support_factor", [None, 0.5]),
+    (DecimateOptions, "method", ["open3d", "fast-simplification"]),
+    (DecimateOptions, "tolerance", [0.0]),
+    (MeshOptions, "budget", [None, 1]),
+    (MeshOptions, "source", ["mvs", "survey"]),
+    (MeshOptions, "mvs_priority", [0.0]),
+    (TSDFOptions, "min_alpha", [1.0]),
+    (TSDFOptions, "depth_max", [None, 5.0, INF]),
+    (MeshStageOptions, "budget", [0, 10]),
+    (MeshStageOptions, "formats", [("ply",), ("glb", "obj")]),
+    (MeshStageOptions, "method", ["tsdf"]),
 ]
 
 
@@ -102,3 +165,9 @@ def test_every_declaration_names_a_field_and_defaults_satisfy_it() -> None:
         default = cls(**REQUIRED.get(cls, {}))
         for name, constraint in cls.constraints.items():
             assert constraint.accepts(getattr(default, name)), (cls.__name__, name)
+
+
+def test_poisson_depth_range_across_fields() -> None:
+    assert PoissonOptions(min_depth=7, max_depth=7).min_depth == 7
+    with pytest.raises(ConfigError, match=r"^min_depth must be <= max_depth, got 9 > 8$"):
+        PoissonOptions(min_depth=9, max_depth=8)
