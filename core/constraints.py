@@ -42,9 +42,12 @@ from collections.abc import Iterable, Mapping
 from enum import Enum
 from typing import Any, ClassVar, Literal
 
+import numpy as np
+
 from core.errors import ConfigError
 
 __all__ = [
+    "AnyOf",
     "Choice",
     "Constrained",
     "Constraint",
@@ -194,9 +197,20 @@ class Choice(Constraint):
                 return self.enum(value)
             except (ValueError, TypeError):
                 raise ValueError(value) from None
-        if isinstance(value, bool) or not any(value == v and type(value) is type(v) for v in self.values):
+        if not any(_kind(value) is _kind(v) and value == v for v in self.values):
             raise ValueError(value)
         return value
+
+
+def _kind(value: Any) -> type:
+    """What a choice compares by besides equality: a bool is no int, an int (NumPy's too) no float."""
+    if isinstance(value, bool):
+        return bool
+    if isinstance(value, numbers.Integral):
+        return int
+    if isinstance(value, numbers.Real):
+        return float
+    return type(value)
 
 
 class OfType(Constraint):
@@ -228,9 +242,25 @@ class NoneOr(Constraint):
         return None if value is None else self.constraint.convert(value)
 
 
+class AnyOf(Constraint):
+    """A value that one of ``constraints`` accepts (the first that does converts it)."""
+
+    def __init__(self, *constraints: Constraint) -> None:
+        self.constraints = constraints
+        self.description = " or ".join(c.description for c in constraints)
+
+    def convert(self, value: Any) -> Any:
+        for constraint in self.constraints:
+            try:
+                return constraint.convert(value)
+            except ValueError:
+                continue
+        raise ValueError(value)
+
+
 class SequenceOf(Constraint):
-    """A tuple (or list, stored as a tuple) whose every item ``item`` accepts; ``length``: how many items exactly
-    (None: any number), ``min_length``: at least how many."""
+    """A tuple (or a list or 1-D array, stored as a tuple) whose every item ``item`` accepts; ``length``: how many
+    items exactly (None: any number), ``min_length``: at least how many."""
 
     def __init__(self, item: Constraint, length: int | None = None, min_length: int = 0) -> None:
         self.item, self.length, self.min_length = item, length, min_length
@@ -243,6 +273,8 @@ class SequenceOf(Constraint):
         self.description = f"a list of {count}values, each {item.description}"
 
     def convert(self, value: Any) -> Any:
+        if isinstance(value, np.ndarray):
+            value = tuple(value.tolist()) if value.ndim == 1 else value
         if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list)):
             raise ValueError(value)
         if (self.length is not None and len(value) != self.length) or len(value) < self.min_length:

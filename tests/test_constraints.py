@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from core.constraints import (
+    AnyOf,
     Choice,
     Constrained,
     ConstraintError,
@@ -110,7 +111,7 @@ def test_choice_of_enum_converts_its_value_and_refuses_others() -> None:
 
 def test_choice_of_values_compares_type_too() -> None:
     c = Choice((1, 2))
-    assert c.accepts(1) and not c.accepts(3)
+    assert c.accepts(1) and c.accepts(np.int64(2)) and not c.accepts(3)
     assert not c.accepts(True)  # True == 1 in Python, but a bool is no choice of ints
     assert not c.accepts(1.0)
 
@@ -126,6 +127,8 @@ def test_sequence_of_checks_length_and_each_item_and_stores_a_tuple() -> None:
     c = SequenceOf(Interval(float, 0, None), length=2)
     assert check("s", [1.0, 2], c) == (1.0, 2)
     assert isinstance(check("s", [1.0, 2], c), tuple)
+    assert check("s", np.array([1.5, 2.0]), c) == (1.5, 2.0)
+    assert not c.accepts(np.zeros((2, 2)))
     for bad in ([1.0], [1.0, 2.0, 3.0], [1.0, -1.0], "ab", 1.0, [1.0, math.nan]):
         with pytest.raises(ConstraintError):
             check("s", bad, c)
@@ -212,3 +215,12 @@ def test_options_from_table_names_the_dotted_option_and_the_file() -> None:
     assert options_from_table(Outer, {"inner": {"rate": "none"}, "colour": "green"}, where) == Outer(colour="green")
     with pytest.raises(ConfigError, match=r"^/p/config.toml: low must be <= high"):
         options_from_table(Outer, {"low": 3.0}, where)
+
+
+def test_any_of_takes_the_first_that_accepts() -> None:
+    c = AnyOf(Interval(float, 1, None, closed="neither"), SequenceOf(Interval(float, 1, None, closed="neither")))
+    assert c.description == "a float in (1, inf) or a list of values, each a float in (1, inf)"
+    assert check("r", 8.0, c) == 8.0 and check("r", [2.0, 3.0], c) == (2.0, 3.0)
+    for bad in (1.0, [2.0, 0.5], "8", None):
+        with pytest.raises(ConstraintError, match=r"^option r must be a float in \(1, inf\) or a list"):
+            check("r", bad, c)

@@ -18,6 +18,9 @@ from classify.options import ClassifyOptions
 from classify.stream import ClassifyStreamOptions
 from core.constraints import Constrained, ConstraintError
 from core.errors import ConfigError
+from fusion.background import BackgroundOptions
+from fusion.clean_options import CleanOptions, SurveyPointOptions
+from fusion.export import ExportOptions
 from fusion.mesh.options import (
     DecimateOptions,
     MeshOptions,
@@ -26,12 +29,16 @@ from fusion.mesh.options import (
     SnapshotOptions,
 )
 from fusion.mesh.tsdf import TSDFOptions
+from fusion.tiles3d import TilesetOptions
 from hybridsplat.stages.mesh import MeshStageOptions
 
 NAN, INF = math.nan, math.inf
 
 #: (class, required keyword arguments) of the classes below that have fields without defaults
-REQUIRED: dict[type, dict] = {ClassifyStreamOptions: {"memory_limit_mb": 1024.0}}
+REQUIRED: dict[type, dict] = {
+    ClassifyStreamOptions: {"memory_limit_mb": 1024.0},
+    ExportOptions: {"crop_min": (0.0, 0.0, 0.0), "crop_max": (1.0, 1.0, 1.0)},  # the crop_* rows replace one
+}
 
 REFUSED = [
     (MaskOptions, "footprint", [0.0, -1.0, NAN]),
@@ -93,6 +100,38 @@ REFUSED = [
     (MeshStageOptions, "budget", [-1, True, 1.5]),
     (MeshStageOptions, "formats", [(), ("stl",), ("ply", "fbx")]),
     (MeshStageOptions, "method", ["marching"]),
+    (TilesetOptions, "max_splats_per_tile", [0, True, 2.0, "10"]),
+    (TilesetOptions, "placement", ["nearest"]),
+    (TilesetOptions, "color_space", ["cmyk"]),
+    (TilesetOptions, "compression", ["zip"]),
+    (ExportOptions, "crop_min", [(0.0, 0.0), (0.0, 0.0, NAN), (0.0, INF, 0.0), "abc"]),
+    (ExportOptions, "crop_max", [(1.0, 1.0, 1.0, 1.0), (1.0, 1.0, -INF)]),
+    (ExportOptions, "min_opacity", [1.0, -0.1, NAN]),
+    (ExportOptions, "sh_degree", [4, -1]),
+    (ExportOptions, "spz_version", [1, 4]),
+    (ExportOptions, "gltf_compression", ["draco"]),
+    (BackgroundOptions, "shell_radius", [1.0, 0.5, (), (8.0, 1.0), NAN]),
+    (BackgroundOptions, "min_pairs", [0]),
+    (BackgroundOptions, "max_image_size", [15]),
+    (BackgroundOptions, "seed_stride_px", [0]),
+    (BackgroundOptions, "max_seeds", [0]),
+    (BackgroundOptions, "unseen_step_deg", [-1.0, 30.5, NAN]),
+    (BackgroundOptions, "alpha_threshold", [0.0, 1.0]),
+    (BackgroundOptions, "min_share", [1.0, -0.1]),
+    (CleanOptions, "mask_dilation_px", [-1]),
+    (CleanOptions, "min_cluster_size", [0]),
+    (CleanOptions, "max_scale_scene", [0.0, -1.0, NAN]),
+    (CleanOptions, "max_scale_spacing", [0.0]),
+    (CleanOptions, "cluster_eps_spacing", [0.0]),
+    (SurveyPointOptions, "min_views", [-1]),
+    (SurveyPointOptions, "occlusion_tolerance", [-0.1, NAN]),
+    (SurveyPointOptions, "min_mask_share", [-0.1, 1.1]),
+    (SurveyPointOptions, "max_behind_share", [1.1]),
+    (SurveyPointOptions, "behind_margin_spacing", [-1.0, INF, NAN]),
+    (SurveyPointOptions, "min_opacity", [0.0]),
+    (SurveyPointOptions, "max_thickness_spacing", [0.0]),
+    (SurveyPointOptions, "max_extent_spacing", [-2.0]),
+    (SurveyPointOptions, "max_rim_spacing", [0.0]),
 ]
 
 ACCEPTED = [
@@ -135,6 +174,25 @@ ACCEPTED = [
     (MeshStageOptions, "budget", [0, 10]),
     (MeshStageOptions, "formats", [("ply",), ("glb", "obj")]),
     (MeshStageOptions, "method", ["tsdf"]),
+    (TilesetOptions, "max_splats_per_tile", [1]),
+    (TilesetOptions, "placement", ["grid"]),
+    (TilesetOptions, "compression", ["none"]),
+    (ExportOptions, "crop_min", [(-1.0, -2.0, 0.0), [0, 0, 0]]),
+    (ExportOptions, "min_opacity", [0.0]),
+    (ExportOptions, "sh_degree", [None, 0, 3]),
+    (ExportOptions, "spz_version", [2, 3]),
+    (ExportOptions, "gltf_compression", ["none"]),
+    (BackgroundOptions, "shell_radius", [1.5, (8.0, 32.0), INF]),
+    (BackgroundOptions, "max_image_size", [16]),
+    (BackgroundOptions, "unseen_step_deg", [0.0, 30.0]),
+    (BackgroundOptions, "min_share", [0.0]),
+    (CleanOptions, "mask_dilation_px", [0]),
+    (CleanOptions, "max_scale_scene", [None, 1e-6, INF]),
+    (SurveyPointOptions, "min_views", [0]),
+    (SurveyPointOptions, "occlusion_tolerance", [0.0, INF]),
+    (SurveyPointOptions, "min_mask_share", [None, 0.0, 1.0]),
+    (SurveyPointOptions, "behind_margin_spacing", [0.0]),
+    (SurveyPointOptions, "max_rim_spacing", [None, INF]),
 ]
 
 
@@ -171,3 +229,10 @@ def test_poisson_depth_range_across_fields() -> None:
     assert PoissonOptions(min_depth=7, max_depth=7).min_depth == 7
     with pytest.raises(ConfigError, match=r"^min_depth must be <= max_depth, got 9 > 8$"):
         PoissonOptions(min_depth=9, max_depth=8)
+
+
+def test_export_crop_rules_across_fields() -> None:
+    with pytest.raises(ConfigError, match="crop needs both crop_min and crop_max"):
+        ExportOptions(crop_min=(0.0, 0.0, 0.0))
+    with pytest.raises(ConfigError, match="crop_min must not exceed crop_max"):
+        ExportOptions(crop_min=(0.0, 2.0, 0.0), crop_max=(1.0, 1.0, 1.0))
