@@ -56,6 +56,7 @@ __all__ = [
     "NoneOr",
     "OfType",
     "SequenceOf",
+    "TupleOf",
     "Constraints",
     "check",
     "validate",
@@ -284,6 +285,20 @@ class SequenceOf(Constraint):
 
 #: the type of a class's ``constraints`` declaration (field name → constraint)
 Constraints = Mapping[str, Constraint]
+
+
+class TupleOf(Constraint):
+    """A fixed-length tuple (or list, stored as a tuple) whose i-th item ``items[i]`` accepts: a pair
+    ``[class name, factor]`` is ``TupleOf(OfType(str), Interval(float, 1, None))``."""
+
+    def __init__(self, *items: Constraint) -> None:
+        self.items = items
+        self.description = "a list [" + ", ".join(c.description for c in items) + "]"
+
+    def convert(self, value: Any) -> Any:
+        if isinstance(value, (str, bytes)) or not isinstance(value, (tuple, list)) or len(value) != len(self.items):
+            raise ValueError(value)
+        return tuple(c.convert(v) for c, v in zip(self.items, value, strict=True))
 
 
 def check(name: str, value: Any, constraint: Constraint) -> Any:

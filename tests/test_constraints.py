@@ -22,6 +22,7 @@ from core.constraints import (
     NoneOr,
     OfType,
     SequenceOf,
+    TupleOf,
     check,
 )
 from core.errors import ConfigError
@@ -224,3 +225,16 @@ def test_any_of_takes_the_first_that_accepts() -> None:
     for bad in (1.0, [2.0, 0.5], "8", None):
         with pytest.raises(ConstraintError, match=r"^option r must be a float in \(1, inf\) or a list"):
             check("r", bad, c)
+
+
+def test_tuple_of_checks_each_position() -> None:
+    pair = TupleOf(OfType(str), Interval(float, 1, None))
+    assert pair.description == "a list [a str, a float in [1, inf)]"
+    assert check("p", ["glass", 2], pair) == ("glass", 2)
+    for bad in (["glass"], ["glass", 0.5], [1.5, "glass"], ["glass", 2.0, 3.0], "ab"):
+        assert not pair.accepts(bad), bad
+    nested = SequenceOf(pair)
+    with pytest.raises(
+        ConstraintError, match=r"^option p must be a list of values, each a list \[a str, .*got \[\['a', 0.5\]\]$"
+    ):
+        check("p", (("a", 0.5),), nested)

@@ -18,9 +18,12 @@ from classify.options import ClassifyOptions
 from classify.stream import ClassifyStreamOptions
 from core.constraints import Constrained, ConstraintError
 from core.errors import ConfigError
+from fusion.appearance import AppearanceOptions
 from fusion.background import BackgroundOptions
 from fusion.clean_options import CleanOptions, SurveyPointOptions
+from fusion.convert_options import ConvertOptions
 from fusion.export import ExportOptions
+from fusion.merge_options import MergeOptions
 from fusion.mesh.options import (
     DecimateOptions,
     MeshOptions,
@@ -29,7 +32,9 @@ from fusion.mesh.options import (
     SnapshotOptions,
 )
 from fusion.mesh.tsdf import TSDFOptions
+from fusion.splat_surface import SplatSurfaceOptions
 from fusion.tiles3d import TilesetOptions
+from hybridsplat.config import InputOptions
 from hybridsplat.stages.mesh import MeshStageOptions
 
 NAN, INF = math.nan, math.inf
@@ -132,6 +137,39 @@ REFUSED = [
     (SurveyPointOptions, "max_thickness_spacing", [0.0]),
     (SurveyPointOptions, "max_extent_spacing", [-2.0]),
     (SurveyPointOptions, "max_rim_spacing", [0.0]),
+    (AppearanceOptions, "max_image_size", [-1]),
+    (AppearanceOptions, "max_scale_spacings", [0.0, NAN]),
+    (AppearanceOptions, "spacing_neighbours", [0, 65]),
+    (AppearanceOptions, "max_passes", [-1.0, NAN]),
+    (SplatSurfaceOptions, "depth", ["mean"]),
+    (SplatSurfaceOptions, "min_agreeing", [0]),
+    (SplatSurfaceOptions, "max_reproj_px", [0.0, NAN]),
+    (SplatSurfaceOptions, "max_rel_depth", [0.0]),
+    (SplatSurfaceOptions, "front_margin", [-0.01]),
+    (SplatSurfaceOptions, "sigma_floor_px", [-0.1, NAN]),
+    (SplatSurfaceOptions, "sigma_footprint", [-1.0]),
+    (SplatSurfaceOptions, "sigma_roughness", [-1.0]),
+    (SplatSurfaceOptions, "sigma_anchor", [NAN]),
+    (SplatSurfaceOptions, "sigma_neighbours", [0]),
+    (MergeOptions, "viewer_formats", [("ply", "fbx"), ("x",)]),
+    (MergeOptions, "needs_mvs_max_rim_spacing", [0.0, -1.0, NAN]),
+    (MergeOptions, "splat_surface_sigma_scale", [(("reflective", 0.5),), (("reflective",),), ((1.5, 2.0),)]),
+    (MergeOptions, "splat_surface_support", [0.0, NAN]),
+    (ConvertOptions, "opacity_logit_min", [NAN, -INF]),
+    (ConvertOptions, "opacity_logit_max", [INF]),
+    (ConvertOptions, "min_spacing", [0.0, -1.0]),
+    (ConvertOptions, "max_spacing", [INF]),
+    (ConvertOptions, "fallback_spacing", [0.0, INF]),
+    (ConvertOptions, "k_neighbors", [0, 65]),
+    (ConvertOptions, "tangent_scale", [0.0, NAN]),
+    (ConvertOptions, "thickness_ratio", [0.0, 1.5]),
+    (ConvertOptions, "max_opacity", [0.0, 1.0]),
+    (ConvertOptions, "view_saturation", [0.0]),
+    (ConvertOptions, "outlier_spacing_factor", [0.0, INF]),
+    (ConvertOptions, "chunk_size", [0]),
+    (ConvertOptions, "neighbor_backend", ["octree"]),
+    (InputOptions, "units", ["furlong"]),
+    (InputOptions, "holdout", [-2]),
 ]
 
 ACCEPTED = [
@@ -193,6 +231,20 @@ ACCEPTED = [
     (SurveyPointOptions, "min_mask_share", [None, 0.0, 1.0]),
     (SurveyPointOptions, "behind_margin_spacing", [0.0]),
     (SurveyPointOptions, "max_rim_spacing", [None, INF]),
+    (AppearanceOptions, "max_image_size", [0]),
+    (AppearanceOptions, "spacing_neighbours", [1, 64]),
+    (AppearanceOptions, "max_passes", [0.0, INF]),
+    (SplatSurfaceOptions, "depth", ["median"]),
+    (SplatSurfaceOptions, "front_margin", [0.0]),
+    (SplatSurfaceOptions, "sigma_anchor", [0.0]),
+    (MergeOptions, "viewer_formats", [()]),
+    (MergeOptions, "needs_mvs_max_rim_spacing", [None, 1.0]),
+    (MergeOptions, "splat_surface_sigma_scale", [(), (("reflective", 1.0), ("glass", 2))]),
+    (MergeOptions, "splat_surface_support", [None, 0.5]),
+    (ConvertOptions, "thickness_ratio", [1.0]),
+    (ConvertOptions, "k_neighbors", [1, 64]),
+    (ConvertOptions, "neighbor_backend", ["kdtree"]),
+    (InputOptions, "holdout", [-1, 0, 8]),
 ]
 
 
