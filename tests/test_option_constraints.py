@@ -36,6 +36,10 @@ from fusion.splat_surface import SplatSurfaceOptions
 from fusion.tiles3d import TilesetOptions
 from hybridsplat.config import InputOptions
 from hybridsplat.stages.mesh import MeshStageOptions
+from recon.mvs import MvsOptions
+from recon.mvs_cpu_options import CpuMvsOptions
+from recon.sfm import SfmOptions
+from recon.tiling import TileOptions
 
 NAN, INF = math.nan, math.inf
 
@@ -170,6 +174,19 @@ REFUSED = [
     (ConvertOptions, "neighbor_backend", ["octree"]),
     (InputOptions, "units", ["furlong"]),
     (InputOptions, "holdout", [-2]),
+    (MvsOptions, "backend", ["gpu"]),
+    (MvsOptions, "max_image_size", [0, -2, 1.5]),
+    (CpuMvsOptions, "quality", ["best"]),
+    (SfmOptions, "matcher", ["brute"]),
+    (SfmOptions, "mapper", ["magic"]),
+    (SfmOptions, "spatial_neighbours", [0, -3]),
+    (SfmOptions, "align_threshold_m", [0.0, -1.0, NAN]),
+    (TileOptions, "photos_per_tile", [0]),
+    (TileOptions, "points_per_tile", [0]),
+    (TileOptions, "min_points_seen", [0]),
+    (TileOptions, "overlap_m", [-0.1, NAN, INF]),
+    (TileOptions, "extent_quantile", [0.5, -0.01]),
+    (TileOptions, "up", ["w"]),
 ]
 
 ACCEPTED = [
@@ -245,6 +262,12 @@ ACCEPTED = [
     (ConvertOptions, "k_neighbors", [1, 64]),
     (ConvertOptions, "neighbor_backend", ["kdtree"]),
     (InputOptions, "holdout", [-1, 0, 8]),
+    (MvsOptions, "max_image_size", [-1, 1, 4000]),
+    (CpuMvsOptions, "quality", ["fast", "high"]),
+    (SfmOptions, "spatial_neighbours", [1]),
+    (SfmOptions, "align_threshold_m", [None, 0.01]),
+    (TileOptions, "overlap_m", [None, 0.0, 5.0]),
+    (TileOptions, "extent_quantile", [0.0, 0.49]),
 ]
 
 
