@@ -101,12 +101,14 @@ class AppearanceOptions(Constrained):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.training.lr_means != 0.0:
-            raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got "
-                              f"{self.training.lr_means}")  # fmt: skip
+            lr = self.training.lr_means
+            raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got {lr}")
         strategy = self.training.strategy
         if not isinstance(strategy, DefaultStrategy) or strategy.refine_start < strategy.refine_stop:
-            raise ConfigError("the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
-                              "DefaultStrategy that never refines (refine_stop <= refine_start)")  # fmt: skip
+            raise ConfigError(
+                "the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
+                "DefaultStrategy that never refines (refine_stop <= refine_start)"
+            )
 
 
 def step_budget(options: AppearanceOptions, photos: int) -> int:
