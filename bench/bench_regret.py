@@ -13,12 +13,7 @@ upstream of the change reused from the copy (the runner finds it current) and ev
   needs-splats farther than τ), everything else identical. This path exists only here: no user option gives it.
   *Product regret* = oracle − shipped.
 - ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
-- ``geometry``: flat fill splats with the geometric losses at their defaults (``--train-flat --geometry``).
-- ``geometry_priors``: ``geometry`` and the MVS depth / normal priors at their defaults (``[train.training.priors]``).
 - ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
-- ``lpips_loss``, ``msssim_loss``, ``hard_views``, ``mcmc``: the fill's training (the train stage) with an LPIPS term
-  (weight 0.2 from 80 % of the steps), SmoothL1 + MS-SSIM instead of L1 + SSIM, hard-view mining, or MCMC
-  densification (its window and cap as the default strategy's), each at its defaults otherwise.
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -57,12 +52,6 @@ DEFAULT_LAYOUTS = "random-object:120-125,random-aerial:120-125,demo:0"
 VARIANTS = (
     "oracle",
     "splat_surface",
-    "geometry",
-    "geometry_priors",
-    "lpips_loss",
-    "msssim_loss",
-    "hard_views",
-    "mcmc",
 )
 DISTANCE_BINS_TAU = (0.0, 1.0, 2.0, 4.0, np.inf)
 """Bins of a misclassified point's distance to the nearest true surface, in τ (the truth's threshold)."""
@@ -179,8 +168,6 @@ def point_truth(cloud, scene, classes):
 
 def variant_config(config, variant: str):
     """The shipped project's configuration with ``variant``'s one change (``a+b``: both changes)."""
-    from fusion.train.options import GeometryOptions, PriorOptions
-
     if "+" in variant:
         for part in variant.split("+"):
             config = variant_config(config, part)
@@ -189,33 +176,6 @@ def variant_config(config, variant: str):
         return config
     if variant == "splat_surface":
         return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
-    if variant in ("geometry", "geometry_priors"):
-        train = config.stages["train"]
-        training = replace(train.training, flat=True, geometry=GeometryOptions())
-        if variant == "geometry_priors":
-            training = replace(training, priors=PriorOptions())
-        return config.with_stage_options("train", replace(train, training=training))
-    if variant in ("lpips_loss", "msssim_loss", "hard_views", "mcmc"):
-        from fusion.train.options import HardViewOptions, Photometric
-        from fusion.train.strategy import MCMCStrategy
-
-        train = config.stages["train"]
-        training = train.training
-        if variant == "lpips_loss":
-            training = replace(training, lpips_weight=0.2)
-        elif variant == "msssim_loss":
-            training = replace(training, photometric=Photometric.SMOOTHL1_MSSSIM)
-        elif variant == "hard_views":
-            training = replace(training, hard_views=HardViewOptions())
-        else:
-            s = training.strategy
-            training = replace(
-                training,
-                strategy=MCMCStrategy(
-                    cap=s.cap, refine_start=s.refine_start, refine_stop=s.refine_stop, refine_every=s.refine_every
-                ),
-            )
-        return config.with_stage_options("train", replace(train, training=training))
     raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
 
 

@@ -1,4 +1,4 @@
-"""What the geometry outputs and the geometric losses cost on the cpu backend, side by side with colour only.
+"""What the renderer's geometry outputs cost on the cpu backend, side by side with colour only.
 
     OMP_WAIT_POLICY=PASSIVE python bench/bench_render_geometry.py            # 50k Gaussians, 320×240
     OMP_WAIT_POLICY=PASSIVE python bench/bench_render_geometry.py --n 20000 --repeats 5
@@ -9,12 +9,10 @@ interleaved so that load from other processes hits both alike (wall ms, and CPU 
 
 - ``colour fwd`` / ``colour bwd``: ``render(..., backend="cpu")`` and the backward of a colour + depth loss;
 - ``geometry fwd`` / ``geometry bwd``: the same with ``render_geometry=True`` (8-feature kernels, per-Gaussian
-  normals, plane and median depth), the backward of the same loss plus the geometric losses;
-- ``losses f+b``: :func:`normal_from_depth` of the plane depth, :func:`depth_normal_consistency`,
-  :func:`flatness_loss` and :func:`mvs_depth_loss`, forward and backward on detached render outputs.
+  normals, plane and median depth, as :mod:`fusion.splat_surface` renders them), the backward of the same loss plus
+  a weighted sum of the normal, plane-depth and median-depth maps (every geometry output's backward).
 
-Ratios are geometry over colour; ``step ratio`` = (geometry fwd + bwd) / (colour fwd + bwd), the render part of a
-training step with the geometric losses over one without (the loss's own cost and Adam come on top of both).
+Ratios are geometry over colour; ``step ratio`` = (geometry fwd + bwd) / (colour fwd + bwd).
 ``uptime`` load averages are printed before and after: on a shared 2-core machine, compare ratios, not times.
 """
 
@@ -46,22 +44,14 @@ def run(n: int, width: int, height: int, repeats: int) -> dict[str, list[tuple[f
 
     from fusion.render import render
     from fusion.render.synthetic import random_scene
-    from fusion.train.geometry_loss import depth_normal_consistency, flatness_loss, mvs_depth_loss, normal_from_depth
 
     scene = random_scene(n, width, height, seed=0, sh_degree=3)
     gen = torch.Generator().manual_seed(0)
     weights = torch.rand(height, width, 3, generator=gen)
-    prior = torch.rand(height, width, generator=gen) + 3.0
     times: dict[str, list[tuple[float, float]]] = {}
 
     def add(part: str, t: tuple[float, float]) -> None:
         times.setdefault(part, []).append(t)
-
-    def losses(geo, log_scales: torch.Tensor) -> torch.Tensor:
-        normal, ok = normal_from_depth(geo.plane_depth, scene.K, geo.plane_valid)
-        total = 0.1 * depth_normal_consistency(geo.normal, normal, ok)
-        total = total + 10.0 * flatness_loss(log_scales)
-        return total + 0.1 * mvs_depth_loss(geo.plane_depth, prior, torch.ones_like(prior), geo.plane_valid)
 
     for rep in range(repeats + 1):  # the first round warms up (JIT cache load) and is dropped
         for geometry in (False, True):
@@ -76,21 +66,12 @@ def run(n: int, width: int, height: int, repeats: int) -> dict[str, list[tuple[f
             res = out["res"]
             loss = (res.colour * weights).sum() + 0.1 * res.depth.sum()
             if geometry:
-                loss = loss + losses(res.geometry, params[2])
+                geo = res.geometry
+                loss = loss + (geo.normal * weights).sum() + 0.1 * (geo.plane_depth.sum() + geo.median_depth.sum())
             t_bwd = _timed(loss.backward)
             if rep:
                 add(f"{name} fwd", t_fwd)
                 add(f"{name} bwd", t_bwd)
-            if geometry and rep:
-                geo = res.geometry
-                leaves = {k: getattr(geo, k).detach().requires_grad_(True) for k in ("plane_depth", "normal")}
-                log_scales = params[2].detach().requires_grad_(True)
-
-                def loss_fb(leaves=leaves, geo=geo, log_scales=log_scales) -> None:
-                    view = type(geo)(**{**geo.__dict__, **leaves})
-                    losses(view, log_scales).backward()
-
-                add("losses f+b", _timed(loss_fb))
     return times
 
 
@@ -107,7 +88,7 @@ def main() -> None:
     med = {part: tuple(statistics.median(t[i] for t in ts) for i in (0, 1)) for part, ts in times.items()}
     print(f"\n{args.n} Gaussians, {args.width}×{args.height}, cpu backend, medians of {args.repeats} runs")
     print(f"{'part':<14}{'wall ms':>10}{'CPU ms':>10}{'ratio (wall)':>14}{'ratio (CPU)':>13}")
-    for part in ("colour fwd", "geometry fwd", "colour bwd", "geometry bwd", "losses f+b"):
+    for part in ("colour fwd", "geometry fwd", "colour bwd", "geometry bwd"):
         wall, cpu = med[part]
         base = med.get(part.replace("geometry", "colour")) if part.startswith("geometry") else None
         ratio = f"{wall / base[0]:>14.2f}{cpu / base[1]:>13.2f}" if base else ""
@@ -115,7 +96,6 @@ def main() -> None:
     colour = med["colour fwd"][0] + med["colour bwd"][0], med["colour fwd"][1] + med["colour bwd"][1]
     geo = med["geometry fwd"][0] + med["geometry bwd"][0], med["geometry fwd"][1] + med["geometry bwd"][1]
     print(f"{'step ratio':<14}{geo[0]:>10.1f}{geo[1]:>10.1f}{geo[0] / colour[0]:>14.2f}{geo[1] / colour[1]:>13.2f}")
-    print("(geometry bwd includes the losses' backward; 'losses f+b' times them alone)")
 
 
 if __name__ == "__main__":

@@ -28,8 +28,7 @@
     fusion.train.masked.train_whole_scene: same trainer, mask = whole image, no context, SfM init, same cap) and the
     held-out metrics (PSNR / SSIM / LPIPS, inside the non-collaborative masks and whole image) of merged, MVS-only
     and baseline, with times. Every figure is printed with the machine load. Options:
-    ``--depth-prior/--normal-prior/--prior-border`` (fusion.train.priors; 0 0 = off), ``--hard-views``,
-    ``--photometric smoothl1_msssim``; per-material geometry of MVS-only, the splat centres, merged with every splat
+    per-material geometry of MVS-only, the splat centres, merged with every splat
     and the merged survey points is printed and written to OUT/geometry.json. The products go where a project keeps
     them (hybridsplat.layout.ProjectLayout of OUT): the merged set, the trained splats and the baseline.
 
@@ -604,17 +603,9 @@ def hybrid_options(args: argparse.Namespace) -> Any:
     from fusion.train.masked import MaskedTrainingOptions
     from hybridsplat.options import options_with
 
-    priors: Any = "none"
-    if args.depth_prior > 0 or args.normal_prior > 0:
-        priors = {"depth_weight": args.depth_prior, "normal_weight": args.normal_prior,
-                  "border_px": args.prior_border if args.prior_border > 0 else "none"}  # fmt: skip
     paths = {
         **shared_training(args),
         "training.iterations": args.iterations,
-        "training.flat": args.flat,
-        "training.priors": priors,
-        "training.hard_views": {} if args.hard_views else "none",
-        "training.photometric": args.photometric,
         "init.rays_per_view": args.rays,
     }
     if args.splats_per_mask_pixel is not None:
@@ -652,10 +643,10 @@ def train_hybrid(args: argparse.Namespace, inputs: ProjectInputs, truth_in: Trut
     print(f"hybrid training: {tr.iterations} it in {tr.seconds:.1f} s ({tr.seconds / tr.iterations:.3f} s/it), "
           f"{len(tr.splats)} splats, views {tr.views_used}, context {tr.context_total} ({tr.context_culled} culled), "
           f"early stop {tr.stopped_early}, refine {tr.refine}; {load()}")  # fmt: skip
-    print(f"priors: {tr.prior_views} views, {tr.prior_pixels} prior pixels; steps per view {tr.view_steps}")
+    print(f"steps per view {tr.view_steps}")
     for c in tr.history:
         print(f"   step {c.step:5d}  loss {c.loss:.4f}  hold-out PSNR {c.holdout_psnr:6.2f}  n {c.gaussians}  "
-              f"{c.seconds:6.1f} s  prior depth {c.prior_depth:.4f}  normal {c.prior_normal:.4f}")  # fmt: skip
+              f"{c.seconds:6.1f} s")  # fmt: skip
     return tr, seconds
 
 
@@ -814,12 +805,6 @@ def main() -> None:
     t.add_argument("--sh-degree", type=int, default=3)
     t.add_argument("--lr-sh-dc", type=float, default=2.5e-3)
     t.add_argument("--patience", type=int, default=3)
-    t.add_argument("--flat", action="store_true")
-    t.add_argument("--depth-prior", type=float, default=0.0, help="0 with --normal-prior 0: no priors (default)")
-    t.add_argument("--normal-prior", type=float, default=0.0)
-    t.add_argument("--prior-border", type=float, default=8.0, help="px; <= 0: the whole mask")
-    t.add_argument("--hard-views", action="store_true")
-    t.add_argument("--photometric", choices=("l1_ssim", "smoothl1_msssim"), default="l1_ssim")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--only", choices=("hybrid", "baseline", "both"), default="both")
     t.add_argument("--lpips", default="/work/shared/data/lpips/alexnet_lpips_v0.1.npz")

@@ -27,12 +27,13 @@ from data_synth.raytrace import RayTracer
 from data_synth.rig import build_cameras
 from data_synth.scenes import LAYOUTS
 from data_synth.stats import ColorSpread, GradientStats, color_spread, gradient_by_material
+from data_synth.targets import TargetSet, place_targets, with_targets
 from data_synth.textures import TextureField
 
 ProgressFn = Callable[[str, int, int], None]
 """``progress(stage, done, total)``: called as work advances (stage names: render, lidar, stats, write)."""
 
-_STREAM = {"layout": 1, "train": 2, "test": 3, "lidar": 4, "stats": 5, "rig": 6}
+_STREAM = {"layout": 1, "train": 2, "test": 3, "lidar": 4, "stats": 5, "rig": 6, "targets": 7}
 
 
 def _rng(seed: int, purpose: str, index: int = 0) -> np.random.Generator:
@@ -51,7 +52,7 @@ def generate_scene(
     ``out_dir`` and return its path.
 
     ``overrides`` are preset overrides (see :func:`data_synth.presets.apply_overrides`: views, test_views,
-    width, height, supersample, max_depth, noise, georef, origin). An existing non-empty ``out_dir`` is
+    width, height, supersample, max_depth, noise, georef, origin, targets). An existing non-empty ``out_dir`` is
     refused unless ``overwrite``. Same preset, overrides and seed give byte-identical files.
     """
     if not isinstance(seed, int) or seed < 0:
@@ -65,9 +66,15 @@ def generate_scene(
 
     origin = np.asarray(p.origin, dtype=np.float64)
     mesh = LAYOUTS[p.layout](_rng(seed, "layout"))
-    used = [material_by_id(i) for i in np.unique(mesh.face_material).tolist()]
     train, test = build_cameras(p.rig, p.width, p.height, origin)
-    tracer = RayTracer(mesh, {m.id: m for m in MATERIALS}, TextureField(seed, p.texture_scale), p.environment, p.render)
+    legend = {m.id: m for m in MATERIALS}
+    tracer = RayTracer(mesh, legend, TextureField(seed, p.texture_scale), p.environment, p.render)
+    targets = TargetSet()
+    if p.targets > 0:
+        placed = place_targets(tracer, train, p.targets, _rng(seed, "targets"))
+        mesh, targets = with_targets(mesh, placed)
+        tracer = RayTracer(mesh, legend, tracer.textures, p.environment, p.render, targets=targets)
+    used = [material_by_id(i) for i in np.unique(mesh.face_material).tolist()]
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp_root = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
@@ -91,6 +98,9 @@ def generate_scene(
         info = _scene_info(p, seed, origin, train, test, used, views.depths, spread, gradients, len(cloud))
         if layout_info is not None:  # a procedural preset: what the seed drew
             info["layout"] = layout_info
+        if targets.targets:
+            info["targets"] = targets.describe(origin)
+            writer.write_gcp(layout, targets, origin)
         writer.write_scene_json(layout, info)
         report("write", 1, 1)
         _move_into_place(tmp_root, out)

@@ -9,7 +9,8 @@
       gt/lidar.ply, gt/lidar.las     simulated LiDAR, field ``material`` (+ LAS classification)
       gt/depth/<split>/<name>.npy    float32 z-depth (metres), 0 where no surface
       gt/labels/<split>/<name>.png   uint8 material id per pixel, 255 = background
-      scene.json                     legend, origin, GSD, rig, statistics, view lists
+      scene.json                     legend, origin, GSD, rig, statistics, view lists (+ targets, when laid)
+      control/gcp.csv                the coded targets' exact centres (world, metres), control or check (when laid)
 
 ``split`` is ``train`` or ``test``; ``<name>`` is the image file name (``train_000.png``) without ``.png`` for
 depth files (``train_000.npy``) and with the same name for labels.
@@ -64,6 +65,11 @@ class SceneLayout:
     @property
     def scene_json(self) -> Path:
         return self.root / "scene.json"
+
+    @property
+    def gcp_csv(self) -> Path:
+        """The targets' control file (:mod:`core.io.control` format), present when the scene has targets."""
+        return self.root / "control" / "gcp.csv"
 
     def image(self, split: str, name: str) -> Path:
         """Photo of image ``name`` (e.g. ``train_000.png``) in ``split``."""

@@ -150,7 +150,13 @@ MATERIALS: tuple[Material, ...] = (
              why="uniform concrete slab: no texture to match"),
     Material(17, "glass_roof", _K.GLASS, _S.GLASS, (0.85, 0.92, 0.95), reflectance=0.05, ior=1.5,
              las_class=LAS_BUILDING, why="glass roof: reflects the sky and shows the interior"),
+    Material(18, "survey_target", _K.TEXTURED, _S.LAMBERT, (0.85, 0.85, 0.85), (0.03, 0.03, 0.03), _T.NONE,
+             las_class=LAS_GROUND,
+             why="coded survey target: a black and white marker, sharp corners (its pattern: data_synth.targets)"),
 )  # fmt: skip
+
+TARGET_MATERIAL_ID = 18
+"""Material of the coded survey targets (:mod:`data_synth.targets`); the ray tracer reads their marker bitmaps."""
 
 _BY_NAME = {m.name: m for m in MATERIALS}
 _BY_ID = {m.id: m for m in MATERIALS}

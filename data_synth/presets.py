@@ -72,6 +72,7 @@ class Preset:
     rig_ranges: set for a procedural preset (``layout`` is then a family of :mod:`data_synth.procedural`): the
     seed draws the rig, the LiDAR scan and the sun from these ranges (:func:`preset_for_seed`); ``rig``, ``lidar``
     and ``environment`` are the bases they start from (views, test views, field of view, scan step, sky).
+    targets: coded survey targets laid on the ground or support (:mod:`data_synth.targets`), 0 for none.
     """
 
     name: str
@@ -87,6 +88,7 @@ class Preset:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     stats_points: int = 300
     rig_ranges: OrbitRigRanges | AerialRigRanges | None = None
+    targets: int = 0
 
     @property
     def n_train(self) -> int:
@@ -124,6 +126,7 @@ PRESETS: dict[str, Preset] = {
         render=RenderSettings(supersample=2, max_depth=4),
         environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
         texture_scale=1.0,
+        targets=8,
     ),
     "aerial": Preset(
         name="aerial",
@@ -138,6 +141,7 @@ PRESETS: dict[str, Preset] = {
         render=RenderSettings(supersample=2, max_depth=3),
         environment=Environment(sun_azimuth_deg=140.0, sun_elevation_deg=55.0, ground_tile=20.0),
         texture_scale=1.0,
+        targets=12,
     ),
     "demo": Preset(
         name="demo",
@@ -152,6 +156,7 @@ PRESETS: dict[str, Preset] = {
         render=RenderSettings(supersample=2, max_depth=4),
         environment=Environment(sun_azimuth_deg=35.0, sun_elevation_deg=50.0, ground_tile=0.3),
         texture_scale=1.0,
+        targets=8,
     ),
 }  # fmt: skip
 # The demo scene with every object textured, seen from farther and higher (1.4 m, 40° and 60°): every part of the
@@ -162,6 +167,7 @@ PRESETS["textured"] = replace(
     PRESETS["demo"],
     name="textured",
     layout="tabletop_textured",
+    targets=0,
     rig=replace(PRESETS["demo"].rig, radius_m=1.4, elevations_deg=(40.0, 60.0)),
 )
 
@@ -170,6 +176,7 @@ PRESETS["random-object"] = replace(
     name="random-object",
     layout="random_object",
     rig_ranges=OrbitRigRanges(),
+    targets=0,
 )
 PRESETS["random-aerial"] = replace(
     PRESETS["aerial"],
@@ -178,7 +185,9 @@ PRESETS["random-aerial"] = replace(
     rig_ranges=AerialRigRanges(),
 )
 
-OVERRIDES = ("views", "test_views", "width", "height", "supersample", "max_depth", "noise", "georef", "origin")
+OVERRIDES = (
+    "views", "test_views", "width", "height", "supersample", "max_depth", "noise", "georef", "origin", "targets",
+)  # fmt: skip
 
 
 def get_preset(name: str) -> Preset:
@@ -214,15 +223,16 @@ def apply_overrides(preset: Preset, **overrides: object) -> Preset:
     views − obliques, kept at the preset's aspect). test_views: held-out views. width, height: pixels (focal
     length follows the field of view). supersample: S of S×S. max_depth: bounces. noise: False/0 disables the
     LiDAR range noise, a float sets its constant sigma (metres). georef: True sets the UTM-like origin
-    :data:`GEOREF_ORIGIN`. origin: explicit (x, y, z) local origin.
+    :data:`GEOREF_ORIGIN`. origin: explicit (x, y, z) local origin. targets: coded targets to lay (0 = none).
     """
     given = {k: v for k, v in overrides.items() if v is not None}
     unknown = set(given) - set(OVERRIDES)
     if unknown:
         raise ConfigError(f"unknown preset override(s) {sorted(unknown)}; allowed: {', '.join(OVERRIDES)}")
     p = preset
-    for key in ("views", "test_views", "width", "height", "supersample"):
-        if key in given and (not isinstance(given[key], int) or given[key] < (0 if key == "test_views" else 1)):
+    for key in ("views", "test_views", "width", "height", "supersample", "targets"):
+        least = 0 if key in ("test_views", "targets") else 1
+        if key in given and (not isinstance(given[key], int) or given[key] < least):
             raise ConfigError(f"{key} must be a positive integer, got {given[key]!r}")
     if "width" in given or "height" in given:
         p = replace(p, width=int(given.get("width", p.width)), height=int(given.get("height", p.height)))
@@ -257,6 +267,8 @@ def apply_overrides(preset: Preset, **overrides: object) -> Preset:
             if not (sigma >= 0 and math.isfinite(sigma)):
                 raise ConfigError(f"noise must be a non-negative sigma in metres, got {value!r}")
             p = replace(p, noise=RangeNoise(sigma, p.noise.sigma_rel))
+    if "targets" in given:
+        p = replace(p, targets=int(given["targets"]))  # type: ignore[arg-type]
     if given.get("georef"):
         p = replace(p, origin=GEOREF_ORIGIN)
     if "origin" in given:

@@ -22,7 +22,8 @@ from core.cameras import Camera, View
 from core.errors import DataError
 from data_synth.geometry import SceneMesh
 from data_synth.lighting import Environment
-from data_synth.materials import BACKGROUND_LABEL, Material, Shading
+from data_synth.materials import BACKGROUND_LABEL, TARGET_MATERIAL_ID, Material, Shading
+from data_synth.targets import TargetSet
 from data_synth.textures import TextureField
 
 _CHUNK = 1 << 18
@@ -118,7 +119,9 @@ def _schlick(f0: float | np.ndarray, cos: np.ndarray) -> np.ndarray:
 class RayTracer:
     """Renders one :class:`SceneMesh` with its materials, textures and environment.
 
-    ``eps`` (metres) offsets secondary-ray origins off surfaces; default 1e-6 of the scene diagonal.
+    ``eps`` (metres) offsets secondary-ray origins off surfaces; default 1e-6 of the scene diagonal. ``targets``:
+    the coded targets among the mesh's faces (material :data:`~data_synth.materials.TARGET_MATERIAL_ID`), whose
+    albedo is their marker's bitmap.
     """
 
     def __init__(
@@ -129,8 +132,10 @@ class RayTracer:
         environment: Environment,
         settings: RenderSettings | None = None,
         eps: float | None = None,
+        targets: TargetSet | None = None,
     ) -> None:
         self.mesh = mesh
+        self.targets = targets
         self.materials = dict(materials)
         self.textures = textures
         self.env = environment
@@ -213,7 +218,10 @@ class RayTracer:
             sel = np.flatnonzero(mats == mid)
             ps, ns, ds = p[sel], n_face[sel], d[sel]
             if mat.shading is Shading.LAMBERT:
-                alb = self.textures.albedo(mat, ps, ns)
+                if mid == TARGET_MATERIAL_ID and self.targets is not None:
+                    alb = self.targets.albedo(hits.face[idx[sel]], ps)
+                else:
+                    alb = self.textures.albedo(mat, ps, ns)
                 out[idx[sel]] = alb * (direct[sel] + self.env.ambient_irradiance(ns))
             elif mat.shading is Shading.GLOSSY:
                 cos_i = -np.sum(ds * ns, axis=1)

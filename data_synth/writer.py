@@ -69,6 +69,17 @@ def write_cloud(layout: SceneLayout, cloud: PointCloud) -> None:
     write_las(layout.lidar_las, cloud, scale=LAS_SCALE_M)
 
 
+def write_gcp(layout: SceneLayout, targets, origin: np.ndarray) -> None:
+    """``control/gcp.csv``: the targets' exact centres in world coordinates (metres), with their roles."""
+    from core.io.control import ControlPoint, Role, write_gcp_csv
+
+    points = [
+        ControlPoint(t.point_id, np.asarray(origin, np.float64) + np.asarray(t.center_m), Role(t.role), 0.0, 0.0)
+        for t in targets.targets
+    ]
+    write_gcp_csv(layout.gcp_csv, points)
+
+
 def write_scene_json(layout: SceneLayout, payload: dict[str, object]) -> None:
     """``scene.json`` (sorted keys are not used: the order is the documented one)."""
     write_text_atomic(layout.scene_json, json.dumps(payload, indent=2) + "\n")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import base64
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
 
@@ -292,3 +292,34 @@ def c2c_views_jpeg(
             ax.tick_params(labelsize=7)
         fig.colorbar(sc, ax=axes, shrink=0.85, label=f"distance ({units.value})")
         return _jpeg(fig)
+
+
+def accuracy_residuals_svg(points: Sequence[Mapping], units: Units) -> str:
+    """The surveyed points over the site (x, y of ``survey_m``, metres): check points as circles, control points as
+    triangles; an arrow per point its horizontal residual (dx, dy) scaled so the largest is a tenth of the site, the
+    colour its vertical residual dz (diverging, symmetric, in ``units``)."""
+    xy = np.array([p["survey_m"][:2] for p in points], dtype=np.float64)
+    d = np.array([[p["dx"], p["dy"], p["dz"]] for p in points], dtype=np.float64)
+    check = np.array([p["role"] == "check" for p in points])
+    extent = float(np.ptp(xy, axis=0).max()) if len(xy) > 1 else 1.0
+    largest = float(np.hypot(d[:, 0], d[:, 1]).max()) or 1.0
+    scale = 0.1 * max(extent, 1e-9) / largest
+    dz = np.asarray(units.from_metres(d[:, 2]), dtype=np.float64)
+    vmax = float(np.abs(dz).max()) or 1.0
+    fig = _figure(7.0, 5.0)
+    ax = fig.add_subplot(1, 1, 1)
+    for mask, marker, label in ((check, "o", "check"), (~check, "^", "control")):
+        if mask.any():
+            art = ax.scatter(xy[mask, 0], xy[mask, 1], c=dz[mask], cmap="coolwarm", vmin=-vmax, vmax=vmax,
+                             marker=marker, s=60, edgecolors="k", label=label)  # fmt: skip
+    ax.quiver(xy[:, 0], xy[:, 1], d[:, 0] * scale, d[:, 1] * scale, angles="xy", scale_units="xy", scale=1.0,
+              width=0.004, color="k")  # fmt: skip
+    for (x, y), p in zip(xy, points, strict=True):
+        ax.annotate(str(p["id"]), (x, y), textcoords="offset points", xytext=(5, 5), fontsize=7)
+    fig.colorbar(art, ax=ax, label=f"dz ({units.value})")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m, control frame)")
+    ax.set_ylabel("y (m, control frame)")
+    ax.set_title(f"residuals: arrows ×{scale:.3g} (largest {units.format(largest)}), colour dz", fontsize=9)
+    ax.legend(loc="best", fontsize=8)
+    return _svg(fig)

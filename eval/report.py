@@ -43,6 +43,7 @@ from core.io.json_io import to_jsonable, write_json_atomic
 from core.units import Units
 from eval.metrics_io import PRODUCTS, read_metrics
 from eval.plots import c2c_views_jpeg, jpeg_data_uri, jpeg_thumbnail, metric_bars_svg, stage_bars_svg, svg_histogram
+from eval.report_accuracy import accuracy_html, accuracy_markdown, read_accuracy
 from eval.report_options import DEFAULT_MAX_PANELS
 from eval.report_summary import SUMMARY_PRODUCTS, split_panel, summary_table
 
@@ -173,11 +174,13 @@ def build_report(
     metrics_file: str | PathLike[str],
     units: Units | str | None = None,
     per_material_file: str | PathLike[str] | None = None,
+    accuracy_file: str | PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """The report.json content from a project's manifest and metrics files (either may be missing).
 
     units: the unit the Markdown/HTML print lengths in (recorded as ``units``; report.json stays in metres).
     per_material_file: scores per ground-truth material (see eval.per_material), shown when the file exists.
+    accuracy_file: the survey control's accuracy statement (eval.accuracy), shown when the file exists.
     """
     manifest_file, metrics_file = Path(manifest_file), Path(metrics_file)
     root = manifest_file.parent
@@ -217,6 +220,7 @@ def build_report(
         "units": _units(units, metrics, manifest).value,
         "products": products,
         "per_material": _per_material(per_material_file),
+        "accuracy": read_accuracy(accuracy_file),
         "stages": stages,
     }
 
@@ -506,6 +510,7 @@ def to_markdown(report: Mapping[str, Any], run: RunNotes = RunNotes()) -> str:
         lines.append("|" + "|".join("---" for _ in header) + "|")
         lines += ["| " + " | ".join(cell.replace("|", "\\|") for cell in row) + " |" for row in rows]
         lines.append("")
+    lines += accuracy_markdown(report.get("accuracy"), _report_units(report))
     lines += _sections_markdown(report)
     skipped = [(n, p["reason"]) for n, p in report["products"].items() if p["skipped"]]
     if skipped:
@@ -769,6 +774,7 @@ def to_html(
     if panels:
         parts += [f"<h2>Renders and error maps</h2><p class='note'>The {len(chosen)} held-out view(s) with the "
                   "lowest PSNR (downscaled).</p>"] + panels  # fmt: skip
+    parts += accuracy_html(report.get("accuracy"), u, _html_table)
     parts += _sections_html(report)
     stages = report.get("stages") or {}
     if stages:
@@ -794,6 +800,7 @@ def write_report(
     units: Units | str | None = None,
     per_material_file: str | PathLike[str] | None = None,
     sections: Sequence[Mapping[str, Any]] = (),
+    accuracy_file: str | PathLike[str] | None = None,
     notes: RunNotes = RunNotes(),
 ) -> ReportPaths:
     """Build and write the report's JSON, Markdown and HTML files (``paths``) atomically.
@@ -807,7 +814,7 @@ def write_report(
     or the manifest, else metres).
     """
     metrics_file = Path(metrics_file)
-    report = build_report(manifest_file, metrics_file, units, per_material_file)
+    report = build_report(manifest_file, metrics_file, units, per_material_file, accuracy_file)
     report["sections"] = [dict(s) for s in sections]
     eval_dir = metrics_file.parent
     metrics = read_metrics(metrics_file) if metrics_file.is_file() else None

@@ -36,11 +36,12 @@ class MergeOptions(Constrained):
         :func:`fusion.clean.surface_splat_options`); off: every Gaussian gets ``surface = 1``.
     viewer_formats: the viewer product (merged.ply's Gaussians) also written in these formats, each beside it in
         export/ (:data:`VIEWER_FORMATS`: file name per format), with the origin sidecar and the CRS.
-    splat_surface: put splat-surface points into the point product (on by default: they raise the survey's
-        F-score at τ on the benchmark's training scenes, docs/experiments/2026-12-02-survey-verdicts.md; off, the
-        products are those of a merge without them, byte for byte): :func:`fusion.splat_surface.splat_surface_points`
-        on the cleaned fill layer inside the training masks of the training views, the trusted MVS points' z-buffer as
-        the front surface (a depth behind a trusted surface is an occluded or virtual layer), the rule
+    splat_surface: put splat-surface points into the point product (off by default, and then the products are those
+        of a merge without them, byte for byte: the F-score gain they gave on the benchmark's tuning layouts did not
+        hold on its scoring layouts, docs/experiments/2026-12-02-survey-verdicts.md):
+        :func:`fusion.splat_surface.splat_surface_points` on the cleaned fill layer inside the training masks of the
+        training views, the trusted MVS points' z-buffer as the front surface (a depth behind a trusted surface is
+        an occluded or virtual layer), the rule
         ``splat_surface_points`` (σ per point: :func:`fusion.splat_surface.sigma_model`, anchored on the fused MVS
         points); added with ``source`` = 4, ``classification`` = 68 and a ``sigma`` field by
         :func:`fusion.survey.with_splat_surface` (points within half the trusted spacing of an MVS point of the
@@ -54,7 +55,8 @@ class MergeOptions(Constrained):
         accuracy mean is ≤ τ keeps its mean ≤ τ.
     splat_surface_sigma_scale: (class name, factor) pairs: the σ of a splat-surface point whose predicted class
         (that of its nearest ``needs_splats`` MVS point, :func:`fusion.survey.class_names_of_points`) is named here
-        is multiplied by the factor (≥ 1); other classes keep the σ model's value. The default was chosen on tuning
+        is multiplied by the factor (≥ 1; with ``splat_surface`` only); other classes keep the σ model's value. The
+        default was chosen on tuning
         layouts (random-object seeds 60 and 61, random-aerial 60; docs/experiments/2026-12-02-survey-verdicts.md): per
         class, the smallest factor (in steps of 0.05) whose 95 % interval holds the nominal 0.95 of the points of
         every (class, material) cell of ≥ 50 points, so that the issue's bar of 0.90 keeps a margin elsewhere.
@@ -71,7 +73,7 @@ class MergeOptions(Constrained):
     needs_mvs_classes: tuple[str, ...] = ("textureless",)
     surface_test: bool = True
     viewer_formats: tuple[str, ...] = ()
-    splat_surface: bool = True
+    splat_surface: bool = False
     splat_surface_keep_centres: bool = False
     splat_surface_support: float | None = 2.0
     splat_surface_sigma_scale: tuple[tuple[str, float], ...] = (("reflective", 1.25),)

@@ -380,7 +380,7 @@ def front_depths_from_points(
     """Front-surface depth maps from points of the front surface (N, 3, cameras' local frame; e.g. the MVS points
     of a mirror's frame or a glass pane's own surface): per view, the z of the nearest point landing in each pixel
     (0 where none: unknown). names: the views to make (default: all)."""
-    from fusion.train.priors import zbuffer
+    from fusion.render.zbuffer import zbuffer
 
     out = {}
     for v in cameras:

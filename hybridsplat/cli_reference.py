@@ -41,7 +41,7 @@ class Entry:
     """One argument or option of one command, as the reference shows it."""
 
     command: str  # "run", "classify predict"
-    name: str  # "--tiles", "-o, --out", "--flat / --no-flat", "PROJECT"
+    name: str  # "--tiles", "-o, --out", "--tile-context / --no-tile-context", "PROJECT"
     kind: str  # "argument" or "option"
     metavar: str  # "<str>", "<int>", "" for a flag
     help: str  # typer's help text, with its "[default: ...]" / "[required]"

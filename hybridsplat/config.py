@@ -40,6 +40,9 @@ class InputOptions(Constrained):
     reference: camera centres to align to: a text file ``NAME X Y Z`` or a COLMAP model.
     units: the unit of the reference's coordinates (converted to metres on input; reports print lengths in it).
     crs: coordinate reference system of the reference (``EPSG:N``), carried into sidecars and LAS files.
+    control: ground control and check points (``id,X,Y,Z[,sigma_xy,sigma_z],role`` CSV, :mod:`core.io.control`)
+        the model is adjusted to (the control stage); in ``units`` unless the file declares its own.
+    marks: marks of those points in the photos made by hand (``image,point_id,u,v``), over the detected ones.
     holdout: every N-th photo (name order) held out for evaluation; -1 = the input's own held-out views if it has
         them, else every 8th; 0 = none.
     splat_masks: folder of user masks of regions that need splats (white = needs splats).
@@ -53,6 +56,8 @@ class InputOptions(Constrained):
     reference: str | None = None
     units: str = "m"
     crs: str | None = None
+    control: str | None = None
+    marks: str | None = None
     holdout: int = -1
     splat_masks: str | None = None
     feature_masks: str | None = None
@@ -118,5 +123,5 @@ def read_config(path: str | PathLike[str], stage_options: dict[str, type]) -> Pr
             raise ConfigError(f"unknown section [{name}] (stages: {', '.join(stage_options)})", path)
         if not isinstance(table, dict):
             raise ConfigError(f"[{name}] must be a table", path)
-        stages[name] = options_from_table(stage_options[name], migrate_table(name, table), path)
+        stages[name] = options_from_table(stage_options[name], migrate_table(name, table, path), path)
     return ProjectConfig(input=input_options, seed=seed, stages=stages)

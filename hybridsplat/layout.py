@@ -91,6 +91,26 @@ class ProjectLayout:
         return self.root / "sparse"
 
     @property
+    def control_dir(self) -> Path:
+        """Survey control (``--control``): the model held to it, the marks and the accuracy statement."""
+        return self.root / "control"
+
+    @property
+    def control_sparse(self) -> Path:
+        """COLMAP sparse model adjusted to the control points, in the control frame; later stages read it."""
+        return self.control_dir / "sparse"
+
+    @property
+    def control_marks(self) -> Path:
+        """Every mark the adjustment used (detected and manual), ``image,point_id,u,v``."""
+        return self.control_dir / "marks.csv"
+
+    @property
+    def control_accuracy(self) -> Path:
+        """The check points' accuracy statement as the control stage computed it (JSON)."""
+        return self.control_dir / "accuracy.json"
+
+    @property
     def dense(self) -> Path:
         return self.root / "dense"
 
@@ -301,6 +321,11 @@ class ProjectLayout:
         return self.root / "eval"
 
     @property
+    def accuracy_json(self) -> Path:
+        """The accuracy statement of the survey control (ASPRS Edition 2), copied here by the eval stage."""
+        return self.eval_dir / "accuracy.json"
+
+    @property
     def metrics_json(self) -> Path:
         return self.eval_dir / "metrics.json"
 
@@ -366,6 +391,9 @@ class ProjectLayout:
             ".hybridsplat.lock": self.lock,
             ".hybridsplat.lock.json": self.lock_holder,
             "sparse/": self.sparse,
+            "control/sparse/": self.control_sparse,
+            "control/marks.csv": self.control_marks,
+            "control/accuracy.json": self.control_accuracy,
             "dense/": self.dense,
             "dense/fused.ply": self.fused_ply,
             "dense/fused.ply.vis": self.fused_vis,
@@ -397,6 +425,7 @@ class ProjectLayout:
             "export/measurements.geojson": self.measurements_geojson,
             "export/picks.json": self.picks_json,
             "eval/metrics.json": self.metrics_json,
+            "eval/accuracy.json": self.accuracy_json,
             "eval/per_material.json": self.per_material_json,
             "eval/masks/": self.eval_masks_dir,
             "cache/eval/": self.eval_cache_dir,

@@ -8,7 +8,6 @@ default. This module turns such a dataclass into TOML-ready data and back, drive
   dataclasses (a TOML sub-table ``[stage.field]``);
 - ``X | None``: ``None`` is written and read as the string ``"none"`` (``"off"`` is read too), because TOML has
   no null: ``max_scale_spacing = "none"`` turns that check off;
-- a union of dataclasses (``DefaultStrategy | MCMCStrategy``) is a sub-table with ``kind = "<ClassName>"``;
 - fields the pipeline sets itself (the seed, the held-out photos...) are not configuration: a domain class marks
   them with :func:`core.options.runtime_field`, or a composing class lists a nested class's
   ones in its field's ``metadata={"runtime": ("seed", ...)}``. They are neither written nor read nor compared.
@@ -68,10 +67,6 @@ def _is_union(tp: Any) -> bool:
     return typing.get_origin(tp) in (typing.Union, types.UnionType)
 
 
-def _kind(cls: type) -> str:
-    return cls.__name__
-
-
 # ----------------------------------------------------------------------------------------------------------- write
 
 
@@ -90,9 +85,7 @@ def _value_to_data(value: Any, tp: Any, runtime: tuple[str, ...]) -> Any:
     if value is None:
         return NONE_SPELLING
     if dataclasses.is_dataclass(value):
-        data = options_to_data(value, runtime)
-        choices = [a for a in typing.get_args(tp) if dataclasses.is_dataclass(a)] if _is_union(tp) else []
-        return {"kind": _kind(type(value)), **data} if len(choices) > 1 else data
+        return options_to_data(value, runtime)
     if isinstance(value, Enum):
         return value.value
     if isinstance(value, (tuple, list, frozenset, set)):  # nested sequences (pairs) become nested TOML arrays
@@ -194,7 +187,7 @@ def options_from_table(
 
 def _refuse_removed(options_type: type, table: dict[str, Any], where: Path | str, prefix: str) -> None:
     """A :class:`ConfigError` naming the first key of ``table`` that sets an option or a value a version removed
-    (:data:`hybridsplat.config_migration.REMOVED`)."""
+    (:data:`hybridsplat.config_migration.REMOVED_VALUES`)."""
     from hybridsplat.config_migration import removed_setting
 
     for key, value in table.items():
@@ -212,7 +205,7 @@ def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str
         choices = [a for a in args if a is not type(None)]
         if len(choices) == 1:
             return _value_from_data(choices[0], value, base, where, key, runtime)
-        return _union_from_data(choices, value, base, where, key, runtime)
+        return _union_from_data(choices, value, base, where, key)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise ConfigError(f'option {key} must be a table ([...{key}]) or "none", got {value!r}', where)
@@ -235,18 +228,8 @@ def _value_from_data(tp: Any, value: Any, base: Any, where: Path | str, key: str
     return _scalar_from_data(tp, value, where, key)
 
 
-def _union_from_data(
-    choices: list[Any], value: Any, base: Any, where: Path | str, key: str, runtime: tuple[str, ...]
-) -> Any:
-    classes = {_kind(c): c for c in choices if dataclasses.is_dataclass(c)}
-    if len(classes) == len(choices) and isinstance(value, dict):
-        table = dict(value)
-        kind = table.pop("kind", _kind(type(base)) if base is not None else None)
-        if kind not in classes:
-            raise ConfigError(f"option {key}.kind must be one of {', '.join(classes)}, got {kind!r}", where)
-        cls = classes[kind]
-        child_base = base if isinstance(base, cls) else None
-        return options_from_table(cls, table, where, child_base, prefix=key + ".", runtime=runtime)
+def _union_from_data(choices: list[Any], value: Any, base: Any, where: Path | str, key: str) -> Any:
+    """A value of a union of types (not of dataclasses): the first choice that reads it."""
     for choice in choices:
         try:
             return _value_from_data(choice, value, base, where, key, ())
@@ -286,12 +269,11 @@ def option_paths(options_type: type, prefix: str = "") -> dict[str, Any]:
     for f in configurable_fields(options_type):
         tp = hints[f.name]
         inner = [a for a in typing.get_args(tp) if a is not type(None)] if _is_union(tp) else [tp]
-        if all(dataclasses.is_dataclass(a) for a in inner):  # a nested table (of one of several classes)
+        if len(inner) == 1 and dataclasses.is_dataclass(inner[0]):  # a nested table
             runtime = _child_runtime(f)
-            for cls in reversed(inner):  # the first class's type wins where several have an option
-                nested = option_paths(cls, prefix + f.name + ".")
-                start = len(prefix + f.name) + 1
-                out.update({k: v for k, v in nested.items() if k[start:].split(".")[0] not in runtime})
+            nested = option_paths(inner[0], prefix + f.name + ".")
+            start = len(prefix + f.name) + 1
+            out.update({k: v for k, v in nested.items() if k[start:].split(".")[0] not in runtime})
         else:
             out[prefix + f.name] = tp
     return out

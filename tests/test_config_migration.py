@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from core.errors import ConfigError
-from fusion.train.options import HardViewOptions, PriorOptions
 from hybridsplat.config import ProjectConfig, read_config
 from hybridsplat.config_migration import migrate_table
 from hybridsplat.manifest import StageRecord
@@ -25,8 +24,8 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
     train, baseline = config.stages["train"], config.stages["baseline"]
     assert train.training.iterations == 600 and train.training.strategy.cap == 60_000
     assert train.training.strategy.refine_start == 100 and train.init.rays_per_view == 400
-    assert train.snapshot_iterations == (500, 1000, 1500) and train.training.priors is None
-    assert train.training.hard_views is None and train.max_image_size == 640
+    assert train.snapshot_iterations == (500, 1000, 1500)
+    assert train.max_image_size == 640
     assert baseline.enabled and baseline.training.iterations == 1000 and baseline.checkpoints == ()
     assert config.stages["mvs"].num_threads is None and config.stages["mvs"].fusion.min_num_pixels == 3
     assert config.stages["sfm"].align_threshold_m is None
@@ -52,10 +51,6 @@ def test_a_config_written_by_0_2_loads_with_every_value_in_its_new_place():
 
 
 def test_old_switches_become_the_new_optional_tables():
-    table = {"iterations": 50, "depth_prior": 0.3, "normal_prior": 0.0, "prior_border_px": -1.0, "hard_views": True}
-    options = options_from_table(stage_options_types()["train"], migrate_table("train", table), "config.toml")
-    assert options.training.priors == PriorOptions(depth_weight=0.3, normal_weight=0.0, border_px=None)
-    assert options.training.hard_views == HardViewOptions()
     merge = options_from_table(stage_options_types()["merge"], migrate_table("merge", {"points_min_views": -1,
                                "points_max_rim_spacing": -1.0}), "config.toml")  # fmt: skip
     assert merge.points.min_views == 0 and merge.points.max_rim_spacing is None
@@ -66,14 +61,14 @@ def test_the_new_form_round_trips_none_tables_and_enums(tmp_path):
     stages = {
         "train": options_with(
             types["train"],
-            {"training.priors": {"depth_weight": 0.2}, "training.hard_views": {}, "training.strategy.cap": 1234},
+            {"training.strategy.cap": 1234},
         ),  # fmt: skip
         "clean": options_with(types["clean"], {"min_opacity": "none", "max_scale_spacing": 3.0}),
         "mvs": options_with(types["mvs"], {"backend": "cpu", "num_threads": 1}),
     }
     (tmp_path / "config.toml").write_text(ProjectConfig(stages=stages).to_toml())
     text = (tmp_path / "config.toml").read_text()
-    assert 'min_opacity = "none"' in text and "[train.training.priors]" in text and 'kind = "DefaultStrategy"' in text
+    assert 'min_opacity = "none"' in text and "[train.training.strategy]" in text and "kind" not in text
     back = read_config(tmp_path / "config.toml", types)
     assert back.stages == stages
 
@@ -125,3 +120,70 @@ def test_a_stage_recorded_by_0_2_is_current_when_its_options_did_not_move_in_val
     changed = {"options": options_digest(dataclasses.replace(clean.Options(), min_cluster_size=4)), "fingerprint": {}}
     assert not record_is_current(record, clean, {"a": "h"}, changed, tmp_path)
     assert not record_is_current(record, clean, {"a": "other"}, now, tmp_path)
+
+
+# -- removed options (issue 54) -----------------------------------------------------------------------------------
+#: (stage, the option as the error spells it, its stage table with the option off, the same with it on)
+REMOVED_CASES = {
+    "priors": ("train", "train.training.priors", {"training": {"priors": "none"}},
+               {"training": {"priors": {"depth_weight": 0.2}}}),
+    "priors of 0.2": ("train", "train.depth_prior", {"depth_prior": 0.0, "prior_border_px": 8.0}, {"depth_prior": 0.3}),
+    "baseline priors": ("baseline", "baseline.training.priors", {"training": {"priors": "none"}},
+                        {"training": {"priors": {}}}),
+    "geometry": ("train", "train.training.geometry",
+                 {"training": {"geometry": "none", "flat": False, "flat_reg": 10.0}},
+                 {"training": {"geometry": {"every": 2}}}),
+    "flat": ("background", "background.training.flat", {"training": {"flat": False}}, {"training": {"flat": True}}),
+    "flat of 0.2": ("train", "train.flat", {"flat": False}, {"flat": True}),
+    "lpips": ("train", "train.training.lpips_weight",
+              {"lpips_weights": "", "training": {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_margin": 16}},
+              {"training": {"lpips_weight": 0.1}}),
+    "photometric": ("baseline", "baseline.training.photometric",
+                    {"training": {"photometric": "l1_ssim", "smoothl1_beta": 0.05}},
+                    {"training": {"photometric": "smoothl1_msssim"}}),
+    "photometric of 0.2": ("train", "train.photometric", {"photometric": "l1_ssim"},
+                           {"photometric": "smoothl1_msssim"}),
+    "hard views": ("train", "train.training.hard_views", {"training": {"hard_views": "none"}},
+                   {"training": {"hard_views": {"start": 0.2}}}),
+    "hard views of 0.2": ("train", "train.hard_views", {"hard_views": False}, {"hard_views": True}),
+    "mcmc": ("train", "train.training.strategy.kind", {"training": {"strategy": {"kind": "DefaultStrategy"}}},
+             {"training": {"strategy": {"kind": "MCMCStrategy", "grow_rate": 0.05}}}),
+    "lpips in appearance": ("appearance", "appearance.training.lpips_weight", {"training": {"lpips_weight": 0}},
+                            {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
+    "lpips of 0.2": ("train", "train.lpips_weight", {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_weights": ""},
+                     {"lpips_weight": 0.1}),
+}  # fmt: skip
+
+
+def _write_table(path: Path, stage: str, table: dict) -> None:
+    from hybridsplat.options import _toml_tables
+
+    path.write_text("\n".join(_toml_tables(stage, table)), encoding="utf-8")
+
+
+@pytest.mark.parametrize("case", sorted(REMOVED_CASES))
+def test_a_removed_option_off_is_left_out_and_on_is_one_error_naming_it(case, tmp_path):
+    """What earlier versions wrote (every option, the removed ones off) still loads, to today's defaults; a removed
+    option set on fails with one line naming the file, the option, the version and the migration notes."""
+    stage, spelled, off, on = REMOVED_CASES[case]
+    types = stage_options_types()
+    path = tmp_path / "config.toml"
+    _write_table(path, stage, off)
+    assert read_config(path, types).options(stage, types[stage]) == types[stage]()
+    _write_table(path, stage, on)
+    with pytest.raises(ConfigError) as err:
+        read_config(path, types)
+    line = err.value.one_line()
+    assert line.startswith(f"{path}: ") and f"{spelled} = " in line, line
+    assert "removed in 0.4" in line and "docs/migration.md" in line and "\n" not in line
+
+
+def test_a_stage_recorded_with_removed_options_off_stays_current(tmp_path):
+    train = stage_named("train")
+    recorded = options_digest(train.Options())
+    recorded["training"] = {**recorded["training"], "priors": "none"}
+    record = StageRecord(name="train", config={"options": recorded, "fingerprint": {}}, inputs={"a": "h"})
+    now = {"options": options_digest(train.Options()), "fingerprint": {}}
+    assert record_is_current(record, train, {"a": "h"}, now, tmp_path)
+    recorded["training"]["priors"] = {"depth_weight": 0.2}  # it trained with priors: rerun without them
+    assert not record_is_current(record, train, {"a": "h"}, now, tmp_path)

@@ -46,6 +46,9 @@ def test_every_stage_is_recorded_with_outputs(project):
         if name == "mesh":  # off unless a budget is given (run --mesh N); tests/test_mesh_stage.py runs it
             assert record["skipped"] and "no mesh asked" in record["reason"]
             continue
+        if name == "control":  # only with ground control (run --control); tests/test_control_*.py run it
+            assert record["skipped"] and "no --control file" in record["reason"]
+            continue
         if name == "tiles":  # off unless asked (run --tiles); tests/test_tiled_run.py runs it
             assert record["skipped"] and record["reason"].startswith("off")
             continue
@@ -354,11 +357,12 @@ def test_a_baseline_without_checkpoints_is_up_to_date_on_the_next_run(project, t
 def test_rerun_skips_every_stage_and_a_stage_command_reruns_only_what_changed(project, capsys):
     scene, project = project
     manifest = run_pipeline(project, load_config(project))
-    # every stage is up to date, except those the project does not need (tiles: off; mesh: no budget), skipped again
+    # every stage is up to date, except those the project does not need (control: no GCPs; tiles: off; mesh: no
+    # budget), skipped again
     assert all(rec.cached or rec.skipped for rec in manifest.stages.values()), {
         n: r.reason for n, r in manifest.stages.items()
     }
-    assert [n for n, r in manifest.stages.items() if r.skipped] == ["tiles", "mesh"]
+    assert [n for n, r in manifest.stages.items() if r.skipped] == ["control", "tiles", "mesh"]
 
     assert main(["mvs", str(project)]) is None  # up to date: nothing runs
     layout = ProjectLayout(project)

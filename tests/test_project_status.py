@@ -59,7 +59,7 @@ def test_finished_then_one_option_changed(finished, tmp_path, capsys):
     _, _, project = finished
     states = _states(project)
     assert set(states.values()) == {"current", "skipped"}, states
-    assert [n for n, s in states.items() if s == "skipped"] == ["tiles", "mesh", "baseline"]
+    assert [n for n, s in states.items() if s == "skipped"] == ["control", "tiles", "mesh", "baseline"]
     data = json.loads(_printed(capsys, str(project), "--json"))
     assert [s["name"] for s in data["stages"]] == list(stage_names()) and data["writer"] is None
     mvs = next(s for s in data["stages"] if s["name"] == "mvs")

@@ -12,6 +12,7 @@ from report_helpers import metrics_file as _metrics
 from report_helpers import write_project_report as _write
 
 from core.pointcloud import PointCloud
+from eval.accuracy import PointResidual, accuracy_statement
 from eval.geometry import GeometryOptions, evaluate_geometry
 from eval.metrics_io import ProductMetrics, write_metrics
 from eval.per_material import as_table, geometry_per_material
@@ -104,16 +105,26 @@ def full_project(tmp_path_factory) -> Path:
     layout.per_material_json.write_text(json.dumps({"tau_m": 0.01, "materials": kinds, "products": tables}))
     stages = {s: {"seconds": 12.3, "peak_mb": 900.0, "skipped": False, "reason": None} for s in STAGES}
     layout.manifest.write_text(json.dumps({"version": "0.3.1", "stages": stages}))
+    residuals = [PointResidual(f"T{k:02d}", "control" if k < 6 else "check", (float(k * 9), float(k % 4 * 7), 0.05),
+                               *rng.normal(0, 0.01, 3), marks=int(k + 3), reprojection_px=0.12, sigma_xy_m=0.005,
+                               sigma_z_m=0.01) for k in range(12)]  # fmt: skip
+    layout.accuracy_json.write_text(json.dumps(accuracy_statement(residuals).to_json()))
     return root
 
 
 def test_the_summary_opens_the_report_with_a_picture_per_held_out_view(full_project: Path, tmp_path: Path) -> None:
-    paths = _write(full_project, tmp_path, per_material_file=ProjectLayout(full_project).per_material_json)
+    layout = ProjectLayout(full_project)
+    paths = _write(
+        full_project, tmp_path, per_material_file=layout.per_material_json, accuracy_file=layout.accuracy_json
+    )
     md = paths.markdown.read_text()
     headings = [line for line in md.splitlines() if line.startswith("## ")]
     assert headings[0].startswith("## Summary") and headings[1].startswith("## Table 2")
     page = paths.html.read_text()
     assert page.index("Summary") < page.index("Held-out views: photo") < page.index("Table 2")
+    section = page[page.index("Survey control: accuracy statement") :]
+    assert "RMSE_3D" in section and "<svg" in section and section.count("<tr>") >= 9 + 1 + 12 + 1
+    assert "informal" in section  # 6 check points < 30
     grid = page[page.index("<table class='grid'>") : page.index("</table>", page.index("<table class='grid'>"))]
     assert grid.count("<tr>") == 1 + 4 and grid.count("<img") == 4 * 5  # photo, three products, the error map
 
@@ -122,7 +133,10 @@ def test_the_summary_opens_the_report_with_a_picture_per_held_out_view(full_proj
 def test_every_table_fits_a_1280_px_page(full_project: Path, tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
-    paths = _write(full_project, tmp_path, per_material_file=ProjectLayout(full_project).per_material_json)
+    layout = ProjectLayout(full_project)
+    paths = _write(
+        full_project, tmp_path, per_material_file=layout.per_material_json, accuracy_file=layout.accuracy_json
+    )
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=list(FLAGS), timeout=60_000)
         try:

@@ -1,7 +1,7 @@
 """Splat-surface points in the survey point product (issue 31, part 3): ``source`` = 4 and their σ through the PLY and
 LAS exports, the merge stage's ``splat_surface`` option (off: the products of a merge without it, byte for byte; on:
 points on the plane a trained-looking fill layer lies on, none of a virtual layer behind a trusted surface), and the
-option tables and command-line flags that turn it and the geometric losses on."""
+option tables and command-line flags that turn it on."""
 
 from __future__ import annotations
 
@@ -33,7 +33,6 @@ from hybridsplat.layout import ProjectLayout
 from hybridsplat.options import options_from_table, toml_tables
 from hybridsplat.stages.base import StageContext
 from hybridsplat.stages.merge import MergeStage
-from hybridsplat.stages.train import MaskedTrainingOptions, TrainStage
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -186,7 +185,7 @@ def products(layout: ProjectLayout) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in files}
 
 
-def test_merge_stage_adds_splat_surface_points_on_the_plane_unless_turned_off(tmp_path, monkeypatch) -> None:
+def test_merge_stage_adds_splat_surface_points_on_the_plane_only_when_asked(tmp_path, monkeypatch) -> None:
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
     ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=False))
@@ -209,7 +208,7 @@ def test_merge_stage_adds_splat_surface_points_on_the_plane_unless_turned_off(tm
     assert stage.run(ctx) == off and products(layout) == before
     monkeypatch.undo()
 
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions())
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
     on = stage.run(ctx)
     c = on.splat_surface
     points = read_point_cloud(layout.merged_points_ply)
@@ -248,47 +247,25 @@ def test_the_new_options_round_trip_through_config_tables() -> None:
     assert table["splat_surface_sigma_scale"] == [["reflective", 1.5], ["thin", 2.0]]
     assert options_from_table(MergeOptions, table, "test") == merge
     default = tomllib.loads("\n".join(toml_tables("merge", MergeOptions())))["merge"]
-    assert default["splat_surface"] is True and options_from_table(MergeOptions, default, "test") == MergeOptions()
-    train = MaskedTrainingOptions()
-    assert train.training.geometry is None  # off by default
-    table = {"training": {"geometry": {"normal_consistency_weight": 0.1, "every": 4}}}
-    on = options_from_table(MaskedTrainingOptions, table, "test")
-    assert on.training.geometry.normal_consistency_weight == 0.1 and on.training.geometry.every == 4
-    text = tomllib.loads("\n".join(toml_tables("train", on)))["train"]
-    assert options_from_table(MaskedTrainingOptions, text, "test") == on
-    assert tomllib.loads("\n".join(toml_tables("train", train)))["train"]["training"]["geometry"] == "none"
+    assert default["splat_surface"] is False and options_from_table(MergeOptions, default, "test") == MergeOptions()
 
 
-def test_geometry_and_splat_surface_flags_on_train_and_run() -> None:
+def test_splat_surface_flag_on_run() -> None:
     from hybridsplat.commands.stages import apply_cli_values
 
-    for declared in (TrainStage.command_options, TrainStage.run_options):
-        none = apply_cli_values(MaskedTrainingOptions(), declared, {})
-        assert none == MaskedTrainingOptions()
-        on = apply_cli_values(MaskedTrainingOptions(), declared, {"geometry": True})
-        assert on.training.geometry is not None and on.training.geometry.normal_consistency_weight == 0.05
-        weighted = apply_cli_values(
-            MaskedTrainingOptions(), declared, {"geometry": True, "normal_consistency_weight": 0.2}
-        )
-        assert weighted.training.geometry.normal_consistency_weight == 0.2
-    flat = apply_cli_values(MaskedTrainingOptions(), TrainStage.run_options, {"train_flat": True})
-    assert flat.training.flat and flat.training.geometry is None
-    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": False})
-    assert merge == MergeOptions(splat_surface=False)
+    merge = apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": True})
+    assert merge == MergeOptions(splat_surface=True)
     assert apply_cli_values(MergeOptions(), MergeStage.run_options, {"splat_surface": None}) == MergeOptions()
 
 
-def test_run_and_train_commands_show_the_flags() -> None:
+def test_run_command_shows_the_splat_surface_flag() -> None:
     from typer.testing import CliRunner
 
     from hybridsplat.cli import app
 
     runner = CliRunner()
     run_help = runner.invoke(app, ["run", "--help"], env={"COLUMNS": "250", "TERMINAL_WIDTH": "250"}).output
-    for flag in ("--geometry", "--normal-consistency-weight", "--train-flat", "--splat-surface"):
-        assert flag in run_help, flag
-    train_help = runner.invoke(app, ["train", "--help"], env={"COLUMNS": "250", "TERMINAL_WIDTH": "250"}).output
-    assert "--geometry" in train_help and "--normal-consistency-weight" in train_help
+    assert "--splat-surface" in run_help
 
 
 # ------------------------------------------------------------------------------------------ eval and report
@@ -336,13 +313,18 @@ def test_eval_scores_the_splat_surface_points_per_material_and_the_report_shows_
 def test_the_sigma_scale_of_a_class_multiplies_the_sigma_of_its_points_only(tmp_path) -> None:
     layout, ctx = plane_project(tmp_path / "p")
     stage = MergeStage()
+    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface=True))
     stage.run(ctx)
     plain = read_point_cloud(layout.merged_points_ply)
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("reflective", 3.0),)))
+    ctx.config = ctx.config.with_stage_options(
+        "merge", MergeOptions(splat_surface=True, splat_surface_sigma_scale=(("reflective", 3.0),))
+    )
     stage.run(ctx)
     other = read_point_cloud(layout.merged_points_ply)  # the plane's points are predicted textureless: unchanged
     assert np.array_equal(np.asarray(other.fields["sigma"]), np.asarray(plain.fields["sigma"]))
-    ctx.config = ctx.config.with_stage_options("merge", MergeOptions(splat_surface_sigma_scale=(("textureless", 2.5),)))
+    ctx.config = ctx.config.with_stage_options(
+        "merge", MergeOptions(splat_surface=True, splat_surface_sigma_scale=(("textureless", 2.5),))
+    )
     stage.run(ctx)
     scaled = read_point_cloud(layout.merged_points_ply)
     surface = np.asarray(plain.fields["source"]) == Source.SPLAT_SURFACE

@@ -50,13 +50,13 @@ def _records(layout: ProjectLayout) -> dict:
 
 
 # tiles runs only when asked (run --tiles): tests/test_tiled_run.py checks its estimate on a tiled run
-UNTILED = tuple(n for n in stage_names() if n != "tiles")
+UNTILED = tuple(n for n in stage_names() if n not in ("control", "tiles"))  # skipped: no GCPs, no tiles
 
 
 def test_every_stage_ran(project):
     _, layout = project
     skipped = {name: r["reason"] for name, r in _records(layout).items() if r["skipped"]}
-    assert list(skipped) == ["tiles"] and list(_records(layout)) == list(stage_names())
+    assert list(skipped) == ["control", "tiles"] and list(_records(layout)) == list(stage_names())
 
 
 @pytest.mark.parametrize("name", UNTILED)

@@ -47,7 +47,8 @@ def test_tabletop_non_collaborative_materials_vary_across_views(tmp_path: Path) 
     kinds = {m["name"]: m["kind"] for m in meta["materials"]}
     image_std = meta["cross_view_color_std_image"]
     exact_std = meta["cross_view_color_std"]
-    textured = np.mean([v for k, v in image_std.items() if kinds[k] == "textured"])
+    # the survey targets are textured too, but black-and-white markers: their resampling noise is not the scene's
+    textured = np.mean([v for k, v in image_std.items() if kinds[k] == "textured" and k != "survey_target"])
     # Image sampling adds texture resampling noise to textured surfaces (more at 320x240 than at the default
     # 640x480, where the ratios are 3.9-7.3); the exact-ray spread below is the view-dependence alone.
     for name in ("polished_metal", "mirror", "glass", "wire"):

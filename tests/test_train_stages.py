@@ -57,8 +57,6 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
                 "init.rays_per_view": 20,
                 "training.sh_degree": 1,
                 "snapshot_iterations": [12],
-                "training.priors.depth_weight": 0.2,
-                "training.priors.normal_weight": 0.1,
             },
         ),  # fmt: skip
     )
@@ -88,7 +86,6 @@ def test_train_clean_merge_stages_write_the_hybrid(tmp_path) -> None:
     assert q["input"] == int(needs.sum()) and q["low_opacity"] == q["thick"] == q["large"] == 0  # no shape tests
     assert len(points) == m.points == m.mvs + p["kept"] + q["kept"]
     assert int((points.fields["source"] == Source.SPLAT).sum()) == p["kept"]
-    assert counts.prior_views > 0 and counts.prior_pixels > 0  # the priors asked for are used
     # merged.ply's surface field: every MVS Gaussian, and the splats that pass the surface test, counted by reason
     s = m.surface_splats
     surface = np.asarray(merged.fields["surface"]) > 0.5

@@ -98,31 +98,3 @@ def test_bad_options_are_config_errors() -> None:
         DefaultStrategy(cap=0)
     with pytest.raises(ConfigError):
         DefaultStrategy(budget_ramp=0.0)
-
-
-def test_relocation_keeps_a_single_copy_unchanged_and_splits_opacity() -> None:
-    from fusion.train.strategy_ops import relocation as _relocation
-
-    op = torch.tensor([0.6, 0.6])
-    ls = torch.zeros((2, 3))
-    new_op, new_ls = _relocation(op, ls, torch.tensor([1, 2]))
-    assert float(new_op[0]) == pytest.approx(0.6) and float(new_ls[0, 0]) == pytest.approx(0.0, abs=1e-6)
-    # two copies composite to the original opacity: 1 - (1 - a')^2 = a
-    assert 1 - (1 - float(new_op[1])) ** 2 == pytest.approx(0.6, rel=1e-5)
-
-
-def test_mcmc_relocates_dead_and_grows_within_the_cap() -> None:
-    from fusion.train.strategy import MCMCStrategy
-
-    n = 40
-    params, opt = params_of(n)
-    with torch.no_grad():
-        params["logit_opacities"][:10] = -10.0  # dead
-    s = MCMCStrategy(cap=42, refine_start=0, refine_every=1, grow_rate=0.5)
-    state = s.initial_state(n)
-    counts = s.refine(state, params, opt, 1, 100, 1.0, torch.Generator().manual_seed(0), lr_means=1e-4)
-    assert counts.relocated == 10 and counts.cloned == 2 and params["means"].shape[0] == 42
-    assert float(torch.sigmoid(params["logit_opacities"]).min()) > s.min_opacity
-    counts = s.refine(state, params, opt, 2, 100, 1.0, torch.Generator().manual_seed(0), lr_means=1e-4)
-    assert params["means"].shape[0] == 42 and counts.cloned == 0
-    assert float(s.regularisation(params)) > 0

@@ -3,9 +3,8 @@
 - :func:`train_splats` / :class:`TrainResult` — the trainer loop (:mod:`fusion.train.trainer`), composed of a
   state (:mod:`~fusion.train.state`), a step (:mod:`~fusion.train.step`), a schedule (:mod:`~fusion.train.schedule`),
   early stopping (:mod:`~fusion.train.early_stop`) and a view sampler (:mod:`~fusion.train.sampler`).
-- :class:`TrainOptions` / :class:`PriorOptions` / :class:`GeometryOptions` / :class:`HardViewOptions` — its
-  options (:mod:`fusion.train.options`).
-- :class:`DefaultStrategy` / :class:`MCMCStrategy` — capped densification (:mod:`fusion.train.strategy`).
+- :class:`TrainOptions` — its options (:mod:`fusion.train.options`).
+- :class:`DefaultStrategy` — capped densification (:mod:`fusion.train.strategy`).
 - :func:`masked_photometric_loss` — 0.8 · L1 + 0.2 · (1 − SSIM) over mask pixels (:mod:`fusion.train.loss`).
 
 The names are imported lazily (:func:`core.lazy.lazy_exports`): ``import fusion.train`` or a torch-free
@@ -21,18 +20,14 @@ from core.lazy import lazy_exports
 
 if TYPE_CHECKING:
     from fusion.train.loss import masked_photometric_loss, ssim_map
-    from fusion.train.options import GeometryOptions, HardViewOptions, PriorOptions, TrainOptions
+    from fusion.train.options import TrainOptions
     from fusion.train.state import scene_scale
-    from fusion.train.strategy import DefaultStrategy, MCMCStrategy, RefineCounts
+    from fusion.train.strategy import DefaultStrategy, RefineCounts
     from fusion.train.trainer import StepInfo, TrainResult, splat_normals, train_splats
 
 #: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
 _EXPORTS: dict[str, str] = {
     "DefaultStrategy": "strategy",
-    "GeometryOptions": "options",
-    "HardViewOptions": "options",
-    "MCMCStrategy": "strategy",
-    "PriorOptions": "options",
     "RefineCounts": "strategy",
     "StepInfo": "trainer",
     "TrainOptions": "options",
@@ -46,10 +41,6 @@ _EXPORTS: dict[str, str] = {
 
 __all__ = [
     "DefaultStrategy",
-    "GeometryOptions",
-    "HardViewOptions",
-    "PriorOptions",
-    "MCMCStrategy",
     "RefineCounts",
     "StepInfo",
     "TrainOptions",

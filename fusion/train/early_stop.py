@@ -2,7 +2,7 @@
 
 A seeded ``holdout_fraction`` of each view's mask pixels never enters the loss (:mod:`fusion.train.views`). Over
 each evaluation window (whole epochs, :class:`fusion.train.schedule.TrainSchedule`) :class:`EvalWindow` sums the
-squared error of the renders on those pixels, the photometric loss and the prior terms; closing the window gives a
+squared error of the renders on those pixels and the photometric loss; closing the window gives a
 :class:`Checkpoint` with the window's hold-out PSNR. :class:`EarlyStop` is the plateau test on that PSNR: stop when
 it has not improved by ``min_improvement_db`` for ``patience`` windows in a row, never before ``min_step`` (the
 larger of ``min_iterations`` and the end of densification) and never at the last step.
@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import torch
 
 from fusion.train.options import TrainOptions
-from fusion.train.priors import PriorTerms
 from fusion.train.views import TrainView
 
 
@@ -30,9 +29,6 @@ class Checkpoint:
     holdout_psnr: float
     gaussians: int
     seconds: float
-    prior_depth: float = float("nan")  # window mean of the weighted |log z − log z_prior| (NaN: no prior)
-    prior_normal: float = float("nan")  # window mean of the weighted 1 − cos(n, n_prior)
-    normal_consistency: float = float("nan")  # window mean of the depth–normal 1 − cos (NaN: term off)
 
 
 @dataclass
@@ -40,20 +36,13 @@ class EvalWindow:
     """Sums over the steps of one evaluation window.
 
     sq_err / n_err: summed squared error (colour units², [0, 1] images) over the hold-out pixel channels rendered
-    and their count; loss_sum / n_loss: summed photometric loss and step count; prior_depth / prior_normal /
-    prior_steps: summed prior terms over the steps that had one, and their count; consistency /
-    consistency_steps: summed depth–normal inconsistency over the steps that had the term, and their count.
+    and their count; loss_sum / n_loss: summed photometric loss and step count.
     """
 
     sq_err: float = 0.0
     n_err: int = 0
     loss_sum: float = 0.0
     n_loss: int = 0
-    prior_depth: float = 0.0
-    prior_normal: float = 0.0
-    prior_steps: int = 0
-    consistency: float = 0.0
-    consistency_steps: int = 0
 
     def add_holdout(self, colour: torch.Tensor, view: TrainView) -> None:
         """Add the error of a render (H, W, 3) on ``view``'s hold-out pixels (clamped to [0, 1] first)."""
@@ -69,17 +58,6 @@ class EvalWindow:
         self.loss_sum += loss
         self.n_loss += 1
 
-    def add_prior(self, terms: PriorTerms) -> None:
-        """Add one step's depth and normal prior terms."""
-        self.prior_depth += float(terms.depth)
-        self.prior_normal += float(terms.normal)
-        self.prior_steps += 1
-
-    def add_consistency(self, value: float) -> None:
-        """Add one geometric step's depth–normal inconsistency (mean 1 − cos)."""
-        self.consistency += value
-        self.consistency_steps += 1
-
     def holdout_psnr(self) -> float:
         """PSNR (dB) of the window's hold-out pixels (MSE floored at 1e-10); NaN when none was rendered."""
         if not self.n_err:
@@ -88,13 +66,7 @@ class EvalWindow:
 
     def checkpoint(self, step: int, gaussians: int, seconds: float) -> Checkpoint:
         """The window's :class:`Checkpoint` after ``step`` finished steps with ``gaussians`` trainable splats."""
-        psnr = self.holdout_psnr()
-        if self.prior_steps:
-            pd, pn = self.prior_depth / self.prior_steps, self.prior_normal / self.prior_steps
-        else:
-            pd, pn = math.nan, math.nan
-        nc = self.consistency / self.consistency_steps if self.consistency_steps else math.nan
-        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), psnr, gaussians, seconds, pd, pn, nc)
+        return Checkpoint(step, self.loss_sum / max(self.n_loss, 1), self.holdout_psnr(), gaussians, seconds)
 
 
 @dataclass

@@ -33,8 +33,6 @@ class MaskedTrainingOptions:
         pixels (CPU-sized; 0 = no limit). splats_per_mask_pixel: the Gaussian budget is also at most this × the
         mask pixels of all training photos at the training resolution (at least 1000), so that small regions get
         small budgets. snapshot_iterations: steps after which the splats are kept (splats/snapshots/, for meshing).
-    lpips_weights: the LPIPS v0.1 AlexNet weights (.npz) of the LPIPS term when ``training.lpips_weight`` > 0;
-        empty = $HYBRIDSPLAT_LPIPS_WEIGHTS or ../shared/data/lpips (eval.lpips.find_weights).
     """
 
     training: TrainOptions = field(default_factory=TrainOptions, metadata={"runtime": _SET_HERE})
@@ -42,7 +40,6 @@ class MaskedTrainingOptions:
     max_image_size: int = 640
     splats_per_mask_pixel: float = 0.25
     snapshot_iterations: tuple[int, ...] = (500, 1000, 1500)
-    lpips_weights: str = ""
 
     def __post_init__(self) -> None:
         if self.max_image_size < 0:
@@ -96,7 +93,6 @@ def train_in_masks(
     options: MaskedTrainingOptions,
     seed: int,
     progress: Callable[[Any], None] | None = None,
-    lpips: Any = None,
     neighbours: GaussianSet | None = None,
 ) -> tuple[Any, Any, dict[str, Any]]:
     """Seed splats inside ``masks`` (training masks by image name, bool) and train them with the MVS Gaussians that
@@ -123,7 +119,7 @@ def train_in_masks(
         from core.gaussians import GaussianSet
 
         context = GaussianSet.concatenate([context, neighbours])
-    result = train_splats(cameras, images, masks, seeds.gaussians, context, train_opts, progress, lpips=lpips)
+    result = train_splats(cameras, images, masks, seeds.gaussians, context, train_opts, progress)
     return result, seeds, {"downscale": downscale, "cap": cap}
 
 

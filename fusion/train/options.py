@@ -1,7 +1,5 @@
-"""The trainer's configuration: :class:`TrainOptions`, with the depth / normal prior options :class:`PriorOptions`
-(used by :mod:`fusion.train.priors`), the geometric-loss options :class:`GeometryOptions`
-(:mod:`fusion.train.geometry_loss`), the hard-view mining options :class:`HardViewOptions` and the seeding options
-:class:`InitOptions` (:func:`fusion.train.init.seed_splats`).
+"""The trainer's configuration: :class:`TrainOptions`, and the seeding options :class:`InitOptions`
+(:func:`fusion.train.init.seed_splats`).
 
 Frozen dataclasses of hyper-parameters only (learning rates per step as in 3DGS / gsplat, lengths in metres,
 shares of the run in [0, 1]); they are validated on construction and never hold running state. What the options
@@ -13,134 +11,9 @@ line can read, write and check the options without loading it.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from enum import Enum
-
-import numpy as np
 
 from core.errors import ConfigError
-from core.options import enum_choice
-from fusion.train.strategy import DefaultStrategy, MCMCStrategy
-
-
-@dataclass(frozen=True)
-class PriorOptions:
-    """Options of the depth / normal priors (weights relative to the photometric loss, which is ~0.05–0.3).
-
-    The terms act per pixel on the rendered depth and normal of the geometric steps (:class:`GeometryOptions`;
-    until issue 31 they acted on the splat centres, with the same names and weights).
-    depth_weight: weight of the edge-aware log-L1 depth term (DN-Splatter: 0.2; 0 disables it).
-    normal_weight: weight of the normal term, 1 − cos between the rendered and the prior normal (DN-Splatter: 0.1
-    on normals; 0 disables it).
-    border_px: decay length (px at the training resolution) of the prior's weight from the mask's edge inwards;
-        None applies it with weight 1 over the whole mask.
-    band_px: width (px) of the band around the mask whose trusted MVS depths are interpolated.
-    edge_scale: image-gradient magnitude (colour units per px, [0, 1] images) at which the edge-aware weight has
-        fallen to 1/e; None disables edge awareness.
-    hull_share: keep the prior only where its surface point lands inside the masks of at least this share of the
-        other views that see it (:func:`fusion.train.priors.hull_consistent`); None disables the test.
-    """
-
-    depth_weight: float = 0.2
-    normal_weight: float = 0.1
-    border_px: float | None = 8.0
-    band_px: int = 6
-    edge_scale: float | None = 0.1
-    hull_share: float | None = 0.8
-
-    def __post_init__(self) -> None:
-        if self.depth_weight < 0 or self.normal_weight < 0:
-            raise ConfigError(f"prior weights must be >= 0, got {self.depth_weight}, {self.normal_weight}")
-        if self.border_px is not None and not self.border_px > 0:
-            raise ConfigError(f"border_px must be > 0 or None, got {self.border_px}")
-        if self.band_px < 1:
-            raise ConfigError(f"band_px must be >= 1, got {self.band_px}")
-        if self.edge_scale is not None and not self.edge_scale > 0:
-            raise ConfigError(f"edge_scale must be > 0 or None, got {self.edge_scale}")
-        if self.hull_share is not None and not 0.0 <= self.hull_share <= 1.0:
-            raise ConfigError(f"hull_share must lie in [0, 1] or be None, got {self.hull_share}")
-
-    @property
-    def active(self) -> bool:
-        return self.depth_weight > 0 or self.normal_weight > 0
-
-
-class GeometryDepth(str, Enum):
-    """The rendered depth the geometric losses read (:class:`fusion.render.types.RenderGeometry`): ``plane`` = where
-    the pixel's ray meets the blended plane (PGSR; exact for a layer of flat splats), ``median`` = the z of the
-    pixel's median Gaussian (2DGS)."""
-
-    PLANE = "plane"
-    MEDIAN = "median"
-
-
-@dataclass(frozen=True)
-class GeometryOptions:
-    """Geometric losses on the rendered depth and normals of the trainable + frozen render (issue 31; PGSR / 2DGS).
-
-    On the steps that have them (every ``every``-th step from ``ceil(start × iterations)`` on), the training render
-    also composites the normals and plane distances (``render(..., render_geometry=True)``) and the loss adds
-    ``normal_consistency_weight × (1 − cos(rendered normal, normal of the rendered depth))`` averaged over the
-    view's loss pixels where both are defined (:func:`fusion.train.geometry_loss.depth_normal_consistency`; 2DGS:
-    0.05; 0 = off). The depth priors of :class:`PriorOptions` (``TrainOptions.priors``) are taken on the same steps
-    and the same rendered depth. Use with ``TrainOptions.flat`` (the flatness term): the normal of a splat is the
-    axis of its smallest scale, meaningful only when the splat is flat.
-
-    depth: which rendered depth feeds the terms (:class:`GeometryDepth`; ``plane`` by default). start: share of the
-    run before the first geometric step (2DGS and PGSR start at ~0.23 of theirs; 0 = from the first step). every:
-    cadence in steps (1 = every step). A geometric step renders 8 features forward and backward (the per-pixel
-    terms on the region's bounding box only); the default 2 keeps a run within issue 31's time budget for the
-    geometric losses, 4 is the choice when time matters more than the term's strength (the costs measured:
-    docs/experiments/2026-11-27-pipeline-defaults.md, "Geometric losses: the cadence ``every``").
-    """
-
-    normal_consistency_weight: float = 0.05
-    depth: GeometryDepth = GeometryDepth.PLANE
-    start: float = 0.0
-    every: int = 2
-
-    def __post_init__(self) -> None:
-        if not self.normal_consistency_weight >= 0:
-            raise ConfigError(f"normal_consistency_weight must be >= 0, got {self.normal_consistency_weight}")
-        object.__setattr__(self, "depth", enum_choice(GeometryDepth, self.depth, "depth"))
-        if not 0.0 <= self.start <= 1.0:
-            raise ConfigError(f"geometry start must lie in [0, 1], got {self.start}")
-        if self.every < 1:
-            raise ConfigError(f"geometry every must be >= 1 (steps), got {self.every}")
-
-
-class Photometric(str, Enum):
-    """The photometric loss: 3DGS's 0.8 · L1 + 0.2 · (1 − SSIM), or SmoothL1 + MS-SSIM (:mod:`fusion.train.msssim`)."""
-
-    L1_SSIM = "l1_ssim"
-    SMOOTHL1_MSSSIM = "smoothl1_msssim"
-
-
-@dataclass(frozen=True)
-class HardViewOptions:
-    """Hard-view mining (as in the industrial digital-twin 3DGS study): between ``start`` and ``stop`` (shares of
-    ``iterations``) each step's view is drawn with probability ``(1 − uniform_mix) · L_v^power / Σ L^power +
-    uniform_mix / V``, L_v the view's running loss (exponential average with weight ``ema`` on the newest value;
-    views not yet seen count with the mean), so the views the model fits worst are seen more often while every view
-    keeps a floor. Outside the window, seeded per-epoch permutations as without mining."""
-
-    start: float = 0.3
-    stop: float = 0.8
-    power: float = 1.0
-    uniform_mix: float = 0.3
-    ema: float = 0.5
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.start <= self.stop <= 1.0:
-            raise ConfigError(f"need 0 <= start <= stop <= 1, got {self.start}, {self.stop}")
-        if not (self.power >= 0 and 0.0 <= self.uniform_mix <= 1.0 and 0.0 < self.ema <= 1.0):
-            raise ConfigError("need power >= 0, uniform_mix in [0, 1] and ema in (0, 1]")
-
-    def probabilities(self, running: np.ndarray) -> np.ndarray:
-        """(V,) sampling probabilities from the views' running losses (V,) (NaN = not seen yet)."""
-        seen = np.isfinite(running)
-        fill = float(running[seen].mean()) if seen.any() else 1.0
-        loss = np.maximum(np.where(seen, running, fill), 1e-12) ** self.power
-        return (1.0 - self.uniform_mix) * loss / loss.sum() + self.uniform_mix / len(loss)
+from fusion.train.strategy import DefaultStrategy
 
 
 @dataclass(frozen=True)
@@ -150,26 +23,13 @@ class TrainOptions:
     iterations: maximum number of steps (1000 keep a CPU run of a dozen photos within minutes). downscale: integer
     factor for photos, masks and intrinsics (2 on a CPU: a quarter of the pixels). sh_degree: highest SH degree,
     reached one degree per ``sh_degree_interval`` steps.
-    scale_reg: weight of mean(σ) / scene scale (keeps splats small). flat: surface-aligned splats, the smallest σ
-    of each driven towards zero with weight ``flat_reg`` (mean smallest σ / scene scale; PGSR's flatness term, the
-    companion of ``geometry``'s depth–normal consistency); normals = that axis.
+    scale_reg: weight of mean(σ) / scene scale (keeps splats small).
     holdout_fraction / eval_every / patience / min_improvement_db / min_iterations: early stopping
     (:mod:`fusion.train.early_stop`).
     refine_until: share of ``iterations`` after which the strategy no longer densifies (its ``refine_stop`` is
     lowered to it; 3DGS: 15 000 of 30 000 steps). Gaussians added late are never fitted: a split at the last step
     replaces each Gaussian by two unfitted halves. Early stopping waits for the end of densification too.
     snapshot_iterations: steps after which a copy of the trainable set is kept. backend: ``cpu`` or ``reference``.
-    hard_views: hard-view mining (:class:`HardViewOptions`), None = every view once per epoch throughout.
-    photometric: ``l1_ssim`` (3DGS: 0.8 · L1 + 0.2 · (1 − SSIM)) or ``smoothl1_msssim`` ((1 − λ) · SmoothL1 with
-    ``smoothl1_beta`` + λ · (1 − MS-SSIM), :mod:`fusion.train.msssim`; needs > 160 px on the shorter side).
-    lpips_weight: weight of an LPIPS term on the loss pixels (:mod:`fusion.train.perceptual`; needs the
-    ``lpips`` network argument of :func:`fusion.train.train_splats`) from step ``ceil(lpips_start × iterations)`` on;
-    0 = off. lpips_margin: context pixels around the loss pixels' bounding box.
-    priors: depth / normal priors from the frozen context (the trusted MVS surface) at the mask borders
-    (:mod:`fusion.train.priors`): per pixel on the rendered depth and normal of the geometric steps (cadence and
-    depth from ``geometry``, or :class:`GeometryOptions` with its consistency weight 0 when that is None); None =
-    off (the whole-scene baseline has no context and never uses them).
-    geometry: the geometric losses (:class:`GeometryOptions`); None = off (the default: no geometry is rendered).
     """
 
     iterations: int = 1000
@@ -186,8 +46,6 @@ class TrainOptions:
     lr_sh_dc: float = 2.5e-3
     lr_sh_rest: float = 2.5e-3 / 20
     scale_reg: float = 0.0
-    flat: bool = False
-    flat_reg: float = 10.0
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     holdout_fraction: float = 0.05
     eval_every: int = 100
@@ -197,15 +55,7 @@ class TrainOptions:
     refine_until: float = 0.5
     snapshot_iterations: tuple[int, ...] = ()
     backend: str = "cpu"
-    priors: PriorOptions | None = None
-    geometry: GeometryOptions | None = None
-    hard_views: HardViewOptions | None = None
-    photometric: Photometric = Photometric.L1_SSIM
-    smoothl1_beta: float = 0.05
-    lpips_weight: float = 0.0
-    lpips_start: float = 0.8
-    lpips_margin: int = 16
-    strategy: DefaultStrategy | MCMCStrategy = field(default_factory=DefaultStrategy)
+    strategy: DefaultStrategy = field(default_factory=DefaultStrategy)
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
@@ -218,27 +68,8 @@ class TrainOptions:
             raise ConfigError(f"refine_until must lie in (0, 1], got {self.refine_until}")
         if not 0.0 <= self.ssim_lambda <= 1.0:
             raise ConfigError(f"ssim_lambda must lie in [0, 1], got {self.ssim_lambda}")
-        object.__setattr__(self, "photometric", enum_choice(Photometric, self.photometric, "photometric"))
-        if not self.smoothl1_beta > 0:
-            raise ConfigError(f"smoothl1_beta must be > 0, got {self.smoothl1_beta}")
         if self.backend not in ("cpu", "reference"):
             raise ConfigError(f"backend must be 'cpu' or 'reference', got {self.backend!r}")
-        if not (self.lpips_weight >= 0 and 0.0 <= self.lpips_start <= 1.0 and self.lpips_margin >= 0):
-            raise ConfigError(
-                f"need lpips_weight >= 0, lpips_start in [0, 1] and lpips_margin >= 0, got {self.lpips_weight}, "
-                f"{self.lpips_start}, {self.lpips_margin}"
-            )
-
-    @property
-    def geometric(self) -> GeometryOptions | None:
-        """The geometric steps' options when any geometric term is on (consistency or depth / normal prior),
-        else None: ``geometry``, or its defaults with the consistency weight 0 when only the priors are on."""
-        prior_on = self.priors is not None and self.priors.active
-        if self.geometry is not None and (self.geometry.normal_consistency_weight > 0 or prior_on):
-            return self.geometry
-        if self.geometry is None and prior_on:
-            return GeometryOptions(normal_consistency_weight=0.0)
-        return None
 
 
 @dataclass(frozen=True)

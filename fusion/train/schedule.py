@@ -2,11 +2,9 @@
 
 It owns every step-dependent decision that follows from :class:`fusion.train.options.TrainOptions` alone: the
 learning rates (means: ``lr_means`` × scene scale decaying exponentially to ``lr_means_final`` of it over the run,
-as in 3DGS; the other groups constant), the SH degree (one more every ``sh_degree_interval`` steps), when the LPIPS
-term starts, the hard-view mining window, the evaluation windows (whole epochs), the snapshots, and when
-densification runs (the strategy's ``refine_stop`` lowered to ``refine_until`` of the run), and which steps render
-geometry for the geometric losses (every ``every``-th step from ``start`` of the run on). It is a frozen value
-built once per run; its methods are pure functions of the step.
+as in 3DGS; the other groups constant), the SH degree (one more every ``sh_degree_interval`` steps), the evaluation
+windows (whole epochs), the snapshots, and when densification runs (the strategy's ``refine_stop`` lowered to
+``refine_until`` of the run). It is a frozen value built once per run; its methods are pure functions of the step.
 
 Steps: ``step`` is the 0-based index of the step being taken; ``done`` the 1-based count of finished steps.
 """
@@ -16,10 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from core.errors import ConfigError
 from fusion.train.options import TrainOptions
-from fusion.train.perceptual import MIN_SIZE
-from fusion.train.strategy import DefaultStrategy, MCMCStrategy
+from fusion.train.strategy import DefaultStrategy
 
 
 def initial_learning_rates(options: TrainOptions, scene_scale: float) -> dict[str, float]:
@@ -34,9 +30,7 @@ def initial_learning_rates(options: TrainOptions, scene_scale: float) -> dict[st
     }
 
 
-def clip_refinement(
-    strategy: DefaultStrategy | MCMCStrategy, refine_until: float, iterations: int
-) -> DefaultStrategy | MCMCStrategy:
+def clip_refinement(strategy: DefaultStrategy, refine_until: float, iterations: int) -> DefaultStrategy:
     """``strategy`` with its ``refine_stop`` lowered to ``int(refine_until × iterations)`` steps (never below its
     ``refine_start``); unchanged when it already stops earlier."""
     last_refine = int(refine_until * iterations)
@@ -50,11 +44,9 @@ class TrainSchedule:
     """The step-dependent plan of one run (see the module docstring; steps in iterations).
 
     lr_means_start: the means' learning rate at step 0 (metres per step). lr_means_decay: its factor per step.
-    lpips_from: first step with the LPIPS term (``iterations + 1`` = never). mining: [start, stop) steps of hard-view
-    mining ((0, 0) = none). eval_window: steps per evaluation window (whole epochs of ``n_views``).
-    strategy: the densification strategy with its refinement window clipped. densifying_until: the step at which
-    densification ends (0 when it never runs). geometry_from: first step with the geometric losses (``iterations +
-    1`` = never); geometry_every: their cadence in steps.
+    eval_window: steps per evaluation window (whole epochs of ``n_views``). strategy: the densification strategy
+    with its refinement window clipped. densifying_until: the step at which densification ends (0 when it never
+    runs).
     """
 
     iterations: int
@@ -62,41 +54,27 @@ class TrainSchedule:
     sh_degree_interval: int
     lr_means_start: float
     lr_means_decay: float
-    lpips_from: int
-    mining: tuple[int, int]
     eval_window: int
     snapshot_steps: tuple[int, ...]
-    strategy: DefaultStrategy | MCMCStrategy
+    strategy: DefaultStrategy
     densifying_until: int
-    geometry_from: int = 0
-    geometry_every: int = 1
 
     @classmethod
-    def from_options(cls, options: TrainOptions, scene_scale: float, n_views: int, smallest_side: int) -> TrainSchedule:
-        """The schedule of a run of ``options`` over ``n_views`` (≥ 1) views whose smallest side is
-        ``smallest_side`` px, in a scene of ``scene_scale`` metres. Raises :class:`ConfigError` when the LPIPS term
-        is on and the views are smaller than the network's input."""
+    def from_options(cls, options: TrainOptions, scene_scale: float, n_views: int) -> TrainSchedule:
+        """The schedule of a run of ``options`` over ``n_views`` (≥ 1) views in a scene of ``scene_scale``
+        metres."""
         it = options.iterations
-        lpips_from = math.ceil(options.lpips_start * it) if options.lpips_weight > 0 else it + 1
-        if lpips_from <= it and smallest_side < MIN_SIZE:
-            raise ConfigError(f"the LPIPS term needs training images of at least {MIN_SIZE}×{MIN_SIZE} pixels")
         strategy = clip_refinement(options.strategy, options.refine_until, it)
-        hard = options.hard_views
-        geo = options.geometric
         return cls(
             iterations=it,
             sh_degree=options.sh_degree,
             sh_degree_interval=options.sh_degree_interval,
             lr_means_start=options.lr_means * scene_scale,
             lr_means_decay=options.lr_means_final ** (1.0 / max(1, it)),
-            lpips_from=lpips_from,
-            mining=(int(hard.start * it), int(hard.stop * it)) if hard is not None else (0, 0),
             eval_window=n_views * math.ceil(options.eval_every / n_views),  # whole epochs: comparable windows
             snapshot_steps=tuple(options.snapshot_iterations),
             strategy=strategy,
             densifying_until=strategy.refine_stop if strategy.refine_start < strategy.refine_stop else 0,
-            geometry_from=math.ceil(geo.start * it) if geo is not None else it + 1,
-            geometry_every=geo.every if geo is not None else 1,
         )
 
     def lr_means(self, step: int) -> float:
@@ -106,18 +84,6 @@ class TrainSchedule:
     def sh_degree_at(self, step: int) -> int:
         """The SH degree rendered at step ``step``."""
         return min(self.sh_degree, step // self.sh_degree_interval)
-
-    def lpips_on(self, step: int) -> bool:
-        """Whether step ``step`` adds the LPIPS term."""
-        return step >= self.lpips_from
-
-    def mining_on(self, step: int) -> bool:
-        """Whether step ``step`` draws its view by hard-view mining."""
-        return self.mining[0] <= step < self.mining[1]
-
-    def geometry_on(self, step: int) -> bool:
-        """Whether step ``step`` renders geometry and adds the geometric losses."""
-        return step >= self.geometry_from and (step - self.geometry_from) % self.geometry_every == 0
 
     def snapshot_after(self, done: int) -> bool:
         """Whether a snapshot of the trainable set is kept after ``done`` finished steps."""

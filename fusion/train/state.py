@@ -1,17 +1,17 @@
 """What a training run works on: the fixed :class:`TrainScene` and the mutable :class:`TrainState`.
 
 :class:`TrainScene` (built once by :func:`prepare_scene`) holds what never changes during a run: the training views
-(:mod:`fusion.train.views`), the frozen context's per-view projections (:mod:`fusion.train.render`), the depth /
-normal priors (:mod:`fusion.train.priors`), the training frame (the cameras' local frame shifted by the mean camera
-centre, float64, then float32) and the scene scale. :class:`TrainState` (built by :func:`initial_state`) holds what
-each step changes: the trainable parameters and their Adam optimiser, the strategy's state, the seeded generators
-(torch for the strategy, NumPy inside the view sampler), the step counter and the last hold-out PSNR.
+(:mod:`fusion.train.views`), the frozen context's per-view projections (:mod:`fusion.train.render`), the training
+frame (the cameras' local frame shifted by the mean camera centre, float64, then float32) and the scene scale.
+:class:`TrainState` (built by :func:`initial_state`) holds what each step changes: the trainable parameters and
+their Adam optimiser, the strategy's state, the seeded generators (torch for the strategy, NumPy inside the view
+sampler), the step counter and the last hold-out PSNR.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -21,8 +21,6 @@ from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.train.options import TrainOptions
 from fusion.train.params import context_from_set, make_optimizer, make_parameters, tensors_from_set
-from fusion.train.perceptual import PerceptualCrop, prepare_crop
-from fusion.train.priors import ViewPrior, view_priors
 from fusion.train.render import ContextProjection, project_context
 from fusion.train.sampler import ViewSampler
 from fusion.train.schedule import TrainSchedule, initial_learning_rates
@@ -43,7 +41,7 @@ class TrainScene:
     """The fixed inputs of a run, in the training frame.
 
     views: the training views (sorted by name). caches: per view, the frozen context's projection (None: no
-    context). priors: per view, its depth / normal prior (None: priors off). origin: (3,) float64 the cameras'
+    context). origin: (3,) float64 the cameras'
     origin; centre: (3,) float64 the training frame's offset from it (metres, cameras' local frame). scale: the
     scene scale (metres, :func:`scene_scale`). background: (3,) float32 colour in [0, 1]. context_total /
     context_culled: frozen Gaussians given / in no view's active tiles.
@@ -51,7 +49,6 @@ class TrainScene:
 
     views: list[TrainView]
     caches: list[ContextProjection | None]
-    priors: list[ViewPrior | None] | None
     origin: np.ndarray
     centre: np.ndarray
     scale: float
@@ -81,7 +78,7 @@ def prepare_scene(
     if not views:
         raise DataError("no training view has mask pixels: nothing to train")
     frozen = context_from_set(context.with_origin(origin), centre, 0) if context is not None and len(context) else None
-    caches = [project_context(frozen, v, options.geometric is not None) for v in views]
+    caches = [project_context(frozen, v) for v in views]
     context_total = len(frozen) if frozen is not None else 0
     context_culled = 0
     if frozen is not None:
@@ -90,11 +87,8 @@ def prepare_scene(
             if cache is not None:
                 used[cache.index] = True
         context_culled = int((~used).sum())
-    priors = None
-    if options.priors is not None and options.priors.active and frozen is not None:
-        priors = view_priors(views, frozen.means.numpy(), options.priors)
     background = torch.tensor(options.background, dtype=torch.float32)
-    return TrainScene(views, caches, priors, origin, centre, scale, background, context_total, context_culled)
+    return TrainScene(views, caches, origin, centre, scale, background, context_total, context_culled)
 
 
 @dataclass
@@ -105,8 +99,7 @@ class TrainState:
     object stays). optimizer: Adam with one group per name. strategy_state: the strategy's running state.
     generator: the seeded torch generator the strategy draws from. sampler: the view sampler (owns the NumPy
     generator). initial_gaussians: the trainable count at the start (after the cap). step: finished steps.
-    holdout_psnr: the last closed window's hold-out PSNR (dB; NaN before the first). lpips_crops: per view, its
-    LPIPS crop, prepared on first use.
+    holdout_psnr: the last closed window's hold-out PSNR (dB; NaN before the first).
     """
 
     params: dict[str, torch.nn.Parameter]
@@ -117,18 +110,11 @@ class TrainState:
     initial_gaussians: int
     step: int = 0
     holdout_psnr: float = float("nan")
-    lpips_crops: dict[int, PerceptualCrop | None] = field(default_factory=dict)
 
     @property
     def gaussians(self) -> int:
         """The current trainable count."""
         return int(self.params["means"].shape[0])
-
-    def lpips_crop(self, index: int, view: TrainView, margin: int) -> PerceptualCrop | None:
-        """The LPIPS crop of view ``index`` (``margin`` px of context), prepared once."""
-        if index not in self.lpips_crops:
-            self.lpips_crops[index] = prepare_crop(view, margin)
-        return self.lpips_crops[index]
 
 
 def initial_state(init: GaussianSet, scene: TrainScene, schedule: TrainSchedule, options: TrainOptions) -> TrainState:
@@ -147,6 +133,6 @@ def initial_state(init: GaussianSet, scene: TrainScene, schedule: TrainSchedule,
         optimizer=optimizer,
         strategy_state=schedule.strategy.initial_state(len(init)),
         generator=generator,
-        sampler=ViewSampler.start(len(scene.views), rng, options.hard_views),
+        sampler=ViewSampler.start(len(scene.views), rng),
         initial_gaussians=len(init),
     )

@@ -1,13 +1,10 @@
 """One optimisation step of the trainer: render, loss, backward, Adam step; then the strategy's refinement.
 
 :func:`step_loss` is the loss of one render (pure given its inputs): the photometric term over the view's loss
-pixels (0.8 · L1 + 0.2 · (1 − SSIM), :mod:`fusion.train.loss`, or SmoothL1 + MS-SSIM, :mod:`fusion.train.msssim`),
-then, added one after the other in this order, the LPIPS term (:mod:`fusion.train.perceptual`), the scale and
-flatness regularisers (relative to the scene scale), the strategy's own regulariser and, on the geometric steps
-(:class:`fusion.train.options.GeometryOptions`: the render has its geometry), the depth–normal consistency
-(:func:`geometric_loss`) and the depth / normal prior on the rendered depth and normal (:mod:`fusion.train.priors`).
+pixels (0.8 · L1 + 0.2 · (1 − SSIM), :mod:`fusion.train.loss`),
+then the scale regulariser (relative to the scene scale) and the strategy's own regulariser.
 :func:`train_step` takes step ``state.step`` on one view: sets the means' learning rate, renders trainable + frozen
-Gaussians (:mod:`fusion.train.render`, with geometry on the geometric steps), backpropagates (only the trainable
+Gaussians (:mod:`fusion.train.render`), backpropagates (only the trainable
 tensors have gradients), hands the screen-space gradients to the strategy, steps Adam and counts the step.
 :func:`refine_after_step` then lets the strategy densify, prune or reset (:mod:`fusion.train.strategy`).
 """
@@ -18,13 +15,8 @@ from dataclasses import dataclass
 
 import torch
 
-from core.errors import ConfigError
-from fusion.train.geometry_loss import depth_normal_consistency, normal_from_depth
 from fusion.train.loss import LossTerms, masked_photometric_loss
-from fusion.train.msssim import smoothl1_msssim_loss
-from fusion.train.options import GeometryDepth, GeometryOptions, TrainOptions
-from fusion.train.perceptual import PerceptualCrop, PerceptualNetwork, perceptual_loss
-from fusion.train.priors import PriorOptions, PriorTerms, ViewPrior, prior_loss
+from fusion.train.options import TrainOptions
 from fusion.train.render import StepRender, render_step
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState
@@ -34,58 +26,24 @@ from fusion.train.views import TrainView
 
 @dataclass(frozen=True)
 class StepLoss:
-    """The loss of one step: ``total`` (0-d, with its graph), the photometric ``terms`` inside it, the prior
-    terms when they entered it (None: no prior, or no valid rendered pixel had a prior weight) and the
-    depth–normal inconsistency (detached, mean 1 − cos) when that term entered it (None otherwise)."""
+    """The loss of one step: ``total`` (0-d, with its graph) and the photometric ``terms`` inside it."""
 
     total: torch.Tensor
     terms: LossTerms
-    prior: PriorTerms | None
-    consistency: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
 class StepOutcome:
-    """What one step did: the view index, its render, the photometric loss (float), the prior terms (or None) and
-    the depth–normal inconsistency (float, None when the step had no such term)."""
+    """What one step did: the view index, its render and the photometric loss (float)."""
 
     view: int
     render: StepRender
     loss: float
-    prior: PriorTerms | None
-    consistency: float | None = None
 
 
 def photometric_terms(colour: torch.Tensor, view: TrainView, options: TrainOptions) -> LossTerms:
     """The photometric loss of a render (H, W, 3, [0, 1]) against ``view``'s photo over its loss pixels."""
-    if options.photometric == "l1_ssim":
-        return masked_photometric_loss(colour, view.image, view.loss_mask, options.ssim_lambda)
-    return smoothl1_msssim_loss(colour, view.image, view.loss_mask, options.ssim_lambda, options.smoothl1_beta)
-
-
-#: depth steps between 4-neighbours above this share of the depth are depth edges: no normal from depth there
-DEPTH_EDGE = 0.1
-
-
-def rendered_depth(render: StepRender, geometry: GeometryOptions) -> tuple[torch.Tensor, torch.Tensor]:
-    """The (H, W) rendered z-depth (metres) the geometric terms read and its (H, W) bool validity."""
-    geo = render.geometry
-    if geo is None:
-        raise ValueError("rendered_depth needs a render with geometry (render_step(..., geometry=True))")
-    if geometry.depth == GeometryDepth.MEDIAN:
-        return geo.median_depth, geo.median_valid
-    return geo.plane_depth, geo.plane_valid
-
-
-def geometric_loss(render: StepRender, view: TrainView, geometry: GeometryOptions) -> torch.Tensor:
-    """Depth–normal consistency of a geometric render: mean ``1 − cos`` between the rendered normal and the normal
-    of the rendered depth (:func:`fusion.train.geometry_loss.normal_from_depth`, depth edges masked) over the
-    view's loss pixels (every pixel without a mask) where both are defined; a 0-d tensor (unweighted). The maps
-    are the render's geometry window (:class:`fusion.train.render.StepRender`)."""
-    depth, valid = rendered_depth(render, geometry)
-    d_normal, d_valid = normal_from_depth(depth, render.window_K(view.K), valid, max_relative_step=DEPTH_EDGE)
-    weight = d_valid if view.loss_mask is None else d_valid & render.crop(view.loss_mask)
-    return depth_normal_consistency(render.geometry.normal, d_normal, weight)
+    return masked_photometric_loss(colour, view.image, view.loss_mask, options.ssim_lambda)
 
 
 def step_loss(
@@ -95,39 +53,17 @@ def step_loss(
     options: TrainOptions,
     scene_scale: float,
     strategy: Strategy,
-    lpips: tuple[PerceptualCrop, PerceptualNetwork] | None = None,
-    prior: tuple[ViewPrior | None, PriorOptions] | None = None,
 ) -> StepLoss:
     """The loss of ``render`` of ``params`` (training frame) on ``view`` (see the module docstring).
 
-    scene_scale: metres (the regularisers are σ / scene scale). lpips: the view's crop and the network when the
-    LPIPS term is on. prior: the view's prior (None: no prior there) and the prior options when priors are on.
-    The geometric terms enter only when ``render`` has its geometry (``options.geometric`` decides the steps).
+    scene_scale: metres (the regularisers are σ / scene scale).
     """
     terms = photometric_terms(render.colour, view, options)
     loss = terms.loss
-    if lpips is not None:
-        loss = loss + options.lpips_weight * perceptual_loss(render.colour, lpips[0], lpips[1])
     if options.scale_reg > 0:
         loss = loss + options.scale_reg * params["log_scales"].exp().mean() / scene_scale
-    if options.flat:
-        loss = loss + options.flat_reg * params["log_scales"].exp().amin(dim=1).mean() / scene_scale
     loss = loss + strategy.regularisation(params)
-    used = consistency = None
-    geometry = options.geometric
-    if render.geometry is None or geometry is None:
-        return StepLoss(loss, terms, None)
-    if geometry.normal_consistency_weight > 0:
-        term = geometric_loss(render, view, geometry)
-        loss = loss + geometry.normal_consistency_weight * term
-        consistency = term.detach()
-    if prior is not None:
-        depth, valid = rendered_depth(render, geometry)
-        p_terms = prior_loss(render.geometry.normal, depth, valid, view, prior[0], prior[1], render.window)
-        if p_terms.pixels:
-            loss = loss + p_terms.loss
-            used = p_terms
-    return StepLoss(loss, terms, used, consistency)
+    return StepLoss(loss, terms)
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, group: str, lr: float) -> None:
@@ -143,35 +79,24 @@ def train_step(
     schedule: TrainSchedule,
     options: TrainOptions,
     index: int,
-    lpips: PerceptualNetwork | None = None,
 ) -> StepOutcome:
-    """Take step ``state.step`` on view ``index`` of ``scene`` and count it (``state.step`` + 1 on return).
-
-    lpips: the frozen LPIPS network, called only from ``schedule.lpips_from`` on."""
+    """Take step ``state.step`` on view ``index`` of ``scene`` and count it (``state.step`` + 1 on return)."""
     step, view = state.step, scene.views[index]
     set_learning_rate(state.optimizer, "means", schedule.lr_means(step))
-    loss_pixels_only = options.photometric == "l1_ssim" and not schedule.lpips_on(step)
-    geometric = schedule.geometry_on(step)
     render = render_step(state.params, view, scene.caches[index], schedule.sh_degree_at(step), scene.background,
-                         options.backend, loss_pixels_only, geometric)  # fmt: skip
-    crop = state.lpips_crop(index, view, options.lpips_margin) if schedule.lpips_on(step) else None
-    if crop is not None and lpips is None:
-        raise ConfigError("lpips_weight > 0 needs the LPIPS network (eval.lpips.LPIPS with its weights file)")
-    perceptual = (crop, lpips) if crop is not None and lpips is not None else None
-    prior = (scene.priors[index], options.priors) if scene.priors is not None and options.priors is not None else None
-    loss = step_loss(state.params, view, render, options, scene.scale, schedule.strategy, perceptual, prior)
+                         options.backend, loss_pixels_only=True)  # fmt: skip
+    loss = step_loss(state.params, view, render, options, scene.scale, schedule.strategy)
     loss.total.backward()
     schedule.strategy.after_backward(state.strategy_state, render.means2d, view.width, view.height, step)
     state.optimizer.step()
     state.optimizer.zero_grad(set_to_none=True)
     state.step += 1
-    consistency = None if loss.consistency is None else float(loss.consistency)
-    return StepOutcome(index, render, float(loss.terms.loss.detach()), loss.prior, consistency)
+    return StepOutcome(index, render, float(loss.terms.loss.detach()))
 
 
 def refine_after_step(state: TrainState, scene: TrainScene, schedule: TrainSchedule) -> RefineCounts:
-    """The strategy's refinement after ``state.step`` finished steps (with the learning rate of the step taken)."""
+    """The strategy's refinement after ``state.step`` finished steps."""
     return schedule.strategy.refine(
         state.strategy_state, state.params, state.optimizer, state.step, schedule.iterations, scene.scale,
-        state.generator, lr_means=schedule.lr_means(state.step - 1),
+        state.generator,
     )  # fmt: skip

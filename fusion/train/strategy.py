@@ -12,8 +12,8 @@ budget allows, the ones with the largest gradients win. The count never exceeds 
 Statistics are only gathered from Gaussians that received a gradient, i.e. touched a loss pixel: in masked
 training, seeing a Gaussian outside the mask does not dilute its mean gradient.
 
-A strategy is a frozen dataclass of hyper-parameters; its mutable state is an explicit :class:`DefaultState`
-(:class:`MCMCState`). What the trainer asks of a strategy is the :class:`Strategy` protocol: ``initial_state``, an
+A strategy is a frozen dataclass of hyper-parameters; its mutable state is an explicit :class:`DefaultState`. What
+the trainer asks of a strategy is the :class:`Strategy` protocol: ``initial_state``, an
 extra loss term (``regularisation``), statistics after each backward pass (``after_backward``) and the refinement
 after each optimiser step (``refine``), as in gsplat's ``Strategy`` (``step_pre_backward`` / ``step_post_backward``).
 
@@ -41,12 +41,11 @@ class RefineCounts:
     cloned: int = 0
     split: int = 0
     pruned: int = 0
-    relocated: int = 0
     resets: int = 0
     clipped: int = 0  # candidates refused because of the budget
 
     def add(self, other: RefineCounts) -> None:
-        for name in ("cloned", "split", "pruned", "relocated", "resets", "clipped"):
+        for name in ("cloned", "split", "pruned", "resets", "clipped"):
             setattr(self, name, getattr(self, name) + getattr(other, name))
 
 
@@ -68,8 +67,8 @@ class StrategyState(Protocol):
 
 
 class Strategy(Protocol):
-    """The interface between the trainer and a densification strategy (:class:`DefaultStrategy`,
-    :class:`MCMCStrategy`). Steps count iterations; ``refine`` gets the 1-based count of finished steps."""
+    """The interface between the trainer and a densification strategy (:class:`DefaultStrategy`; a test's toy
+    strategy). Steps count iterations; ``refine`` gets the 1-based count of finished steps."""
 
     @property
     def cap(self) -> int:
@@ -103,10 +102,8 @@ class Strategy(Protocol):
         total_steps: int,
         scene_scale: float,
         generator: torch.Generator,
-        lr_means: float = 0.0,
     ) -> RefineCounts:
-        """Change the trainable set (and its Adam moments) after the optimiser step; ``lr_means`` is the means'
-        learning rate of the step just taken, ``scene_scale`` in metres."""
+        """Change the trainable set (and its Adam moments) after the optimiser step; ``scene_scale`` in metres."""
         ...
 
 
@@ -185,68 +182,5 @@ class DefaultStrategy:
         if self.reset_every > 0 and step % self.reset_every == 0 and 0 < step < self.refine_stop:
             _ops().reset_opacity(params, optimizer, self.prune_opa)
             counts.resets += 1
-        state.totals.add(counts)
-        return counts
-
-
-@dataclass
-class MCMCState:
-    """State of :class:`MCMCStrategy`: the initial count and the run totals (no per-Gaussian accumulators)."""
-
-    n_initial: int
-    totals: RefineCounts = field(default_factory=RefineCounts)
-
-
-@dataclass(frozen=True)
-class MCMCStrategy:
-    """MCMC-style densification (3DGS as MCMC; gsplat's ``MCMCStrategy``): every ``refine_every`` steps inside the
-    window, dead Gaussians (α < ``min_opacity``) are moved onto live ones sampled by opacity, then the count grows by
-    ``grow_rate`` (never above ``cap``) by splitting sampled Gaussians the same way; after every step positions get
-    noise scaled by (1 − α) and the covariance (``noise_lr`` × the current means learning rate). Needs its opacity and
-    scale L1 regularisers (:meth:`regularisation`). The count never exceeds ``cap``."""
-
-    cap: int = 100_000
-    refine_start: int = 500
-    refine_stop: int = 25_000
-    refine_every: int = 100
-    min_opacity: float = 0.005
-    grow_rate: float = 0.05
-    noise_lr: float = 5e5
-    opacity_reg: float = 0.01
-    scale_reg: float = 0.01
-
-    def __post_init__(self) -> None:
-        if self.cap < 1 or self.refine_every < 1 or self.grow_rate < 0:
-            raise ConfigError("cap and refine_every must be >= 1 and grow_rate >= 0")
-
-    def initial_state(self, n: int) -> MCMCState:
-        return MCMCState(n)
-
-    def regularisation(self, params: dict[str, torch.Tensor]) -> torch.Tensor:
-        return _ops().mcmc_regularisation(params, self.opacity_reg, self.scale_reg)
-
-    def after_backward(self, state: MCMCState, means2d: torch.Tensor, width: int, height: int, step: int,
-                       **_: object) -> None:  # fmt: skip
-        return None
-
-    def refine(
-        self,
-        state: MCMCState,
-        params: dict[str, torch.nn.Parameter],
-        optimizer: torch.optim.Adam,
-        step: int,
-        total_steps: int,
-        scene_scale: float,
-        generator: torch.Generator,
-        lr_means: float = 0.0,
-        **_: object,
-    ) -> RefineCounts:
-        counts = RefineCounts()
-        if self.refine_start <= step < self.refine_stop and step % self.refine_every == 0 and step > 0:
-            ops = _ops()
-            counts.relocated = ops.relocate_dead(params, optimizer, generator, self.min_opacity)
-            counts.cloned = ops.add_copies(params, optimizer, generator, self.cap, self.grow_rate)
-        if lr_means > 0:
-            _ops().inject_noise(params, lr_means, self.noise_lr, generator)
         state.totals.add(counts)
         return counts

@@ -2,9 +2,8 @@
 
 :mod:`fusion.train.strategy` holds the strategies' hyper-parameters and decides *when* to refine; this module does
 the work on the trainable tensors and their Adam moments: accumulate screen-space gradients, duplicate, split,
-prune, reset opacities (:class:`fusion.train.strategy.DefaultStrategy`), relocate, add and perturb Gaussians
-(:class:`fusion.train.strategy.MCMCStrategy`). It is imported on first use, so that the strategies (and the
-trainer's options built on them) can be named and configured without loading torch.
+prune and reset opacities (:class:`fusion.train.strategy.DefaultStrategy`). It is imported on first use, so that
+the strategies (and the trainer's options built on them) can be named and configured without loading torch.
 
 Parameters are the leaf tensors of :mod:`fusion.train.params` (training frame, metres); every operation that
 changes the set goes through :func:`fusion.train.params.update_parameters` so the Adam moments follow.
@@ -176,115 +175,3 @@ def reset_opacity(params: dict[str, torch.nn.Parameter], optimizer: torch.optim.
             if st:
                 st["exp_avg"].zero_()
                 st["exp_avg_sq"].zero_()
-
-
-# -- MCMCStrategy -------------------------------------------------------------------------------------------------
-def mcmc_regularisation(params: dict[str, torch.Tensor], opacity_reg: float, scale_reg: float) -> torch.Tensor:
-    """The MCMC paper's L1 terms: ``opacity_reg`` × mean α + ``scale_reg`` × mean σ (metres)."""
-    return opacity_reg * torch.sigmoid(params["logit_opacities"]).mean() + scale_reg * params["log_scales"].exp().mean()
-
-
-def relocation(opacity: torch.Tensor, log_scales: torch.Tensor, ratio: torch.Tensor, max_ratio: int = 51):
-    """Opacity and log-scales of a Gaussian split into ``ratio`` copies that render like the original (MCMC paper,
-    Eq. 9; gsplat's ``compute_relocation``): α' = 1 − (1 − α)^(1/r),
-    σ' = α σ / Σᵢ₌₁..ᵣ Σₖ₌₀..ᵢ₋₁ C(i−1, k) (−1)^k α'^(k+1) / √(k+1)."""
-    r = ratio.clamp(1, max_ratio).to(opacity.dtype)
-    new_opacity = 1.0 - (1.0 - opacity).clamp_min(1e-12) ** (1.0 / r)
-    denom = torch.zeros_like(opacity)
-    for i in range(1, int(r.max()) + 1 if len(r) else 1):
-        term = torch.zeros_like(opacity)
-        for k in range(i):
-            term = term + math.comb(i - 1, k) * (-1) ** k / math.sqrt(k + 1) * new_opacity ** (k + 1)
-        denom = denom + torch.where(r >= i, term, torch.zeros_like(term))
-    scale_factor = (opacity / denom.clamp_min(1e-12)).clamp(1e-6, 1.0)
-    return new_opacity.clamp(1e-4, 1 - 1e-4), log_scales + torch.log(scale_factor)[:, None]
-
-
-def sample_by_opacity(opacity: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
-    """``n`` indices drawn with replacement, with probability proportional to ``opacity``."""
-    return torch.multinomial(opacity.clamp_min(1e-12), n, replacement=True, generator=generator)
-
-
-def split_into(
-    params: dict[str, torch.nn.Parameter],
-    optimizer: torch.optim.Adam,
-    sources: torch.Tensor,
-    targets: torch.Tensor | None,
-) -> None:
-    """Copies of ``sources`` (with repeats) go to ``targets`` (rows overwritten) or are appended (None); the
-    sources and copies get the relocated opacity and scale, and the copies zeroed Adam moments."""
-    opacity = torch.sigmoid(params["logit_opacities"].detach())
-    ratio = torch.bincount(sources, minlength=len(opacity))[sources] + 1
-    new_op, new_ls = relocation(opacity[sources], params["log_scales"].detach()[sources], ratio)
-    uniq = torch.unique(sources)
-
-    def param_fn(name: str, p: torch.Tensor) -> torch.Tensor:
-        p = p.clone()
-        if name == "logit_opacities":
-            p[sources] = torch.logit(new_op)
-        elif name == "log_scales":
-            p[sources] = new_ls
-        copy = p[sources]
-        if targets is None:
-            return torch.cat([p, copy])
-        p[targets] = copy
-        return p
-
-    def state_fn(_: str, s: torch.Tensor) -> torch.Tensor:
-        s = s.clone()
-        s[uniq] = 0
-        if targets is None:
-            return torch.cat([s, torch.zeros_like(s[sources])])
-        s[targets] = 0
-        return s
-
-    update_parameters(params, optimizer, param_fn, state_fn)
-
-
-def relocate_dead(
-    params: dict[str, torch.nn.Parameter], optimizer: torch.optim.Adam, generator: torch.Generator, min_opacity: float
-) -> int:
-    """Move the dead Gaussians (α ≤ ``min_opacity``) onto live ones sampled by opacity; returns how many moved."""
-    opacity = torch.sigmoid(params["logit_opacities"].detach())
-    dead = torch.nonzero(opacity <= min_opacity).squeeze(1)
-    alive = torch.nonzero(opacity > min_opacity).squeeze(1)
-    if len(dead) == 0 or len(alive) == 0:
-        return 0
-    sources = alive[sample_by_opacity(opacity[alive], len(dead), generator)]
-    split_into(params, optimizer, sources, dead)
-    return int(len(dead))
-
-
-def add_copies(
-    params: dict[str, torch.nn.Parameter],
-    optimizer: torch.optim.Adam,
-    generator: torch.Generator,
-    cap: int,
-    grow_rate: float,
-) -> int:
-    """Grow the count by ``grow_rate`` (never above ``cap``) by splitting Gaussians sampled by opacity; returns the
-    number added."""
-    n = params["means"].shape[0]
-    target = min(cap, int(math.floor(n * (1.0 + grow_rate))))
-    extra = max(0, target - n)
-    if extra == 0:
-        return 0
-    opacity = torch.sigmoid(params["logit_opacities"].detach())
-    split_into(params, optimizer, sample_by_opacity(opacity, extra, generator), None)
-    return extra
-
-
-def inject_noise(
-    params: dict[str, torch.nn.Parameter], lr_means: float, noise_lr: float, generator: torch.Generator
-) -> None:
-    """Move the means by noise shaped by each covariance, gated by (1 − α) and scaled by ``noise_lr`` × the means'
-    learning rate ``lr_means`` (metres per step)."""
-    with torch.no_grad():
-        opacity = torch.sigmoid(params["logit_opacities"])
-        R = quat_to_rotmat(params["quats"])
-        s2 = params["log_scales"].exp() ** 2
-        cov = torch.einsum("nij,nj,nkj->nik", R, s2, R)
-        gate = 1.0 / (1.0 + torch.exp(-100.0 * ((1.0 - opacity) - 0.995)))
-        z = torch.randn(params["means"].shape, generator=generator)
-        noise = torch.einsum("nij,nj->ni", cov, z) * (gate * noise_lr * lr_means)[:, None]
-        params["means"].add_(noise)

@@ -3,16 +3,15 @@
 :func:`train_splats` is a short loop over parts that are each usable and testable alone:
 
 - :class:`fusion.train.state.TrainScene` / :class:`fusion.train.state.TrainState` — the fixed inputs (views,
-  context projections, priors, training frame) and the mutable state (parameters, Adam, strategy state, generators);
-- :class:`fusion.train.sampler.ViewSampler` — the view of each step (a seeded permutation per epoch, hard-view
-  mining inside its window);
+  context projections, training frame) and the mutable state (parameters, Adam, strategy state, generators);
+- :class:`fusion.train.sampler.ViewSampler` — the view of each step (a seeded permutation per epoch);
 - :func:`fusion.train.step.train_step` — one step: render trainable + frozen Gaussians (:mod:`fusion.train.render`),
   loss = 0.8 · L1 + 0.2 · (1 − SSIM) over the view's loss pixels (:mod:`fusion.train.loss`) + regularisers,
   backward (only the trainable tensors have gradients), Adam step; then the densification strategy's refinement
   (:mod:`fusion.train.strategy`, :func:`fusion.train.step.refine_after_step`);
 - :class:`fusion.train.schedule.TrainSchedule` — learning rates (means: ``lr_means`` × scene scale decaying
-  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), LPIPS start,
-  mining window, evaluation windows, snapshots and the end of densification;
+  exponentially to ``lr_means_final`` of it), SH degree (one more every ``sh_degree_interval`` steps), evaluation
+  windows, snapshots and the end of densification;
 - :class:`fusion.train.early_stop.EvalWindow` / :class:`fusion.train.early_stop.EarlyStop` — early stop: a seeded
   ``holdout_fraction`` of each view's mask pixels never enters the loss; the PSNR on them is accumulated over whole
   epochs, and training stops when it has not improved by ``min_improvement_db`` for ``patience`` evaluation windows
@@ -38,9 +37,8 @@ from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from fusion.render.projection import quat_to_rotmat
 from fusion.train.early_stop import Checkpoint, EarlyStop, EvalWindow
-from fusion.train.options import HardViewOptions, TrainOptions
+from fusion.train.options import TrainOptions
 from fusion.train.params import clamp_to_viewer_range, set_from_tensors
-from fusion.train.perceptual import PerceptualNetwork
 from fusion.train.schedule import TrainSchedule
 from fusion.train.state import TrainScene, TrainState, initial_state, prepare_scene, scene_scale
 from fusion.train.step import StepOutcome, refine_after_step, train_step
@@ -48,7 +46,6 @@ from fusion.train.strategy import RefineCounts
 
 __all__ = [
     "Checkpoint",
-    "HardViewOptions",
     "StepInfo",
     "TrainOptions",
     "TrainResult",
@@ -80,8 +77,6 @@ class TrainResult:
     scene_scale: float
     resolution: tuple[int, int]
     view_steps: tuple[int, ...] = ()  # steps spent on each view (views sorted by name)
-    prior_views: int = 0  # views with a depth / normal prior
-    prior_pixels: int = 0  # their pixels with a prior weight > 0
     snapshot_seconds: dict[int, float] = field(default_factory=dict)  # per snapshot step, seconds since the start
 
     @property
@@ -121,14 +116,9 @@ def _trained_set(state: TrainState, scene: TrainScene) -> GaussianSet:
 
 
 def _record(window: EvalWindow, state: TrainState, scene: TrainScene, outcome: StepOutcome) -> None:
-    """Fold a finished step into the evaluation window and the sampler's running losses."""
-    if outcome.prior is not None:
-        window.add_prior(outcome.prior)
-    if outcome.consistency is not None:
-        window.add_consistency(outcome.consistency)
+    """Fold a finished step into the evaluation window."""
     window.add_holdout(outcome.render.colour, scene.views[outcome.view])
     window.add_loss(outcome.loss)
-    state.sampler.record_loss(outcome.view, outcome.loss)
 
 
 def _log_scale_bounds(max_scales: np.ndarray | None, init: GaussianSet, schedule: TrainSchedule) -> torch.Tensor | None:
@@ -158,7 +148,6 @@ def train_splats(
     context: GaussianSet | None = None,
     options: TrainOptions | None = None,
     progress: Callable[[StepInfo], None] | None = None,
-    lpips: PerceptualNetwork | None = None,
     max_scales: np.ndarray | None = None,
 ) -> TrainResult:
     """Train ``init`` (any origin) against ``images`` inside ``masks``, with ``context`` frozen beside it.
@@ -166,21 +155,16 @@ def train_splats(
     images: name → (H, W, 3) photo at its camera's size (uint8 or float in [0, 1]); only names with a camera and,
     with masks, a non-empty mask are used. masks: name → (H, W) bool, or None for whole images. Returns a
     :class:`TrainResult`; deterministic for a given seed on the CPU.
-    lpips: the frozen LPIPS network (an :class:`eval.lpips.LPIPS`), needed when ``options.lpips_weight`` > 0 and
-    never called otherwise.
     max_scales: (N,) per Gaussian of ``init``, metres (inf: no bound): after every step each σ is clamped to at
     most it (a projection onto the bound, as the appearance refinement of the survey layer needs); the set must keep
     its count and order, so the strategy must not densify and ``init`` must fit its cap.
     """
     opts = options or TrainOptions()
     t0 = time.perf_counter()
-    if opts.lpips_weight > 0 and lpips is None:
-        raise ConfigError("lpips_weight > 0 needs the LPIPS network (eval.lpips.LPIPS with its weights file)")
     if len(init) == 0:
         raise DataError("no initial splats to train (the regions got no seeds)")
     scene = prepare_scene(cameras, images, masks, context, opts)
-    side = min(min(v.width, v.height) for v in scene.views)
-    schedule = TrainSchedule.from_options(opts, scene.scale, len(scene.views), side)
+    schedule = TrainSchedule.from_options(opts, scene.scale, len(scene.views))
     bounds = _log_scale_bounds(max_scales, init, schedule)
     state = initial_state(init, scene, schedule, opts)
     early_stop = EarlyStop.from_options(opts, schedule.densifying_until)
@@ -188,8 +172,8 @@ def train_splats(
     snapshots: dict[int, GaussianSet] = {}
     snapshot_seconds: dict[int, float] = {}
     while state.step < opts.iterations:
-        index = state.sampler.next(state.step, schedule.mining_on(state.step))
-        outcome = train_step(state, scene, schedule, opts, index, lpips)
+        index = state.sampler.next(state.step)
+        outcome = train_step(state, scene, schedule, opts, index)
         refine_after_step(state, scene, schedule)
         clamp_to_viewer_range(state.params)
         if bounds is not None:
@@ -207,7 +191,6 @@ def train_splats(
                 break
         if progress is not None:
             progress(StepInfo(step, opts.iterations, outcome.loss, state.holdout_psnr, state.gaussians))
-    priors = scene.priors if scene.priors is not None else []
     return TrainResult(
         splats=_trained_set(state, scene),
         snapshots=snapshots,
@@ -225,7 +208,5 @@ def train_splats(
         scene_scale=scene.scale,
         resolution=(scene.views[0].width, scene.views[0].height),
         view_steps=tuple(int(c) for c in state.sampler.counts),
-        prior_views=sum(p is not None for p in priors),
-        prior_pixels=sum(p.pixels for p in priors if p is not None),
         snapshot_seconds=snapshot_seconds,
     )

@@ -24,6 +24,8 @@ def input_options_from_cli(
     holdout: int = -1,
     splat_masks: Path | None = None,
     feature_masks: Path | None = None,
+    control: Path | None = None,
+    marks: Path | None = None,
 ) -> InputOptions:
     """``[input]`` of config.toml from command-line values (paths made absolute)."""
     return InputOptions(
@@ -37,6 +39,8 @@ def input_options_from_cli(
         holdout=holdout,
         splat_masks=_abs(splat_masks),
         feature_masks=_abs(feature_masks),
+        control=_abs(control),
+        marks=_abs(marks),
     )
 
 

@@ -56,7 +56,9 @@ def _measure(picks: Path, project: Path, out: Path | None, crs: str | None, min_
 
     layout = open_project(project)
     spec = read_picks(picks)
-    cameras = read_cameras(layout.sparse)
+    from hybridsplat.project_io import sparse_model
+
+    cameras = read_cameras(sparse_model(layout))
     georef = read_georeference(layout.merged_ply)
     georef = replace(georef, origin=cameras_origin(layout, georef.origin), crs=crs or georef.crs)
     failed: list[str] = []

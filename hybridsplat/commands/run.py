@@ -39,6 +39,12 @@ def _run_input(
     ),
     units: str = typer.Option("m", help="Unit of the reference coordinates: m | mm | cm | ft."),
     crs: str | None = typer.Option(None, help="CRS of the reference (EPSG:N), written to sidecars and LAS."),
+    control: Path | None = typer.Option(
+        None, help="Ground control and check points (CSV: id,X,Y,Z[,sigma_xy,sigma_z],role): adjust to them."
+    ),
+    marks: Path | None = typer.Option(
+        None, help="Hand-made marks of those points in the photos (CSV: image,point_id,u,v), over the detected ones."
+    ),
     holdout: int = typer.Option(
         -1, help="Hold out every N-th photo for evaluation (default: the input's own test views, else 8; 0: none)."
     ),
@@ -71,8 +77,9 @@ def _run_parameters() -> list[inspect.Parameter]:
     return params
 
 
-def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks,
-         feature_masks, seed: int, force: list[str], quiet: bool, **stage_values: Any) -> None:  # fmt: skip
+def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units, crs, control, marks, holdout,
+         splat_masks, feature_masks, seed: int, force: list[str], quiet: bool,
+         **stage_values: Any) -> None:  # fmt: skip
     from hybridsplat.commands.stages import apply_cli_values
     from hybridsplat.config import ProjectConfig
     from hybridsplat.pipeline import run_pipeline
@@ -86,15 +93,38 @@ def _run(input_path: Path, out: Path, model, cameras, full_sfm, reference, units
     }
     config = ProjectConfig(
         input=input_options_from_cli(
-            input_path, model, cameras, full_sfm, reference, units, crs, holdout, splat_masks, feature_masks
+            input_path,
+            model,
+            cameras,
+            full_sfm,
+            reference,
+            units,
+            crs,
+            holdout,
+            splat_masks,
+            feature_masks,
+            control,
+            marks,
         ),
         seed=seed,
         stages=stages,
     )
+    _check_control_files(config.input)
     terminal = Terminal(quiet=quiet)
     terminal.line(f"hybridsplat run: {input_path} -> {out}")
     manifest = run_pipeline(out, config, terminal=terminal, force=force)
     print_result(terminal, out, manifest)
+
+
+def _check_control_files(inp: Any) -> None:
+    """Read the GCP and marks files before any stage runs: a bad one stops the run at once, naming its line (the
+    control stage checks the marks against the photos later)."""
+    from core.io.control import read_gcp_csv, read_marks_csv
+
+    if inp.control:
+        read_gcp_csv(inp.control, inp.units, inp.crs)
+    if inp.marks:
+        read_marks_csv(inp.marks)
 
 
 def register(app: typer.Typer) -> None:
@@ -110,8 +140,9 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0, help="Seed of the scene and the pipeline."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """The main job on the built-in synthetic scene: generate it, then run every stage on it."""
-        from data_synth import generate_scene
+        """The main job on the built-in synthetic scene: generate it, then run every stage on it (held to the scene's
+        coded targets when it has them)."""
+        from data_synth import SceneLayout, generate_scene
         from hybridsplat.config import InputOptions, ProjectConfig
         from hybridsplat.pipeline import run_pipeline
         from hybridsplat.terminal import Terminal
@@ -124,8 +155,10 @@ def register(app: typer.Typer) -> None:
         else:
             terminal.line(f"hybridsplat demo: using the scene in {scene}")
         project = out / "project"
+        gcp = SceneLayout(scene).gcp_csv  # the scene's coded targets: the run is held to them
+        control = str(gcp.resolve()) if gcp.is_file() else None
         config = ProjectConfig(
-            input=InputOptions(path=str(scene.resolve())),
+            input=InputOptions(path=str(scene.resolve()), control=control),
             seed=seed,
             stages=stage_options_from_cli(**DEMO_STAGES),
         )

@@ -25,6 +25,13 @@ def synth(
     supersample: int | None = typer.Option(None, "--supersample", min=1, help="S for S×S samples per pixel."),
     max_depth: int | None = typer.Option(None, "--max-depth", min=0, help="Reflection/refraction bounces."),
     noise: float | None = typer.Option(None, "--lidar-noise", min=0.0, help="LiDAR range sigma in metres (0 = off)."),
+    targets: int | None = typer.Option(
+        None,
+        "--targets",
+        min=0,
+        help="Coded survey targets (ArUco) to lay on the ground, half control, half check (default: the preset's: "
+        "aerial and random-aerial 12, demo and tabletop 8, others 0).",
+    ),
     georef: bool = typer.Option(False, "--georef", help="Put the scene at a UTM-like origin (500000, 5000000, 300)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing non-empty output folder."),
 ) -> None:
@@ -64,6 +71,7 @@ def synth(
             max_depth=max_depth,
             noise=noise,
             georef=georef or None,
+            targets=targets,
         )
     typer.echo(f"wrote {path} (preset {preset}, seed {seed}) in {time.perf_counter() - start:.1f} s")
 

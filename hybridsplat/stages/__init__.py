@@ -49,6 +49,7 @@ def unregister_stage(name: str) -> None:
 
 
 register_stage("sfm", "hybridsplat.stages.sfm:SfmStage")
+register_stage("control", "hybridsplat.stages.control:ControlStage")
 register_stage("tiles", "hybridsplat.stages.tiles:TilesStage")
 register_stage("mvs", "hybridsplat.stages.mvs:MvsStage")
 register_stage("classify", "hybridsplat.stages.classify:ClassifyStage")

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import WholeSceneOptions
+from hybridsplat.project_io import sparse_model
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult
 
@@ -55,7 +56,7 @@ class BaselineStage(Stage):
 
     def inputs(self, ctx: StageContext) -> list[Path]:
         ws = ctx.layout.dense_workspace
-        return [ctx.layout.sparse, ws.sparse, ws.images]
+        return [sparse_model(ctx.layout), ws.sparse, ws.images]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.baseline_splats, ctx.layout.baseline_checkpoints_dir]
@@ -70,7 +71,7 @@ class BaselineStage(Stage):
         opts: WholeSceneOptions = ctx.options(self)
         training = opts.training
         count = training.strategy.cap
-        points = sizes.model_count(ctx.layout.sparse, "points3D")
+        points = sizes.model_count(sparse_model(ctx.layout), "points3D")
         if points and not sizes.can_densify(training.strategy, training.iterations):
             count = min(count, points)
         files = 1 + sizes.snapshot_count(opts.checkpoints, training.iterations)
@@ -92,7 +93,7 @@ class BaselineStage(Stage):
         layout = ctx.layout
         ws = layout.dense_workspace
         cameras, _ = read_project_model(layout, ws.sparse)
-        _, sfm = read_project_model(layout, layout.sparse)
+        _, sfm = read_project_model(layout, sparse_model(layout))
         held_out = set(ctx.source.holdout_names)
         images = {v.name: read_image(ws.images / v.name) for v in cameras if v.name not in held_out}
         sfm_points = (sfm.world_positions - cameras.origin, sfm.colors if len(sfm) else None)

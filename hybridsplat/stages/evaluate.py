@@ -235,7 +235,7 @@ class EvalStage(Stage):
         truth = [self._reference(ctx), ctx.source.holdout.model, ctx.source.holdout.image_dir, spec.test_labels]
         products = [layout.fused_ply, layout.mvs_gaussians, layout.merged_ply, layout.merged_points_ply,
                     layout.splats_export, layout.baseline_splats, layout.baseline_checkpoints_dir,
-                    layout.mesh_path("ply")]  # fmt: skip
+                    layout.mesh_path("ply"), layout.control_accuracy]  # fmt: skip
         return [*products, *(p for p in truth if p)]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
@@ -292,6 +292,7 @@ class EvalStage(Stage):
         is read in chunks and spooled once into eval/ (:func:`eval.geometry_stream.spool_reference`, removed after)
         for every product's streamed C2C and per-material scores, and the limit and peak memory are recorded."""
         opts: EvalStageOptions = ctx.options(self)
+        _copy_accuracy(ctx.layout)
         reference = self._reference(ctx)
         if opts.memory_limit_mb is None or reference is None:
             return self._measure(ctx, None)
@@ -706,3 +707,11 @@ def _lpips_or_none(weights: str | None) -> object | None:
     except HybridSplatError as err:
         warnings.warn(f"LPIPS left out of the image metrics: {err.one_line()}", stacklevel=2)
         return None
+
+
+def _copy_accuracy(layout) -> None:
+    """The survey control's accuracy statement (control stage) into eval/, beside the other measurements."""
+    if layout.control_accuracy.is_file():
+        from core.io.atomic import write_text_atomic
+
+        write_text_atomic(layout.accuracy_json, layout.control_accuracy.read_text(encoding="utf-8"))

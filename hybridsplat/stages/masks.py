@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from classify.mask_options import MaskOptions
+from hybridsplat.project_io import sparse_model
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext, StageResult
 
@@ -59,7 +60,7 @@ class MasksStage(Stage):
     run_options = (CliOption("hole_area", help=HOLE_AREA_HELP),)
 
     def inputs(self, ctx: StageContext) -> list[Path]:
-        paths = [ctx.layout.classified_points, ctx.layout.classify_report, ctx.layout.sparse]
+        paths = [ctx.layout.classified_points, ctx.layout.classify_report, sparse_model(ctx.layout)]
         if ctx.config.input.splat_masks:
             paths.append(Path(ctx.config.input.splat_masks))
         return paths
@@ -75,9 +76,9 @@ class MasksStage(Stage):
         """Bytes of the masks, the record, the figure and the log: a greyscale PNG per registered training photo
         at the largest camera's size; the record 4 KiB + 512 bytes a photo; the figure (up to 4 photos in 2
         columns, 5 in wide each, at 100 dpi) as an RGBA PNG; the log 64 KiB."""
-        n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
+        n = sizes.model_count(sparse_model(ctx.layout), "images") or len(ctx.source.spec.image_names)
         n = max(n - len(ctx.source.holdout_names), 0)
-        width, height = sizes.largest(sizes.camera_sizes(ctx.layout.sparse))
+        width, height = sizes.largest(sizes.camera_sizes(sparse_model(ctx.layout)))
         record = 4 * sizes.KIB + 512 * n
         return n * sizes.png_bytes(width, height, 1) + record + _figure_bytes(n, width, height) + sizes.LOG_BYTES
 
@@ -91,7 +92,7 @@ class MasksStage(Stage):
         result = project_masks(
             ctx.layout.classified_points,
             ctx.layout.classify_report,
-            ctx.layout.sparse,
+            sparse_model(ctx.layout),
             ctx.layout.mask_path,
             opts,
             user_mask_dir=user,

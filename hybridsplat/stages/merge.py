@@ -6,7 +6,7 @@ Gaussians whose geometry is trustworthy); the splats alone also go to export/spl
 converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
 3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable); the tileset also holds the survey points as a
 point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it). ``splat_surface``
-(on by default; ``run --no-splat-surface`` turns it off) adds the splat-surface points of the fill layer to the
+(``run --splat-surface``, off by default) adds the splat-surface points of the fill layer to the
 survey points (:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record; on a tiled
 project they are found tile by tile (:mod:`hybridsplat.tile_surface`).
 """
@@ -123,7 +123,7 @@ class MergeStage(Stage):
             "splat_surface",
             "--splat-surface/--no-splat-surface",
             help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points "
-            "(on by default).",
+            "(off by default).",
         ),
         CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),
     )

@@ -23,6 +23,7 @@ from core.constraints import Choice, Constrained, Constraints, Interval, Sequenc
 from core.errors import DataError
 from fusion.mesh.options import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
+from hybridsplat.project_io import sparse_model
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
 
@@ -125,7 +126,7 @@ class MeshStage(Stage):
         layout = ctx.layout
         layers = [p for p in (layout.cleaned_splats, layout.background_splats) if p.is_file()]  # as trained
         return [layout.merged_ply, layout.merged_points_ply, layout.mvs_gaussians, *layers, layout.snapshots_dir,
-                layout.sparse, layout.record("sfm")]  # fmt: skip
+                sparse_model(layout), layout.record("sfm")]  # fmt: skip
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         from core.io.origin import sidecar_path
@@ -165,8 +166,8 @@ class MeshStage(Stage):
 
             merged = unrefined_layers(layout, merged)
         cameras = None
-        if layout.sparse.is_dir():
-            cameras = read_project_model(layout, layout.sparse)[0]
+        if sparse_model(layout).is_dir():
+            cameras = read_project_model(layout, sparse_model(layout))[0]
         snapshots = []
         if opts.mesh.use_snapshots and layout.snapshots_dir.is_dir():
             snapshots = [read_gaussian_ply(p) for p in sorted(layout.snapshots_dir.glob("*.ply"))]

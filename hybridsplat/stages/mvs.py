@@ -16,7 +16,7 @@ import numpy as np
 
 from core.io.json_io import write_json_atomic
 from hybridsplat.disk_space import tree_bytes
-from hybridsplat.project_io import model_origin
+from hybridsplat.project_io import model_origin, sparse_model
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult
 from recon.mvs import MvsOptions
@@ -57,7 +57,7 @@ class MvsStage(Stage):
     )
 
     def inputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.sparse, ctx.source.image_dir]
+        return [sparse_model(ctx.layout), ctx.source.image_dir]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.dense, ctx.layout.record(self.name)]
@@ -74,13 +74,13 @@ class MvsStage(Stage):
         .vis; a copy of the sparse model (+256 bytes a photo); the configuration 4 KiB + 1 KiB a photo; the record
         64 KiB + 256 bytes a photo; the log 64 KiB + 8 KiB a photo."""
         opts: MvsOptions = ctx.options(self)
-        n = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
-        width, height = dense_size(ctx.layout.sparse, opts.max_image_size)
+        n = sizes.model_count(sparse_model(ctx.layout), "images") or len(ctx.source.spec.image_names)
+        width, height = dense_size(sparse_model(ctx.layout), opts.max_image_size)
         photos = n * (sizes.png_bytes(width, height, 3) + 2 * (4 + 12) * width * height + 4 * 64)
         fused_pixels = max(n - len(ctx.source.holdout_names), 0) * width * height
         points = -(-fused_pixels // max(opts.fusion.min_num_pixels, 1))
         fused = 2 * sizes.PLY_HEADER_BYTES + (27 + 4) * points + 4 * fused_pixels + sizes.SIDECAR_BYTES
-        model = tree_bytes([ctx.layout.sparse]) + 256 * n
+        model = tree_bytes([sparse_model(ctx.layout)]) + 256 * n
         text = 4 * sizes.KIB + sizes.JSON_BYTES + sizes.LOG_BYTES + (1 + 8) * sizes.KIB * n + 256 * n
         return photos + fused + model + text
 
@@ -90,7 +90,7 @@ class MvsStage(Stage):
 
         layout = ctx.layout
         options = replace(ctx.options(self), held_out=frozenset(ctx.source.holdout_names))
-        report = run_mvs(layout.sparse, ctx.source.image_dir, layout.dense, options, ctx.progress)
+        report = run_mvs(sparse_model(layout), ctx.source.image_dir, layout.dense, options, ctx.progress)
         origin = model_origin(layout)
         if np.any(origin != 0):  # the model is in a local frame: fused.ply (float32) gets the offset sidecar
             write_origin(layout.fused_ply, origin, ctx.config.input.crs)

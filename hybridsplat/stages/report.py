@@ -38,7 +38,7 @@ class ReportStage(Stage):
     title = "report"
 
     def inputs(self, ctx: StageContext) -> list[Path]:
-        return [ctx.layout.metrics_json, ctx.layout.per_material_json]
+        return [ctx.layout.metrics_json, ctx.layout.per_material_json, ctx.layout.accuracy_json]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         return [ctx.layout.report_dir]
@@ -150,4 +150,5 @@ def write_project_report(layout, units: str | None = None, max_panels: int | Non
     panels = ReportOptions().max_panels if max_panels is None else max_panels
     return write_report(layout.manifest, layout.metrics_json, paths, max_panels=panels, units=units,
                         per_material_file=layout.per_material_json, sections=stage_sections(layout),
+                        accuracy_file=layout.accuracy_json,
                         notes=run_notes(layout))  # fmt: skip

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hybridsplat.project_io import sparse_model
 from hybridsplat.records import TypedRecord
 from hybridsplat.stages.base import CliOption, ReportSection, Stage, StageContext, StageResult, omitted_if_none
 
@@ -145,7 +146,11 @@ class TilesStage(Stage):
         from classify.run import resolve_model_path
 
         model = resolve_model_path(ctx.config.options("classify", _options_type("classify")).model)
-        return [ctx.layout.sparse, ctx.source.image_dir, *([model] if model is not None and model.is_file() else [])]
+        return [
+            sparse_model(ctx.layout),
+            ctx.source.image_dir,
+            *([model] if model is not None and model.is_file() else []),
+        ]
 
     def outputs(self, ctx: StageContext) -> list[Path]:
         """The plan and record; while tiling is on also the stitched products, which are the untiled stages'
@@ -244,8 +249,8 @@ def _tile_count(ctx: StageContext, options: TilesOptions) -> int:
         return 0
     if not grid.auto:
         return int(grid.columns) * int(grid.rows)
-    photos = sizes.model_count(ctx.layout.sparse, "images") or len(ctx.source.spec.image_names)
-    points = sizes.model_count(ctx.layout.sparse, "points3D")
+    photos = sizes.model_count(sparse_model(ctx.layout), "images") or len(ctx.source.spec.image_names)
+    points = sizes.model_count(sparse_model(ctx.layout), "points3D")
     return max(1, math.ceil(photos / options.photos_per_tile), math.ceil(points / options.points_per_tile))
 
 

@@ -14,23 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from fusion.train.masked import MaskedTrainingOptions
-from fusion.train.options import GeometryOptions
 from fusion.train.strategy import RefineCounts
+from hybridsplat.project_io import sparse_model
 from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import CliOption, Stage, StageContext, StageResult, omitted_if_none
-
-_GEOMETRY_OPTIONS = (
-    CliOption("training.geometry.normal_consistency_weight", "--geometry",
-              value=GeometryOptions().normal_consistency_weight,
-              help="Geometric losses on (depth-normal consistency at its default weight; config: "
-                   "train.training.geometry)."),
-    CliOption("training.geometry.normal_consistency_weight", "--normal-consistency-weight",
-              help="Geometric losses with this depth-normal consistency weight (0: the term off)."),
-)  # fmt: skip
-"""The geometric losses of masked training (:class:`fusion.train.options.GeometryOptions`, off by default) on the
-``train`` and ``run`` commands: ``--geometry`` turns them on with their defaults, ``--normal-consistency-weight W``
-with weight W (given both, W wins)."""
 
 
 @dataclass(frozen=True)
@@ -49,9 +37,8 @@ class TrainResult(StageResult):
     """What the train stage made: ``trained`` splats after ``iterations`` steps (``stopped_early``: by the early
     stop, else its whole budget), their masked PSNR on the held-back pixels (dB; NaN without an evaluation), at
     photo ``downscale`` and ``resolution`` (W, H px) within ``cap`` splats; the views used and those without a
-    mask pixel, the mask pixels, the frozen MVS ``context_gaussians`` and how many were culled, the views and
-    pixels with a depth / normal prior, the ``seeds``, the strategy's ``refine`` counts (summed over the run),
-    the training's seconds, the LPIPS weights file (None without the LPIPS term) and the neighbours' splats
+    mask pixel, the mask pixels, the frozen MVS ``context_gaussians`` and how many were culled, the ``seeds``,
+    the strategy's ``refine`` counts (summed over the run), the training's seconds and the neighbours' splats
     frozen beside a tile (``neighbour_context``). ``reason``: why nothing was trained, when nothing was."""
 
     trained: int = 0
@@ -65,13 +52,10 @@ class TrainResult(StageResult):
     mask_pixels: int = 0
     context_gaussians: int = 0
     context_culled: int = 0
-    prior_views: int = 0
-    prior_pixels: int = 0
     seeds: TrainSeeds = field(default_factory=TrainSeeds)
     refine: RefineCounts = field(default_factory=RefineCounts)
     resolution: tuple[int, ...] = ()
     seconds_training: float = 0.0
-    lpips_weights: str | None = None
     neighbour_context: int = 0
     reason: str | None = omitted_if_none()
 
@@ -89,15 +73,10 @@ class TrainStage(Stage):
         CliOption("training.iterations", help="Maximum training steps (early stop on hold-out pixels)."),
         CliOption("training.downscale", help="Integer downscale of photos and masks for training (at least)."),
         CliOption("training.strategy.cap", "--cap", help="Hard budget of trained splats."),
-        CliOption("training.flat", "--flat/--no-flat", help="Surface-aligned (flat) splats."),
-        *_GEOMETRY_OPTIONS,
     )
     run_options = (
         CliOption("training.iterations", "--train-iterations",
                   help="Most splat-training steps (default: the train stage's; it stops early on a plateau)."),
-        CliOption("training.flat", "--train-flat/--no-train-flat",
-                  help="Surface-aligned (flat) fill splats (the companion of --geometry)."),
-        *_GEOMETRY_OPTIONS,
     )  # fmt: skip
 
     def inputs(self, ctx: StageContext) -> list[Path]:
@@ -139,15 +118,9 @@ class TrainStage(Stage):
 
         opts: MaskedTrainingOptions = ctx.options(self)
         layout = ctx.layout
-        lpips_file, lpips_arrays = None, None
-        if opts.training.lpips_weight > 0:  # resolved and checked first: a missing or bad file fails before any work
-            from eval.lpips import find_weights, read_weights
-
-            lpips_file = find_weights(opts.lpips_weights or None)
-            lpips_arrays = read_weights(lpips_file)
         ws = layout.dense_workspace
         cameras, _ = project_io.read_project_model(layout, ws.sparse)
-        _, sfm = project_io.read_project_model(layout, layout.sparse)
+        _, sfm = project_io.read_project_model(layout, sparse_model(layout))
         held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
         masks = project_io.read_region_masks(layout, cameras, training=True)
         masks = {k: m for k, m in masks.items() if k not in held_out}  # never train on those
@@ -163,23 +136,17 @@ class TrainStage(Stage):
         # torch from here on: the inputs above have been read and checked
         from fusion.train.masked import train_in_masks
 
-        lpips = None
-        if lpips_arrays is not None:
-            from eval.lpips import LPIPS
-
-            lpips = LPIPS(lpips_arrays)
-
         def progress(info) -> None:
             ctx.progress(f"loss {info.loss:.4f} masked PSNR {info.holdout_psnr:.2f} dB, {info.gaussians} splats",
                          info.step, info.iterations)  # fmt: skip
 
         result, seeds, used = train_in_masks(cameras, images, masks, mvs, needs, sfm_points, opts, ctx.config.seed,
-                                             progress, lpips=lpips, neighbours=neighbours)  # fmt: skip
+                                             progress, neighbours=neighbours)  # fmt: skip
         write_gaussian_ply(layout.trained_splats, result.splats)
         layout.snapshots_dir.mkdir(parents=True, exist_ok=True)
         for step, snap in sorted(result.snapshots.items()):
             write_gaussian_ply(layout.snapshots_dir / f"splats_{step:06d}.ply", snap)
-        return _result(result, seeds, used, lpips_file, neighbours=len(neighbours or ()))
+        return _result(result, seeds, used, neighbours=len(neighbours or ()))
 
     def summary(self, result: TrainResult) -> str:
         if not result.trained:
@@ -203,7 +170,7 @@ def _training_budget(model: Path, opts: MaskedTrainingOptions) -> int:
     return min(cap, max(1000, round(opts.splats_per_mask_pixel * pixels)))
 
 
-def _result(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | None, neighbours: int) -> TrainResult:
+def _result(result: Any, seeds: Any, used: dict[str, Any], neighbours: int) -> TrainResult:
     """The train stage's result: what was trained, at which resolution and budget, and from which seeds."""
     return TrainResult(
         trained=len(result.splats),
@@ -217,12 +184,9 @@ def _result(result: Any, seeds: Any, used: dict[str, Any], lpips_file: Path | No
         mask_pixels=result.mask_pixels,
         context_gaussians=result.context_total,
         context_culled=result.context_culled,
-        prior_views=result.prior_views,
-        prior_pixels=result.prior_pixels,
         seeds=TrainSeeds(seeds.from_mvs, seeds.from_sfm, seeds.from_rays, seeds.rays_without_depth),
         refine=result.refine,
         resolution=result.resolution,
         seconds_training=result.seconds,
-        lpips_weights=str(lpips_file) if lpips_file is not None else None,
         neighbour_context=neighbours,
     )

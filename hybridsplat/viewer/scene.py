@@ -17,6 +17,7 @@ from core.cameras import Camera, Cameras, View
 from core.errors import DataError, FormatError, InputFileError
 from core.gaussians import GaussianSet
 from eval.measure.project import Georeference, read_cameras, read_georeference
+from hybridsplat.project_io import sparse_model
 from hybridsplat.viewer.project import cameras_origin, open_project
 
 
@@ -166,7 +167,7 @@ def load_project(
     from fusion.convert_options import select_layers
 
     layout = open_project(project)
-    cameras = read_cameras(layout.sparse)
+    cameras = read_cameras(sparse_model(layout))
     georef = read_georeference(layout.merged_ply)
     origin = cameras_origin(layout, georef.origin)
     georef = Georeference(origin, georef.unit, georef.crs)
