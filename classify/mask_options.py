@@ -8,11 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import ClassVar
 
-import numpy as np
-
-from core.errors import ConfigError
-from core.options import enum_choice
+from core.constraints import Choice, Constrained, Constraints, Interval
 
 
 class HoleArea(str, Enum):
@@ -38,7 +36,7 @@ EXPLAINED_BY = tuple(e.value for e in ExplainedBy)
 
 
 @dataclass(frozen=True)
-class MaskOptions:
+class MaskOptions(Constrained):
     """footprint: a point's radius as a multiple of the point spacing (default 1.5: neighbouring footprints touch).
     hole_gsd: the radius, in ground sample distances at the point's depth, within which a point explains pixels
     when looking for holes (default 2.5, a little under the evaluation's τ = 3 GSD because disks of whole pixels
@@ -90,16 +88,16 @@ class MaskOptions:
     min_points_hull: int = 20
     infinity: bool = True
 
-    def __post_init__(self) -> None:
-        if not (self.footprint > 0 and self.max_radius_px >= 1 and self.close_px >= 0 and self.dilate_px >= 0):
-            raise ConfigError("footprint must be > 0, max_radius_px >= 1, close_px and dilate_px >= 0")
-        if not (self.hole_gsd >= 0 and np.isfinite(self.hole_gsd)):
-            raise ConfigError(f"hole_gsd must be >= 0, got {self.hole_gsd}")
-        if self.grow_area < 0 or self.grow_max_px < 16:
-            raise ConfigError(f"grow_area must be >= 0 and grow_max_px >= 16, got {self.grow_area}, {self.grow_max_px}")
-        for name in ("dilate_spacings", "train_margin_spacings"):
-            v = getattr(self, name)
-            if not (v >= 0 and np.isfinite(v)):
-                raise ConfigError(f"{name} must be >= 0, got {v}")
-        object.__setattr__(self, "hole_area", enum_choice(HoleArea, self.hole_area, "hole_area"))
-        object.__setattr__(self, "explained_by", enum_choice(ExplainedBy, self.explained_by, "explained_by"))
+    constraints: ClassVar[Constraints] = {
+        "footprint": Interval(float, 0, None, closed="neither"),
+        "hole_gsd": Interval(float, 0, None),
+        "grow_area": Interval(int, 0, None),
+        "grow_max_px": Interval(int, 16, None),
+        "max_radius_px": Interval(int, 1, None),
+        "close_px": Interval(int, 0, None),
+        "dilate_px": Interval(int, 0, None),
+        "dilate_spacings": Interval(float, 0, None),
+        "train_margin_spacings": Interval(float, 0, None),
+        "hole_area": Choice(HoleArea),
+        "explained_by": Choice(ExplainedBy),
+    }

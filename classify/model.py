@@ -11,6 +11,7 @@ import json
 from dataclasses import asdict, dataclass, field
 from os import PathLike
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from classify.classes import UNLABELLED, ClassSet
 from classify.features import FeatureOptions, FeatureTable
 from classify.features.geometric import GeometricOptions
 from classify.features.multiview import MultiViewOptions
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr
 from core.errors import ConfigError, DataError, FormatError, InputFileError
 from core.io.atomic import atomic_path
 
@@ -26,7 +28,7 @@ MODEL_VERSION = 1
 
 
 @dataclass(frozen=True)
-class ForestOptions:
+class ForestOptions(Constrained):
     """Random-forest hyper-parameters (scikit-learn names). Defaults keep a model under 5 MB.
 
     n_estimators: trees (32). max_depth: depth limit (14). min_samples_leaf: 5 (the better leave-one-scene-out F1 on the
@@ -50,15 +52,14 @@ class ForestOptions:
     smooth_passes: int = 1
     folds: int = 3
 
-    def __post_init__(self) -> None:
-        if self.smooth_passes < 0 or self.folds < 2:
-            raise ConfigError(f"smooth_passes must be >= 0 and folds >= 2, got {self.smooth_passes}, {self.folds}")
-        if self.n_estimators < 1 or self.min_samples_leaf < 1 or self.max_samples_per_class < 1:
-            raise ConfigError("n_estimators, min_samples_leaf and max_samples_per_class must be >= 1")
-        if self.class_weight not in (None, "balanced", "balanced_subsample"):
-            raise ConfigError(
-                f"class_weight must be None, 'balanced' or 'balanced_subsample', got {self.class_weight!r}"
-            )
+    constraints: ClassVar[Constraints] = {
+        "n_estimators": Interval(int, 1, None),
+        "min_samples_leaf": Interval(int, 1, None),
+        "class_weight": NoneOr(Choice(("balanced", "balanced_subsample"))),
+        "max_samples_per_class": Interval(int, 1, None),
+        "smooth_passes": Interval(int, 0, None),
+        "folds": Interval(int, 2, None),
+    }
 
 
 @dataclass

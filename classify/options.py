@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-from core.errors import ConfigError
+from core.constraints import Constrained, Constraints, Interval, NoneOr
 
 
 @dataclass(frozen=True)
-class ClassifyOptions:
+class ClassifyOptions(Constrained):
     """model: ``default`` (the model shipped in classify/models/default.skops), ``none`` (the documented no-model
     fallback from MVS quality signals, :mod:`classify.fallback`), or the path of a ``.skops`` model
     (``hybridsplat classify train``).
@@ -23,9 +24,10 @@ class ClassifyOptions:
     threshold: float | None = None
     memory_limit_mb: float | None = None
 
+    constraints: ClassVar[Constraints] = {"threshold": NoneOr(Interval(float, 0, 1, closed="neither"))}
+
     def __post_init__(self) -> None:
-        if self.threshold is not None and not 0.0 < self.threshold < 1.0:
-            raise ConfigError(f"threshold must lie strictly between 0 and 1, got {self.threshold}")
+        super().__post_init__()
         if self.memory_limit_mb is not None:
             from classify.stream import plan_memory
 

@@ -48,6 +48,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from os import PathLike
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -55,6 +56,7 @@ from classify.classes import ClassSet
 from classify.features import FeatureOptions, FeatureTable, ViewData, WholeCloud, compute_features
 from classify.features.geometric import level_neighbours, voxel_downsample
 from classify.model import ClassifierModel, Prediction
+from core.constraints import Constrained, Constraints, Interval, NoneOr
 from core.errors import ConfigError, DataError
 from core.io.atomic import atomic_path
 from core.io.origin import remove_origin, write_origin
@@ -127,7 +129,7 @@ def photo_cache_size(views: ViewData, plan: ClassifyPlan) -> int:
 
 
 @dataclass(frozen=True)
-class ClassifyStreamOptions:
+class ClassifyStreamOptions(Constrained):
     """How :func:`classify_stream` works: ``memory_limit_mb`` (MiB) sets the sizes (:func:`plan_memory`) unless
     ``points_per_cell`` / ``chunk_size`` are given; ``halo`` (metres) defaults to :data:`_HALO_VOXELS` coarsest
     voxels; ``work_dir`` holds the temporary cell files (a temporary folder inside it)."""
@@ -138,12 +140,13 @@ class ClassifyStreamOptions:
     halo: float | None = None
     work_dir: Path | None = None
 
+    constraints: ClassVar[Constraints] = {
+        "points_per_cell": NoneOr(Interval(int, 1, None)),
+        "chunk_size": NoneOr(Interval(int, 1, None)),
+    }
+
     def plan(self) -> ClassifyPlan:
         plan = plan_memory(self.memory_limit_mb)
-        for name in ("points_per_cell", "chunk_size"):
-            value = getattr(self, name)
-            if value is not None and not (isinstance(value, int) and value >= 1):
-                raise ConfigError(f"{name} must be a positive integer, got {value!r}")
         return replace(plan, points_per_cell=self.points_per_cell or plan.points_per_cell,
                        chunk_size=self.chunk_size or plan.chunk_size)  # fmt: skip
 

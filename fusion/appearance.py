@@ -29,11 +29,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from core.cameras import Cameras
+from core.constraints import Constrained, Constraints, Interval
 from core.errors import ConfigError
 from core.gaussians import GaussianSet
 from fusion.train.options import TrainOptions
@@ -56,7 +57,7 @@ def _appearance_training() -> TrainOptions:
 
 
 @dataclass(frozen=True)
-class AppearanceOptions:
+class AppearanceOptions(Constrained):
     """Options of :func:`refine_survey_appearance` (the ``appearance`` stage's options).
 
     enabled: refine the survey layer's appearance for the viewer product. refine_context: refine the fill and
@@ -90,20 +91,24 @@ class AppearanceOptions:
     max_passes: float = 84.0
     training: TrainOptions = field(default_factory=_appearance_training)
 
+    constraints: ClassVar[Constraints] = {
+        "max_image_size": Interval(int, 0, None),
+        "max_scale_spacings": Interval(float, 0, math.inf, closed="right"),
+        "spacing_neighbours": Interval(int, 1, 64),
+        "max_passes": Interval(float, 0, math.inf),
+    }
+
     def __post_init__(self) -> None:
-        if self.max_image_size < 0:
-            raise ConfigError(f"max_image_size must be >= 0 (0: full size), got {self.max_image_size}")
-        if not self.max_scale_spacings > 0 or not 1 <= self.spacing_neighbours <= 64:
-            raise ConfigError("max_scale_spacings must be > 0 and spacing_neighbours in 1..64")
-        if not self.max_passes >= 0:
-            raise ConfigError(f"max_passes must be >= 0 (0: no cap), got {self.max_passes}")
+        super().__post_init__()
         if self.training.lr_means != 0.0:
-            raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got "
-                              f"{self.training.lr_means}")  # fmt: skip
+            lr = self.training.lr_means
+            raise ConfigError(f"the survey layer's positions are frozen: training.lr_means must be 0, got {lr}")
         strategy = self.training.strategy
         if not isinstance(strategy, DefaultStrategy) or strategy.refine_start < strategy.refine_stop:
-            raise ConfigError("the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
-                              "DefaultStrategy that never refines (refine_stop <= refine_start)")  # fmt: skip
+            raise ConfigError(
+                "the survey layer keeps one Gaussian per MVS point: training.strategy must be a "
+                "DefaultStrategy that never refines (refine_stop <= refine_start)"
+            )
 
 
 def step_budget(options: AppearanceOptions, photos: int) -> int:

@@ -13,13 +13,15 @@ point exports, mesh, measurement): the ``source`` field marks them ``Source.BACK
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from core.cameras import Cameras
+from core.constraints import AnyOf, Constrained, Constraints, Interval, SequenceOf
 from core.errors import ConfigError
 from core.gaussians import SH_C0, GaussianSet, logit
 from fusion.train.options import TrainOptions
@@ -39,7 +41,7 @@ def _background_training() -> TrainOptions:
 
 
 @dataclass(frozen=True)
-class BackgroundOptions:
+class BackgroundOptions(Constrained):
     """Options of :func:`train_background` (the ``background`` stage's options).
 
     enabled: train a background layer when the photos see beyond the survey region. shell_radius: radius of the
@@ -81,17 +83,19 @@ class BackgroundOptions:
     unseen_step_deg: float = 2.0
     training: TrainOptions = field(default_factory=_background_training)
 
-    def __post_init__(self) -> None:
-        if not self.radii or not all(r > 1.0 for r in self.radii):
-            raise ConfigError(f"shell_radius must be > 1 (outside the survey region), got {self.shell_radius}")
-        if self.min_pairs < 1:
-            raise ConfigError(f"min_pairs must be >= 1, got {self.min_pairs}")
-        if self.max_image_size < 16 or self.seed_stride_px < 1 or self.max_seeds < 1:
-            raise ConfigError("max_image_size must be >= 16, seed_stride_px and max_seeds >= 1")
-        if not 0.0 <= self.unseen_step_deg <= 30.0:
-            raise ConfigError(f"unseen_step_deg must lie in [0, 30] (0: off), got {self.unseen_step_deg}")
-        if not 0.0 < self.alpha_threshold < 1.0 or not 0.0 <= self.min_share < 1.0:
-            raise ConfigError("alpha_threshold must lie in (0, 1) and min_share in [0, 1)")
+    constraints: ClassVar[Constraints] = {
+        "shell_radius": AnyOf(
+            Interval(float, 1, math.inf, closed="right"),
+            SequenceOf(Interval(float, 1, math.inf, closed="right"), min_length=1),
+        ),
+        "max_image_size": Interval(int, 16, None),
+        "seed_stride_px": Interval(int, 1, None),
+        "max_seeds": Interval(int, 1, None),
+        "alpha_threshold": Interval(float, 0, 1, closed="neither"),
+        "min_share": Interval(float, 0, 1, closed="left"),
+        "min_pairs": Interval(int, 1, None),
+        "unseen_step_deg": Interval(float, 0, 30),
+    }
 
     @property
     def radii(self) -> tuple[float, ...]:

@@ -6,15 +6,18 @@ can name and check them without loading those; :mod:`fusion.clean` re-exports th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import ClassVar
 
-import numpy as np
+from core.constraints import Constrained, Constraints, Interval, NoneOr
 
-from core.errors import ConfigError
+POSITIVE_OR_INF = Interval(float, 0, math.inf, closed="right")
+"""A threshold > 0; inf (as None) sets no limit."""
 
 
 @dataclass(frozen=True)
-class CleanOptions:
+class CleanOptions(Constrained):
     """Options of :func:`fusion.clean.clean_splats` and of the pipeline's ``clean`` stage; a check is off when its
     value is None.
 
@@ -33,17 +36,17 @@ class CleanOptions:
     cluster_eps_spacing: float | None = 50.0
     min_cluster_size: int = 3
 
-    def __post_init__(self) -> None:
-        if self.mask_dilation_px < 0 or self.min_cluster_size < 1:
-            raise ConfigError("mask_dilation_px must be >= 0 and min_cluster_size >= 1")
-        for name in ("max_scale_scene", "max_scale_spacing", "cluster_eps_spacing"):
-            v = getattr(self, name)
-            if v is not None and not v > 0:
-                raise ConfigError(f"{name} must be > 0 or None, got {v}")
+    constraints: ClassVar[Constraints] = {
+        "mask_dilation_px": Interval(int, 0, None),
+        "max_scale_scene": NoneOr(POSITIVE_OR_INF),
+        "max_scale_spacing": NoneOr(POSITIVE_OR_INF),
+        "cluster_eps_spacing": NoneOr(POSITIVE_OR_INF),
+        "min_cluster_size": Interval(int, 1, None),
+    }
 
 
 @dataclass(frozen=True)
-class SurveyPointOptions:
+class SurveyPointOptions(Constrained):
     """Rule for the splats whose centres go into the survey point product (``merged_points.ply/.las``).
 
     A point product must not contain floaters, so a splat's centre is a point only when its geometry is
@@ -87,19 +90,17 @@ class SurveyPointOptions:
     behind_margin_spacing: float = 2.0
     shape_checks: bool = True
 
-    def __post_init__(self) -> None:
-        if self.min_views < 0 or not self.occlusion_tolerance >= 0:
-            raise ConfigError("min_views and occlusion_tolerance must be >= 0")
-        for name in ("min_mask_share", "max_behind_share"):
-            v = getattr(self, name)
-            if v is not None and not 0.0 <= v <= 1.0:
-                raise ConfigError(f"{name} must lie in [0, 1], got {v}")
-        if not (np.isfinite(self.behind_margin_spacing) and self.behind_margin_spacing >= 0):
-            raise ConfigError(f"behind_margin_spacing must be >= 0, got {self.behind_margin_spacing}")
-        for name in ("min_opacity", "max_thickness_spacing", "max_extent_spacing", "max_rim_spacing"):
-            v = getattr(self, name)
-            if v is not None and not v > 0:
-                raise ConfigError(f"{name} must be > 0 or None, got {v}")
+    constraints: ClassVar[Constraints] = {
+        "min_opacity": NoneOr(POSITIVE_OR_INF),
+        "max_thickness_spacing": NoneOr(POSITIVE_OR_INF),
+        "max_extent_spacing": NoneOr(POSITIVE_OR_INF),
+        "min_views": Interval(int, 0, None),
+        "min_mask_share": NoneOr(Interval(float, 0, 1)),
+        "occlusion_tolerance": Interval(float, 0, math.inf),
+        "max_rim_spacing": NoneOr(POSITIVE_OR_INF),
+        "max_behind_share": NoneOr(Interval(float, 0, 1)),
+        "behind_margin_spacing": Interval(float, 0, None),
+    }
 
 
 def surface_splat_options() -> SurveyPointOptions:

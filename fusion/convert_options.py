@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum, IntEnum
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from core.constraints import Choice, Constrained, Constraints, Interval
 from core.errors import ConfigError
 
 
@@ -73,7 +74,7 @@ class ConversionWarning(UserWarning):
 
 
 @dataclass(frozen=True)
-class ConvertOptions:
+class ConvertOptions(Constrained):
     """Options of :func:`points_to_gaussians`. Lengths in metres, opacities as stored logits.
 
     Defaults: ``opacity_logit_min`` = −5 (α ≈ 0.0067, above the 1/255 export cut, so no point is lost) and
@@ -104,23 +105,26 @@ class ConvertOptions:
     workers: int = -1
     neighbor_backend: str = "grid"
 
+    constraints: ClassVar[Constraints] = {
+        "opacity_logit_min": Interval(float, None, None),
+        "opacity_logit_max": Interval(float, None, None),
+        "min_spacing": Interval(float, 0, None, closed="neither"),
+        "max_spacing": Interval(float, 0, None, closed="neither"),
+        "fallback_spacing": Interval(float, 0, None, closed="neither"),
+        "k_neighbors": Interval(int, 1, 64),
+        "tangent_scale": Interval(float, 0, None, closed="neither"),
+        "thickness_ratio": Interval(float, 0, 1, closed="right"),
+        "max_opacity": Interval(float, 0, 1, closed="neither"),
+        "view_saturation": Interval(float, 0, None, closed="neither"),
+        "outlier_spacing_factor": Interval(float, 0, None, closed="neither"),
+        "chunk_size": Interval(int, 1, None),
+        "neighbor_backend": Choice(("grid", "kdtree")),
+    }
+
     def __post_init__(self) -> None:
-        checks = [
-            ("opacity_logit_min < opacity_logit_max", self.opacity_logit_min < self.opacity_logit_max),
-            ("0 < min_spacing < max_spacing", 0 < self.min_spacing < self.max_spacing),
-            ("fallback_spacing > 0", self.fallback_spacing > 0),
-            ("1 <= k_neighbors <= 64", 1 <= self.k_neighbors <= 64),
-            ("tangent_scale > 0", self.tangent_scale > 0),
-            ("0 < thickness_ratio <= 1", 0 < self.thickness_ratio <= 1),
-            ("0 < max_opacity < 1", 0 < self.max_opacity < 1),
-            ("view_saturation > 0", self.view_saturation > 0),
-            ("outlier_spacing_factor > 0", self.outlier_spacing_factor > 0),
-            ("chunk_size >= 1", self.chunk_size >= 1),
-            ("neighbor_backend in ('grid', 'kdtree')", self.neighbor_backend in ("grid", "kdtree")),
-        ]
-        for name, value in self.__dict__.items():
-            if isinstance(value, float) and not np.isfinite(value):
-                raise ConfigError(f"convert option {name} must be finite, got {value}")
-        for rule, ok in checks:
-            if not ok:
-                raise ConfigError(f"convert options must satisfy {rule}; got {self}")
+        super().__post_init__()
+        if not self.opacity_logit_min < self.opacity_logit_max:
+            lo, hi = self.opacity_logit_min, self.opacity_logit_max
+            raise ConfigError(f"opacity_logit_min must be < opacity_logit_max, got {lo} >= {hi}")
+        if not self.min_spacing < self.max_spacing:
+            raise ConfigError(f"min_spacing must be < max_spacing, got {self.min_spacing} >= {self.max_spacing}")

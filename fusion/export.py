@@ -18,9 +18,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr, SequenceOf
 from core.errors import ConfigError, DataError, FormatError
 from core.gaussians import GaussianSet
 from core.io import write_point_cloud
@@ -46,7 +48,7 @@ GLTF_COMPRESSIONS = ("spz", "none")
 
 
 @dataclass(frozen=True)
-class ExportOptions:
+class ExportOptions(Constrained):
     """Filters applied before writing.
 
     ``crop_min`` / ``crop_max``: world coordinates (metres) of an axis-aligned box, both or neither; Gaussians whose
@@ -71,25 +73,25 @@ class ExportOptions:
     spz_version: int = SPZ_VERSION
     gltf_compression: str = "spz"
 
+    constraints: ClassVar[Constraints] = {
+        "crop_min": NoneOr(SequenceOf(Interval(float, None, None), length=3)),
+        "crop_max": NoneOr(SequenceOf(Interval(float, None, None), length=3)),
+        "min_opacity": Interval(float, 0, 1, closed="left"),
+        "sh_degree": NoneOr(Interval(int, 0, 3)),
+        "spz_version": Choice(SPZ_WRITABLE_VERSIONS),
+        "gltf_compression": Choice(GLTF_COMPRESSIONS),
+    }
+
     def __post_init__(self) -> None:
+        super().__post_init__()
         if (self.crop_min is None) != (self.crop_max is None):
             raise ConfigError("crop needs both crop_min and crop_max (world coordinates, metres)")
         if self.crop_min is not None:
             lo, hi = np.asarray(self.crop_min, float), np.asarray(self.crop_max, float)
-            if lo.shape != (3,) or hi.shape != (3,) or not (np.isfinite(lo).all() and np.isfinite(hi).all()):
-                raise ConfigError(f"crop bounds must be 3 finite numbers each, got {self.crop_min} / {self.crop_max}")
             if (lo > hi).any():
                 raise ConfigError(
                     f"crop_min must not exceed crop_max on any axis, got {self.crop_min} > {self.crop_max}"
                 )
-        if not 0.0 <= self.min_opacity < 1.0:
-            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
-        if self.sh_degree is not None and self.sh_degree not in (0, 1, 2, 3):
-            raise ConfigError(f"sh_degree must be 0, 1, 2 or 3, got {self.sh_degree}")
-        if self.spz_version not in SPZ_WRITABLE_VERSIONS:
-            raise ConfigError(f"spz_version must be one of {SPZ_WRITABLE_VERSIONS}, got {self.spz_version}")
-        if self.gltf_compression not in GLTF_COMPRESSIONS:
-            raise ConfigError(f"gltf_compression must be one of {GLTF_COMPRESSIONS}, got {self.gltf_compression!r}")
 
 
 @dataclass

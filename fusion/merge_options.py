@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
-from core.errors import ConfigError
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr, OfType, SequenceOf, TupleOf
 from fusion.clean_options import SurveyPointOptions
 from fusion.splat_surface import SplatSurfaceOptions
 
@@ -19,7 +21,7 @@ VIEWER_FORMATS = {
 
 
 @dataclass(frozen=True)
-class MergeOptions:
+class MergeOptions(Constrained):
     """Options of the pipeline's ``merge`` stage (:func:`fusion.survey.hybrid_products`).
 
     keep_needs_splats: keep the MVS Gaussians of points that needed splats (in the 3DGS product and the points).
@@ -78,20 +80,16 @@ class MergeOptions:
     splat_surface_points: SplatSurfaceOptions = field(default_factory=SplatSurfaceOptions)
     memory_limit_mb: float | None = None
 
+    constraints: ClassVar[Constraints] = {
+        "needs_mvs_max_rim_spacing": NoneOr(Interval(float, 0, math.inf, closed="right")),
+        "viewer_formats": SequenceOf(Choice(tuple(VIEWER_FORMATS))),
+        "splat_surface_support": NoneOr(Interval(float, 0, math.inf, closed="right")),
+        "splat_surface_sigma_scale": SequenceOf(TupleOf(OfType(str), Interval(float, 1, math.inf))),
+    }
+
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.memory_limit_mb is not None:
             from fusion.export_stream import export_chunk_points
 
             export_chunk_points(self.memory_limit_mb)  # a ConfigError naming the value
-        unknown = [f for f in self.viewer_formats if f not in VIEWER_FORMATS]
-        if unknown:
-            raise ConfigError(f"unknown viewer format(s) {unknown}; choose from {', '.join(VIEWER_FORMATS)}")
-        rim = self.needs_mvs_max_rim_spacing
-        if rim is not None and not rim > 0:
-            raise ConfigError(f"needs_mvs_max_rim_spacing must be > 0 or none, got {rim}")
-        for pair in self.splat_surface_sigma_scale:
-            if len(pair) != 2 or not isinstance(pair[0], str) or not float(pair[1]) >= 1.0:
-                raise ConfigError(f"splat_surface_sigma_scale entries must be [class name, factor >= 1], got {pair!r}")
-        support = self.splat_surface_support
-        if support is not None and not support > 0:
-            raise ConfigError(f"splat_surface_support must be > 0 (spacings) or none, got {support}")

@@ -40,16 +40,18 @@ the pipeline by default: the merge stage's ``splat_surface`` option puts them in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import ClassVar
 
 import numpy as np
 
 from core.cameras import Camera, Cameras, View
-from core.errors import ConfigError, DataError
+from core.constraints import Choice, Constrained, Constraints, Interval
+from core.errors import DataError
 from core.gaussians import GaussianSet
-from core.options import enum_choice
 
 SIGMA_FOOTPRINT = 1.5
 """σ model: weight of the reference view's pixel footprint (z / f) — see :func:`sigma_model`. The three weights
@@ -71,7 +73,7 @@ class SurfaceDepth(str, Enum):
 
 
 @dataclass(frozen=True)
-class SplatSurfaceOptions:
+class SplatSurfaceOptions(Constrained):
     """Options of :func:`splat_surface_points` (see the module docstring).
 
     depth: :class:`SurfaceDepth`. min_agreeing: other views that must agree (k ≥ 1). max_reproj_px: forward–backward
@@ -94,18 +96,18 @@ class SplatSurfaceOptions:
     sigma_anchor: float = SIGMA_ANCHOR
     sigma_neighbours: int = 8
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "depth", enum_choice(SurfaceDepth, self.depth, "depth"))
-        if self.min_agreeing < 1:
-            raise ConfigError(f"min_agreeing must be >= 1 (other views), got {self.min_agreeing}")
-        if not (self.max_reproj_px > 0 and self.max_rel_depth > 0 and self.front_margin >= 0):
-            raise ConfigError("need max_reproj_px > 0, max_rel_depth > 0 and front_margin >= 0")
-        if not self.sigma_floor_px >= 0:
-            raise ConfigError(f"sigma_floor_px must be >= 0, got {self.sigma_floor_px}")
-        if not min(self.sigma_footprint, self.sigma_roughness, self.sigma_anchor) >= 0:
-            raise ConfigError("need sigma_footprint, sigma_roughness and sigma_anchor >= 0")
-        if self.sigma_neighbours < 1:
-            raise ConfigError(f"sigma_neighbours must be >= 1, got {self.sigma_neighbours}")
+    constraints: ClassVar[Constraints] = {
+        "depth": Choice(SurfaceDepth),
+        "min_agreeing": Interval(int, 1, None),
+        "max_reproj_px": Interval(float, 0, math.inf, closed="right"),
+        "max_rel_depth": Interval(float, 0, math.inf, closed="right"),
+        "front_margin": Interval(float, 0, math.inf),
+        "sigma_floor_px": Interval(float, 0, math.inf),
+        "sigma_footprint": Interval(float, 0, math.inf),
+        "sigma_roughness": Interval(float, 0, math.inf),
+        "sigma_anchor": Interval(float, 0, math.inf),
+        "sigma_neighbours": Interval(int, 1, None),
+    }
 
 
 @dataclass(frozen=True)

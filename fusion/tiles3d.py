@@ -78,10 +78,11 @@ from dataclasses import dataclass, field
 from enum import Enum
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from core.constraints import Choice, Constrained, Constraints, Interval
 from core.errors import ConfigError, DataError
 from core.gaussians import GaussianSet
 from core.io.atomic import check_output_file, output_transaction, remove_output, write_bytes_atomic
@@ -119,7 +120,7 @@ class TilesetWarning(UserWarning):
 
 
 @dataclass(frozen=True)
-class TilesetOptions:
+class TilesetOptions(Constrained):
     """Options of :func:`write_splat_tileset`.
 
     ``max_splats_per_tile``: most splats in one leaf GLB (≥ 1; 100 000 ≈ 6 MB at SH degree 0, 24 MB at degree 3);
@@ -136,21 +137,12 @@ class TilesetOptions:
     layer_tilesets: bool = True
     compression: GltfCompression = GltfCompression.SPZ
 
-    def __post_init__(self) -> None:
-        if isinstance(self.max_splats_per_tile, bool) or not isinstance(self.max_splats_per_tile, (int, np.integer)):
-            raise ConfigError(f"max_splats_per_tile must be an integer ≥ 1, got {self.max_splats_per_tile!r}")
-        if self.max_splats_per_tile < 1:
-            raise ConfigError(f"max_splats_per_tile must be ≥ 1, got {self.max_splats_per_tile}")
-        try:
-            object.__setattr__(self, "placement", Placement(self.placement))
-            object.__setattr__(self, "color_space", ColorSpace(self.color_space))
-            object.__setattr__(self, "compression", GltfCompression(self.compression))
-        except ValueError as err:
-            raise ConfigError(
-                f"{err}: placement is one of {[p.value for p in Placement]}, "
-                f"color_space one of {[c.value for c in ColorSpace]}, "
-                f"compression one of {[c.value for c in GltfCompression]}"
-            ) from None
+    constraints: ClassVar[Constraints] = {
+        "max_splats_per_tile": Interval(int, 1, None),
+        "placement": Choice(Placement),
+        "color_space": Choice(ColorSpace),
+        "compression": Choice(GltfCompression),
+    }
 
 
 @dataclass(frozen=True)

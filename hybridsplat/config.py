@@ -13,10 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields, replace
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import tomllib
 
+from core.constraints import Choice, Constrained, Constraints, Interval
 from core.errors import ConfigError, FormatError
 from core.units import Units
 from hybridsplat.config_migration import migrate_table
@@ -28,7 +29,7 @@ UNITS = tuple(u.value for u in Units)
 
 
 @dataclass(frozen=True)
-class InputOptions:
+class InputOptions(Constrained):
     """Where the project's data comes from (``hybridsplat run INPUT ...``).
 
     path: a folder of photos (directly or under ``images/``), a COLMAP workspace, or a data_synth scene.
@@ -61,11 +62,10 @@ class InputOptions:
     splat_masks: str | None = None
     feature_masks: str | None = None
 
+    constraints: ClassVar[Constraints] = {"units": Choice(UNITS), "holdout": Interval(int, -1, None)}
+
     def __post_init__(self) -> None:
-        if self.units not in UNITS:
-            raise ConfigError(f"units must be one of {', '.join(UNITS)}, got {self.units!r}")
-        if self.holdout < -1:
-            raise ConfigError(f"holdout must be -1 (default), 0 (none) or N > 0, got {self.holdout}")
+        super().__post_init__()
         if self.crs is not None and not _looks_like_crs(self.crs):
             raise ConfigError(f"crs must look like EPSG:N (or another AUTHORITY:CODE), got {self.crs!r}")
 

@@ -25,6 +25,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
+from core.constraints import ConstraintError
 from core.errors import ConfigError
 from core.options import runtime_field
 
@@ -147,11 +148,14 @@ def options_from_table(
     ``runtime`` names fields that the composing class sets itself (not options: unknown here).
 
     Unknown keys, wrong types and values the dataclass refuses are a :class:`ConfigError` naming the option
-    (``prefix`` + key, e.g. ``training.iterations``) and ``where`` (the file, or ``--options``)."""
+    (``prefix`` + key, e.g. ``training.iterations``) and ``where`` (the file, or ``--options``); a value outside
+    its declared constraint (:mod:`core.constraints`) reads ``option training.iterations must be ..., got ...``."""
     if not isinstance(table, dict):
         raise ConfigError(f"option {prefix.rstrip('.') or 'table'} must be a table, got {table!r}", where)
     try:
         base = options_type() if base is None else base
+    except ConstraintError as err:
+        raise err.renamed(prefix, where) from err
     except ConfigError as err:
         raise ConfigError(err.problem, where) from err
     known = {f.name: f for f in configurable_fields(options_type, runtime)}
@@ -162,11 +166,19 @@ def options_from_table(
         raise ConfigError(f"unknown option(s) {spelled} (known: {', '.join(sorted(known))})", where)
     hints = _hints(options_type)
     values = {}
+    declared = getattr(options_type, "constraints", {})
     for key, value in table.items():
         child_runtime = _child_runtime(known[key])
-        values[key] = _value_from_data(hints[key], value, getattr(base, key), where, prefix + key, child_runtime)
+        try:
+            values[key] = _value_from_data(hints[key], value, getattr(base, key), where, prefix + key, child_runtime)
+        except ConfigError as err:  # a wrong type for a declared option: the declaration's message
+            if key not in declared or isinstance(err, ConstraintError):
+                raise
+            raise ConstraintError(prefix + key, value, declared[key].description, where) from err
     try:
         return dataclasses.replace(base, **values)
+    except ConstraintError as err:  # a declared constraint: named by its dotted path
+        raise err.renamed(prefix, where) from err
     except ConfigError as err:
         raise ConfigError(f"{prefix.rstrip('.') + ': ' if prefix else ''}{err.problem}", where) from err
     except (TypeError, ValueError) as err:

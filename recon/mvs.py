@@ -19,11 +19,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
+from core.constraints import AnyOf, Choice, Constrained, Constraints, Interval
 from core.errors import ConfigError, EmptyFusionError, InputFileError, ReconstructionError
-from core.options import enum_choice, runtime_factory
+from core.options import runtime_factory
 from recon.colmap_log import native_output_to
 from recon.mvs_colmap import COLMAP_NUM_SOURCES, colmap_available, patch_match_problems, run_patch_match
 from recon.mvs_cpu_options import CpuMvsOptions
@@ -51,7 +53,7 @@ class FusionOptions:
 
 
 @dataclass(frozen=True)
-class MvsOptions:
+class MvsOptions(Constrained):
     """Options of :func:`run_mvs` and of the pipeline's ``mvs`` stage.
 
     backend: auto (COLMAP PatchMatch on CUDA, else the CPU MVS) | cpu | colmap. max_image_size: longer side of the
@@ -70,10 +72,10 @@ class MvsOptions:
     map_cache: int = 16
     held_out: frozenset[str] = runtime_factory(frozenset)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "backend", enum_choice(MvsBackend, self.backend, "backend"))
-        if self.max_image_size == 0 or self.max_image_size < -1:
-            raise ConfigError(f"max_image_size must be -1 (full size) or a positive size, got {self.max_image_size}")
+    constraints: ClassVar[Constraints] = {
+        "backend": Choice(MvsBackend),
+        "max_image_size": AnyOf(Interval(int, 1, None), Choice((-1,))),  # -1: full size
+    }
 
 
 @dataclass

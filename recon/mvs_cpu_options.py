@@ -16,8 +16,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 from enum import Enum
+from typing import ClassVar
 
-from core.options import enum_choice
+from core.constraints import Choice, Constrained, Constraints
 
 
 class MvsQuality(str, Enum):
@@ -47,7 +48,7 @@ EFFORT = {
 
 
 @dataclass(frozen=True)
-class CpuMvsOptions:
+class CpuMvsOptions(Constrained):
     """Options of the CPU MVS (defaults tuned on synthetic scenes at 320–800 px).
 
     quality: the effort preset (:data:`EFFORT`); the effort fields below left at None take its value, a value given
@@ -73,8 +74,7 @@ class CpuMvsOptions:
     normal_radius: int = 2  # plane-fit window radius for normals, pixels
     batch_hypotheses: int = 8  # hypotheses evaluated per kernel call (bounds memory: ~batch × H × W × 8 B)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "quality", enum_choice(MvsQuality, self.quality, "quality"))
+    constraints: ClassVar[Constraints] = {"quality": Choice(MvsQuality)}
 
     def effort(self) -> MvsEffort:
         """The quality preset's effort with the fields given here (not None) in its place."""

@@ -33,6 +33,7 @@ COLMAP's output goes to ``log_path`` (see :mod:`recon.colmap_log`) when given; i
 
 from __future__ import annotations
 
+import math
 import shutil
 import tempfile
 import time
@@ -41,10 +42,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from core.cameras import Cameras
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr
 from core.errors import ConfigError, InputFileError, ReconstructionError
 from core.options import enum_choice, runtime_field
 from recon.colmap_log import native_output_to
@@ -124,7 +127,7 @@ def resolve_mapper(mapper: Mapper | str, num_photos: int) -> Mapper:
 
 
 @dataclass(frozen=True)
-class SfmOptions:
+class SfmOptions(Constrained):
     """Options of :func:`run_sfm` and :func:`triangulate_known_poses`, and of the pipeline's ``sfm`` stage (defaults
     suit a set of photos from one camera: one shared SIMPLE_RADIAL camera, exhaustive matching, features at 1600 px,
     deterministic). ``seed`` and ``mask_dir`` are set by the pipeline (its seed, ``--feature-masks``).
@@ -153,15 +156,12 @@ class SfmOptions:
     refine_filter_px: float = 2.0
     align_threshold_m: float | None = None
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "matcher", enum_choice(Matcher, self.matcher, "matcher"))
-        object.__setattr__(self, "mapper", enum_choice(Mapper, self.mapper, "mapper"))
-        if int(self.spatial_neighbours) < 1:
-            raise ConfigError(f"spatial_neighbours must be >= 1, got {self.spatial_neighbours}")
-        if self.align_threshold_m is not None and not self.align_threshold_m > 0:
-            raise ConfigError(
-                f"align_threshold_m must be > 0 (or none: 2 % of the extent), got {self.align_threshold_m}"
-            )
+    constraints: ClassVar[Constraints] = {
+        "matcher": Choice(Matcher),
+        "mapper": Choice(Mapper),
+        "spatial_neighbours": Interval(int, 1, None),
+        "align_threshold_m": NoneOr(Interval(float, 0, math.inf, closed="right")),  # none: 2 % of the extent
+    }
 
 
 @dataclass

@@ -56,11 +56,12 @@ from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from os import PathLike
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from core.cameras import Camera, Cameras, View
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr
 from core.errors import ConfigError, DataError, FormatError
 from core.io.json_io import read_json_object, write_json_atomic
 from core.options import enum_choice
@@ -102,7 +103,7 @@ def parse_tiles(text: str) -> TileGrid | None:
 
 
 @dataclass(frozen=True, kw_only=True)
-class TileOptions:
+class TileOptions(Constrained):
     """Options of :func:`plan_tiles` (units: metres, counts). See the module docstring for each rule."""
 
     grid: TileGrid = field(default_factory=TileGrid)
@@ -117,17 +118,14 @@ class TileOptions:
     use_footprint: bool = True
     far_m: float | None = None  # footprint ray length; None: 4 × (region diagonal + height range)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "up", enum_choice(UpAxis, self.up, "tiles up axis"))
-        if self.photos_per_tile < 1 or self.points_per_tile < 1 or self.min_points_seen < 1:
-            raise ConfigError(
-                "photos_per_tile, points_per_tile and min_points_seen must be ≥ 1, got "
-                f"{self.photos_per_tile}, {self.points_per_tile}, {self.min_points_seen}"
-            )
-        if self.overlap_m is not None and not (math.isfinite(self.overlap_m) and self.overlap_m >= 0):
-            raise ConfigError(f"tile overlap must be a finite number of metres ≥ 0, got {self.overlap_m}")
-        if not 0 <= self.extent_quantile < 0.5:
-            raise ConfigError(f"extent_quantile must be in [0, 0.5), got {self.extent_quantile}")
+    constraints: ClassVar[Constraints] = {
+        "photos_per_tile": Interval(int, 1, None),
+        "points_per_tile": Interval(int, 1, None),
+        "overlap_m": NoneOr(Interval(float, 0, None)),
+        "extent_quantile": Interval(float, 0, 0.5, closed="left"),
+        "up": Choice(UpAxis),
+        "min_points_seen": Interval(int, 1, None),
+    }
 
 
 @dataclass(frozen=True, eq=False)

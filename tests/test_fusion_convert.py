@@ -204,10 +204,16 @@ def test_bad_input_raises_typed_errors():
         points_to_gaussians(PointCloud(np.array([[0, 0, np.nan], [1, 1, 1]])))
     with pytest.raises(ConfigError, match="mode"):
         points_to_gaussians(PointCloud(np.zeros((2, 3))), "fancy")
-    with pytest.raises(ConfigError, match="min_spacing"):
+    with pytest.raises(ConfigError, match=r"^option min_spacing must be a float in \(0, inf\), got 0.0$"):
         ConvertOptions(min_spacing=0.0)
-    with pytest.raises(ConfigError, match="finite"):
+    with pytest.raises(ConfigError, match=r"^option tangent_scale must be a float in \(0, inf\), got nan$"):
         ConvertOptions(tangent_scale=float("nan"))
+    with pytest.raises(ConfigError, match=r"^option opacity_logit_max must be a float in \(-inf, inf\), got inf$"):
+        ConvertOptions(opacity_logit_max=float("inf"))
+    with pytest.raises(ConfigError, match="min_spacing must be < max_spacing, got 2.0 >= 1.0"):
+        ConvertOptions(min_spacing=2.0, max_spacing=1.0)
+    with pytest.raises(ConfigError, match="opacity_logit_min must be < opacity_logit_max"):
+        ConvertOptions(opacity_logit_min=1.0, opacity_logit_max=1.0)
 
 
 def test_quaternions_from_given_normals_equal_quats_z_to_and_flag_missing_normals():

@@ -90,5 +90,5 @@ def test_remove_degenerate():
 
 
 def test_bad_method():
-    with pytest.raises(ConfigError, match="decimation method"):
+    with pytest.raises(ConfigError, match="option method must be one of auto, fast-simplification, open3d, got"):
         DecimateOptions(method="vertex-clustering")

@@ -116,7 +116,7 @@ def test_no_budget_and_bad_options(scene):
     assert r.decimation is None and r.mesh.num_triangles == r.trimmed.num_triangles
     with pytest.raises(ConfigError, match="budget"):
         MeshOptions(budget=0)
-    with pytest.raises(ConfigError, match="mesh source"):
+    with pytest.raises(ConfigError, match="option source must be one of all, mvs, survey, got .lidar."):
         MeshOptions(source="lidar")
     splats_only = merged.subset(merged.fields["source"] == Source.SPLAT)
     with pytest.raises(DataError, match="no MVS Gaussians"):

@@ -563,7 +563,8 @@ def test_the_merge_stage_writes_the_viewer_product_in_other_formats(project, tmp
     assert json.loads(layout.merged_viewer("3dtiles").read_text())["asset"]["version"] == "1.1"
     assert 'viewer_formats = ["spz", "sog", "3dtiles"]' in (copy / "config.toml").read_text()
     assert main_code(["run", str(scene), "--out", str(tmp_path / "q"), "--viewer-format", "jpeg"]) == 2
-    assert "unknown viewer format(s) ['jpeg']" in capsys.readouterr().err
+    allowed = "a list of values, each one of spz, sog, compressed-ply, splat, 3dtiles"
+    assert f"option viewer_formats must be {allowed}, got ['jpeg']" in capsys.readouterr().err
 
 
 def test_eval_with_a_memory_limit_gives_the_in_memory_figures(project, tmp_path, monkeypatch):

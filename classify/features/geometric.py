@@ -16,11 +16,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from classify.features.reorder import morton_codes
+from core.constraints import Choice, Constrained, Constraints, Interval, SequenceOf
 from core.errors import ConfigError, DataError
 
 EIGEN_BACKENDS = ("numba", "numpy", "pgeof")
@@ -28,7 +30,7 @@ NEIGHBOUR_SEARCHES = ("grid", "kdtree")
 
 
 @dataclass(frozen=True)
-class GeometricOptions:
+class GeometricOptions(Constrained):
     """Options of the geometric features.
 
     voxel_factors: per scale, the voxel size in units of the median point spacing (≤ 1: the full cloud).
@@ -53,17 +55,13 @@ class GeometricOptions:
     workers: int = -1
     search: str = "grid"
 
-    def __post_init__(self) -> None:
-        if self.search not in NEIGHBOUR_SEARCHES:
-            raise ConfigError(f"search must be one of {NEIGHBOUR_SEARCHES}, got {self.search!r}")
-        if self.backend not in EIGEN_BACKENDS:
-            raise ConfigError(f"eigen backend must be one of {EIGEN_BACKENDS}, got {self.backend!r}")
-        if self.k < 3:
-            raise ConfigError(f"k must be >= 3 neighbours, got {self.k}")
-        if not self.voxel_factors or any(not (f > 0 and np.isfinite(f)) for f in self.voxel_factors):
-            raise ConfigError(f"voxel_factors must be positive numbers, got {self.voxel_factors}")
-        if self.chunk_size <= 0:
-            raise ConfigError(f"chunk_size must be positive, got {self.chunk_size}")
+    constraints: ClassVar[Constraints] = {
+        "voxel_factors": SequenceOf(Interval(float, 0, None, closed="neither"), min_length=1),
+        "k": Interval(int, 3, None),
+        "backend": Choice(EIGEN_BACKENDS),
+        "chunk_size": Interval(int, 1, None),
+        "search": Choice(NEIGHBOUR_SEARCHES),
+    }
 
 
 @dataclass(frozen=True)

@@ -8,11 +8,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import ClassVar
 
-import numpy as np
-
+from core.constraints import Choice, Constrained, Constraints, Interval, NoneOr
 from core.errors import ConfigError
-from fusion.mesh.types import as_choice
 
 
 class NormalFallback(str, Enum):
@@ -24,7 +23,7 @@ class NormalFallback(str, Enum):
 
 
 @dataclass(frozen=True)
-class OrientedPointOptions:
+class OrientedPointOptions(Constrained):
     """Options of :func:`oriented_points_from_gaussians` (see the module docstring).
 
     min_opacity: Gaussians with α below are ignored (default 0.02: faint floaters).
@@ -48,26 +47,20 @@ class OrientedPointOptions:
     normal_neighbors: int = 16
     seed: int = 0
 
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.min_opacity < 1.0:
-            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
-        if not 0.0 < self.full_weight_opacity <= 1.0:
-            raise ConfigError(f"full_weight_opacity must lie in (0, 1], got {self.full_weight_opacity}")
-        if self.sample_spacing is not None and not (np.isfinite(self.sample_spacing) and self.sample_spacing > 0):
-            raise ConfigError(f"sample_spacing must be a positive distance in metres, got {self.sample_spacing}")
-        if not (np.isfinite(self.footprint_sigmas) and self.footprint_sigmas > 0):
-            raise ConfigError(f"footprint_sigmas must be positive, got {self.footprint_sigmas}")
-        if self.max_samples_per_gaussian < 1:
-            raise ConfigError(f"max_samples_per_gaussian must be >= 1, got {self.max_samples_per_gaussian}")
-        if not 0.0 < self.isotropy_ratio <= 1.0:
-            raise ConfigError(f"isotropy_ratio must lie in (0, 1], got {self.isotropy_ratio}")
-        if self.normal_neighbors < 3:
-            raise ConfigError(f"normal_neighbors must be >= 3, got {self.normal_neighbors}")
-        object.__setattr__(self, "normal_fallback", as_choice(NormalFallback, self.normal_fallback, "normal_fallback"))
+    constraints: ClassVar[Constraints] = {
+        "min_opacity": Interval(float, 0, 1, closed="left"),
+        "full_weight_opacity": Interval(float, 0, 1, closed="right"),
+        "sample_spacing": NoneOr(Interval(float, 0, None, closed="neither")),
+        "footprint_sigmas": Interval(float, 0, None, closed="neither"),
+        "max_samples_per_gaussian": Interval(int, 1, None),
+        "isotropy_ratio": Interval(float, 0, 1, closed="right"),
+        "normal_fallback": Choice(NormalFallback),
+        "normal_neighbors": Interval(int, 3, None),
+    }
 
 
 @dataclass(frozen=True)
-class PoissonOptions:
+class PoissonOptions(Constrained):
     """Options of :func:`poisson_reconstruct` and :func:`trim_mesh`.
 
     depth: octree depth (None: from the sampling, see the module docstring). cell_factor: finest cell in units of
@@ -105,25 +98,23 @@ class PoissonOptions:
     min_component_fraction: float = 0.01
     threads: int = 1
 
+    constraints: ClassVar[Constraints] = {
+        "depth": NoneOr(Interval(int, 2, 14)),
+        "cell_factor": Interval(float, 0, None, closed="neither"),
+        "min_depth": Interval(int, 2, 14),
+        "max_depth": Interval(int, 2, 14),
+        "scale": Interval(float, 1, None),
+        "point_weight": Interval(float, 0, None),
+        "density_quantile": Interval(float, 0, 1, closed="left"),
+        "support_factor": NoneOr(Interval(float, 0, None, closed="neither")),
+        "support_neighbors": Interval(int, 1, None),
+        "min_component_fraction": Interval(float, 0, 1, closed="left"),
+    }
+
     def __post_init__(self) -> None:
-        if self.depth is not None and not 2 <= self.depth <= 14:
-            raise ConfigError(f"Poisson depth must lie in 2..14, got {self.depth}")
-        if not 2 <= self.min_depth <= self.max_depth <= 14:
-            raise ConfigError(f"need 2 <= min_depth <= max_depth <= 14, got {self.min_depth}, {self.max_depth}")
-        if not (np.isfinite(self.cell_factor) and self.cell_factor > 0):
-            raise ConfigError(f"cell_factor must be positive, got {self.cell_factor}")
-        if not self.scale >= 1.0:
-            raise ConfigError(f"scale must be >= 1, got {self.scale}")
-        if not self.point_weight >= 0:
-            raise ConfigError(f"point_weight must be >= 0, got {self.point_weight}")
-        if not 0.0 <= self.density_quantile < 1.0:
-            raise ConfigError(f"density_quantile must lie in [0, 1), got {self.density_quantile}")
-        if self.support_factor is not None and not (np.isfinite(self.support_factor) and self.support_factor > 0):
-            raise ConfigError(f"support_factor must be positive (or None), got {self.support_factor}")
-        if self.support_neighbors < 1:
-            raise ConfigError(f"support_neighbors must be >= 1, got {self.support_neighbors}")
-        if not 0.0 <= self.min_component_fraction < 1.0:
-            raise ConfigError(f"min_component_fraction must lie in [0, 1), got {self.min_component_fraction}")
+        super().__post_init__()
+        if self.min_depth > self.max_depth:
+            raise ConfigError(f"min_depth must be <= max_depth, got {self.min_depth} > {self.max_depth}")
 
 
 class Decimator(str, Enum):
@@ -133,7 +124,7 @@ class Decimator(str, Enum):
 
 
 @dataclass(frozen=True)
-class DecimateOptions:
+class DecimateOptions(Constrained):
     """method: which decimator (default auto, see the module docstring). tolerance: allowed |count − budget| / budget
     (default 0.01). max_attempts: runs with a corrected target, per decimator (default 6). aggressiveness:
     fast-simplification's ``agg`` (default 7, its own)."""
@@ -143,16 +134,15 @@ class DecimateOptions:
     max_attempts: int = 6
     aggressiveness: float = 7.0
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "method", as_choice(Decimator, self.method, "decimation method"))
-        if not 0.0 <= self.tolerance < 1.0:
-            raise ConfigError(f"tolerance must lie in [0, 1), got {self.tolerance}")
-        if self.max_attempts < 1:
-            raise ConfigError(f"max_attempts must be >= 1, got {self.max_attempts}")
+    constraints: ClassVar[Constraints] = {
+        "method": Choice(Decimator),
+        "tolerance": Interval(float, 0, 1, closed="left"),
+        "max_attempts": Interval(int, 1, None),
+    }
 
 
 @dataclass(frozen=True)
-class SnapshotOptions:
+class SnapshotOptions(Constrained):
     """region_radius: metres (None: 4 × the median nearest-neighbour distance between the merged set's splats).
     min_opacity: snapshot Gaussians with α below this before raising are ignored (default 0.005, the pruning cut of
     3DGS densification: such Gaussians are about to be removed by training)."""
@@ -160,11 +150,10 @@ class SnapshotOptions:
     region_radius: float | None = None
     min_opacity: float = 0.005
 
-    def __post_init__(self) -> None:
-        if self.region_radius is not None and not (np.isfinite(self.region_radius) and self.region_radius > 0):
-            raise ConfigError(f"region_radius must be a positive distance in metres, got {self.region_radius}")
-        if not 0.0 <= self.min_opacity < 1.0:
-            raise ConfigError(f"min_opacity must lie in [0, 1), got {self.min_opacity}")
+    constraints: ClassVar[Constraints] = {
+        "region_radius": NoneOr(Interval(float, 0, None, closed="neither")),
+        "min_opacity": Interval(float, 0, 1, closed="left"),
+    }
 
 
 class MeshSource(str, Enum):
@@ -178,7 +167,7 @@ class MeshSource(str, Enum):
 
 
 @dataclass(frozen=True)
-class MeshOptions:
+class MeshOptions(Constrained):
     """budget: triangles of the result (None: no decimation). source: see :class:`MeshSource` (default all).
     use_snapshots: add the snapshot union for splat regions when snapshots are given (default True; not for
     source mvs).
@@ -200,12 +189,9 @@ class MeshOptions:
     decimate: DecimateOptions = field(default_factory=DecimateOptions)
     snapshots: SnapshotOptions = field(default_factory=SnapshotOptions)
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "source", as_choice(MeshSource, self.source, "mesh source"))
-        b = self.budget
-        if b is not None and (isinstance(b, bool) or not isinstance(b, (int, np.integer)) or b < 1):
-            raise ConfigError(f"the triangle budget must be a positive integer (or None for no decimation), got {b!r}")
-        if not (np.isfinite(self.mvs_priority) and self.mvs_priority >= 0):
-            raise ConfigError(f"mvs_priority must be >= 0 (spacings), got {self.mvs_priority}")
-        if self.color_neighbors < 1:
-            raise ConfigError(f"color_neighbors must be >= 1, got {self.color_neighbors}")
+    constraints: ClassVar[Constraints] = {
+        "budget": NoneOr(Interval(int, 1, None)),
+        "source": Choice(MeshSource),
+        "mvs_priority": Interval(float, 0, None),
+        "color_neighbors": Interval(int, 1, None),
+    }

@@ -19,18 +19,21 @@ there in float64. open3d puts pixel centres at integer coordinates, COLMAP at +0
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from core.cameras import Cameras
-from core.errors import ConfigError, DataError
+from core.constraints import Constrained, Constraints, Interval, NoneOr
+from core.errors import DataError
 from core.gaussians import GaussianSet
 from fusion.mesh.types import TriangleMesh
 
 
 @dataclass(frozen=True)
-class TSDFOptions:
+class TSDFOptions(Constrained):
     """voxel_size: metres (None: 1/256 of the largest extent of the Gaussian centres). trunc_voxels: truncation
     distance in voxels (default 4). min_alpha: rendered opacity below which a pixel is not integrated (default 0.5).
     depth_max: ignore depths beyond this (metres; None: no limit). min_weight: integration weight (≈ views) a voxel
@@ -46,15 +49,12 @@ class TSDFOptions:
     block_count: int | None = None
     backend: str = "auto"
 
-    def __post_init__(self) -> None:
-        if self.voxel_size is not None and not (np.isfinite(self.voxel_size) and self.voxel_size > 0):
-            raise ConfigError(f"voxel_size must be a positive length in metres, got {self.voxel_size}")
-        if not self.trunc_voxels > 0:
-            raise ConfigError(f"trunc_voxels must be positive, got {self.trunc_voxels}")
-        if not 0.0 < self.min_alpha <= 1.0:
-            raise ConfigError(f"min_alpha must lie in (0, 1], got {self.min_alpha}")
-        if self.depth_max is not None and not self.depth_max > 0:
-            raise ConfigError(f"depth_max must be positive, got {self.depth_max}")
+    constraints: ClassVar[Constraints] = {
+        "voxel_size": NoneOr(Interval(float, 0, None, closed="neither")),
+        "trunc_voxels": Interval(float, 0, None, closed="neither"),
+        "min_alpha": Interval(float, 0, 1, closed="right"),
+        "depth_max": NoneOr(Interval(float, 0, math.inf, closed="right")),  # inf: no limit, as None
+    }
 
 
 def estimate_block_count(means: np.ndarray, voxel: float, block_resolution: int = 16) -> int:

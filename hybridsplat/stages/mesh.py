@@ -15,12 +15,12 @@ import warnings
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from core.errors import ConfigError, DataError
-from core.options import enum_choice
+from core.constraints import Choice, Constrained, Constraints, Interval, SequenceOf
+from core.errors import DataError
 from fusion.mesh.options import MeshOptions, MeshSource
 from hybridsplat.layout import MESH_FORMATS
 from hybridsplat.project_io import sparse_model
@@ -39,7 +39,7 @@ class MeshMethod(str, Enum):
 
 
 @dataclass(frozen=True)
-class MeshStageOptions:
+class MeshStageOptions(Constrained):
     """Options of the ``mesh`` stage.
 
     budget: triangles of the mesh (0: no mesh, the stage is skipped); within 1 % unless the raw mesh is smaller.
@@ -53,13 +53,11 @@ class MeshStageOptions:
     method: MeshMethod = MeshMethod.POISSON
     mesh: MeshOptions = field(default_factory=MeshOptions, metadata={"runtime": ("budget",)})
 
-    def __post_init__(self) -> None:
-        if isinstance(self.budget, bool) or not isinstance(self.budget, int) or self.budget < 0:
-            raise ConfigError(f"budget must be a number of triangles >= 0 (0: no mesh), got {self.budget!r}")
-        bad = [f for f in self.formats if f not in MESH_FORMATS]
-        if bad or not self.formats:
-            raise ConfigError(f"formats must be a non-empty list of {', '.join(MESH_FORMATS)}, got {self.formats!r}")
-        object.__setattr__(self, "method", enum_choice(MeshMethod, self.method, "method"))
+    constraints: ClassVar[Constraints] = {
+        "budget": Interval(int, 0, None),
+        "formats": SequenceOf(Choice(MESH_FORMATS), min_length=1),
+        "method": Choice(MeshMethod),
+    }
 
 
 @dataclass(frozen=True)
