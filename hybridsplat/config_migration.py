@@ -163,10 +163,7 @@ _PHOTOMETRIC = "the SmoothL1 + MS-SSIM loss: never shown to help (L1 + SSIM is t
 _HARD_VIEWS = "hard-view mining: never shown to help (every view is seen once per epoch)"
 _MCMC = "MCMC densification: never shown to help (DefaultStrategy is the strategy)"
 _LPIPS = "the LPIPS training term lowered the held-out PSNR (LPIPS stays an evaluation metric: [eval] lpips_weights)"
-_SPLAT_SURFACE = (
-    "the splat-surface points: their F-score gain on the tuning layouts did not hold on the scoring layouts "
-    "(docs/experiments/2026-12-02-survey-verdicts.md)"
-)
+_SPLAT_SURFACE = "the splat-surface points: their F-score gain on the tuning layouts did not hold on the scoring ones"
 
 #: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
 _REMOVED_TRAINING: dict[str, Removed] = {

@@ -203,7 +203,7 @@ def test_a_stage_recorded_with_removed_options_off_stays_current(tmp_path):
 
 def test_an_old_config_with_splat_surface_on_fails_naming_it_and_the_verdict(tmp_path):
     """``[merge] splat_surface = true`` (removed by issue 54): one line naming the file, the key, the version, why
-    and where the record is; the same option off loads to today's defaults."""
+    and where to read more; the same option off loads to today's defaults."""
     types = stage_options_types()
     path = tmp_path / "config.toml"
     path.write_text("[merge]\nsplat_surface = true\nsplat_surface_support = 2.0\n", encoding="utf-8")
@@ -211,7 +211,7 @@ def test_an_old_config_with_splat_surface_on_fails_naming_it_and_the_verdict(tmp
         read_config(path, types)
     line = err.value.one_line()
     assert line.startswith(f"{path}: option(s) removed in 0.4: merge.splat_surface = true (the splat-surface"), line
-    assert "2026-12-02-survey-verdicts.md" in line and "docs/migration.md" in line
+    assert "did not hold on the scoring ones" in line and "docs/migration.md" in line
     assert "splat_surface_support" not in line  # acts only with the switch: left out, not refused on its own
     path.write_text("[merge]\nsplat_surface = false\n", encoding="utf-8")
     assert read_config(path, types).options("merge", types["merge"]) == types["merge"]()
