@@ -1,4 +1,4 @@
-"""What the classifier's mistakes cost the product, and what each survey experiment buys: variants of one project.
+"""What the classifier's mistakes cost the product: the shipped project against its oracle variant.
 
 ``python bench/bench_regret.py --data D [--layouts random-object:120-125,random-aerial:120-125,demo:0]
 [--variants oracle] [--out bench_out/regret]``
@@ -6,14 +6,13 @@
 For each layout it makes the scene (``hybridsplat synth``; procedural layouts at 24 + 4 views of 320×240, the demo
 at its own size) and runs the pipeline with every default (``hybridsplat run SCENE --out D/<layout>/shipped
 --mesh 0``): the *shipped* project. Each variant is a copy of that project with one thing changed, every stage
-upstream of the change reused from the copy (the runner finds it current) and every stage downstream rerun:
+upstream of the change reused from the copy (the runner finds it current) and every stage downstream rerun. The one
+variant (:data:`VARIANTS`):
 
 - ``oracle``: the classify stage writes the scene's true classes instead of the shipped model's (the truth of
   :func:`classify.labels.scene_point_truth`: the class of the nearest true surface's material within τ = 3 GSD,
   needs-splats farther than τ), everything else identical. This path exists only here: no user option gives it.
   *Product regret* = oracle − shipped.
-- ``splat_surface``: the merge adds the multi-view-checked splat-surface points (``[merge] splat_surface``).
-- ``a+b``: both changes (e.g. an experiment on top of one that was promoted).
 
 Per layout and variant: merged held-out PSNR (whole image and inside the true non-collaborative masks), LPIPS, and
 the survey product's precision / recall / F-score at τ and C2C mean against the LiDAR (the eval stage's figures);
@@ -34,7 +33,6 @@ import shutil
 import subprocess
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +47,7 @@ PROCEDURAL_SIZE = ("--views", "24", "--test-views", "4", "--width", "320", "--he
 """The procedural layouts at the demo's size (24 training + 4 held-out views of 320×240)."""
 
 DEFAULT_LAYOUTS = "random-object:120-125,random-aerial:120-125,demo:0"
-VARIANTS = (
-    "oracle",
-    "splat_surface",
-)
+VARIANTS = ("oracle",)
 DISTANCE_BINS_TAU = (0.0, 1.0, 2.0, 4.0, np.inf)
 """Bins of a misclassified point's distance to the nearest true surface, in τ (the truth's threshold)."""
 
@@ -166,33 +161,20 @@ def point_truth(cloud, scene, classes):
     return scene_point_truth(cloud, scene, classes)
 
 
-def variant_config(config, variant: str):
-    """The shipped project's configuration with ``variant``'s one change (``a+b``: both changes)."""
-    if "+" in variant:
-        for part in variant.split("+"):
-            config = variant_config(config, part)
-        return config
-    if variant == "oracle":
-        return config
-    if variant == "splat_surface":
-        return config.with_stage_options("merge", replace(config.stages["merge"], splat_surface=True))
-    raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
-
-
 def rerun_variant(project: Path, variant: str) -> None:
     """In this process: the copy ``project`` rerun with ``variant`` (upstream stages stay current)."""
     from hybridsplat.pipeline import load_config, run_pipeline
     from hybridsplat.stages import registered_stages
     from hybridsplat.terminal import Terminal
 
-    config = variant_config(load_config(project), variant)
-    oracle = "oracle" in variant.split("+")
-    stages = [oracle_classify_stage() if (oracle and s.name == "classify") else s for s in registered_stages()]
-    run_pipeline(project, config, stages=stages, terminal=Terminal(quiet=False))
+    if variant not in VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)}")
+    stages = [oracle_classify_stage() if s.name == "classify" else s for s in registered_stages()]
+    run_pipeline(project, load_config(project), stages=stages, terminal=Terminal(quiet=False))
 
 
 def make_variant(shipped: Path, variant: str) -> Path:
-    project = shipped.parent / variant.replace("+", "_and_")
+    project = shipped.parent / variant
     if ProjectLayout(project).report_json.is_file():
         return project
     if project.exists():
@@ -235,7 +217,6 @@ def product_scores(project: Path) -> dict[str, Any]:
         "survey_points": c2c.get("count"),
         "seconds_after_mvs": seconds,
     }
-    out["sigma_by_class"] = sigma_by_class(project)
     per_material = layout.per_material_json
     if per_material.is_file():
         table = json.loads(per_material.read_text())
@@ -244,63 +225,6 @@ def product_scores(project: Path) -> dict[str, Any]:
             for m, r in (table.get("products", {}).get("merged") or {}).items()
         }
     return out
-
-
-def sigma_by_class(project: Path) -> dict[str, Any] | None:
-    """The σ calibration (:func:`eval.sigma_calibration.calibration_row`) of the survey product's splat-surface points
-    (``source`` 4) per predicted class (that of the nearest ``needs_splats`` MVS point, the rule of
-    :func:`fusion.survey.classes_of_points` with which the merge counts them),
-    against the eval stage's reference cloud; None without such points."""
-    from core.io import read_point_cloud
-    from core.io.gaussian_ply import read_gaussian_ply
-    from eval.sigma_calibration import calibration_row, local_plane_distances
-    from fusion.convert_options import Source
-    from hybridsplat import project_io
-
-    layout = ProjectLayout(project)
-    points = read_point_cloud(layout.merged_points_ply)
-    if "sigma" not in points.fields:
-        return None
-    added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
-    if not added.any():
-        return None
-    metrics = json.loads(layout.metrics_json.read_text())["products"]["merged"]["c2c"]
-    reference = read_point_cloud(metrics["reference"])
-    anchor = reference.world_positions[0]
-    world = points.world_positions[added]
-    distances, _ = local_plane_distances(world - anchor, reference.world_positions - anchor)
-    sigma = np.asarray(points.fields["sigma"], np.float64)[added]
-    mvs = read_gaussian_ply(layout.mvs_gaussians)
-    needs = project_io.needs_splats_per_gaussian(layout, mvs)
-    codes = project_io.read_needs_splats_class_codes(layout)
-    predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
-    _, nearest = _nearest_needs(mvs, needs, world)
-    cls = predicted[needs][nearest]
-    names = {code: name for name, code in codes.items()}
-    material = np.asarray(reference.fields["material"]).astype(np.int64)[_nearest_reference(reference, world)]
-    class_names = np.array([names.get(c, str(c)) for c in range(max(names, default=0) + 1)])
-    # Per point, for choosing σ factors offline: distance to the reference surface, σ, predicted class, material id.
-    np.savez(project / "bench_sigma_points.npz", distance_m=distances, sigma_m=sigma, class_code=cls,
-             material=material, class_names=class_names)  # fmt: skip
-    out = {"all": calibration_row(distances, sigma)}
-    for code in sorted(set(cls.tolist())):
-        out[names.get(code, str(code))] = calibration_row(distances[cls == code], sigma[cls == code])
-    return out
-
-
-def _nearest_reference(reference, world: np.ndarray) -> np.ndarray:
-    """Index of each point's nearest reference point (the owner of its material, as eval.per_material assigns it)."""
-    from scipy.spatial import cKDTree
-
-    anchor = reference.world_positions[0]
-    return cKDTree(reference.world_positions - anchor).query(world - anchor, k=1)[1]
-
-
-def _nearest_needs(mvs, needs: np.ndarray, world: np.ndarray):
-    from scipy.spatial import cKDTree
-
-    anchor = mvs.world_means[needs][0] if needs.any() else np.zeros(3)
-    return cKDTree(mvs.world_means[needs] - anchor).query(world - anchor, k=1)
 
 
 def classifier_scores(shipped: Path) -> dict[str, Any]:
@@ -380,7 +304,7 @@ def to_markdown(out: dict[str, Any]) -> str:
         rows, means = regret_rows(results, variant)
         if not rows:
             continue
-        lines += [f"## shipped → {variant} (difference: {variant} − shipped)", ""]
+        lines += [f"## shipped → {variant} (product regret: {variant} − shipped)", ""]
         lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]
         lines += ["", "mean difference: " + ", ".join(f"{k} {v:+.4f}" for k, v in means.items()), ""]
@@ -416,8 +340,8 @@ def main() -> None:
     a = ap.parse_args()
     variants = [v for v in a.variants.split(",") if v]
     for v in variants:
-        if any(part not in VARIANTS for part in v.split("+")):
-            ap.error(f"unknown variant {v!r}; choose from {', '.join(VARIANTS)} (or a+b)")
+        if v not in VARIANTS:
+            ap.error(f"unknown variant {v!r}; choose from {', '.join(VARIANTS)}")
     out: dict[str, Any] = {"date": time.strftime("%Y-%m-%d %H:%M"), "load_before": load(), "variants": variants,
                            "layouts": {}}  # fmt: skip
     tp = fp = fn = 0

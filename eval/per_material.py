@@ -138,19 +138,3 @@ def as_table(
             "pixels": i.pixels if i else 0,
         }
     return rows
-
-
-def add_point_group(
-    rows: dict[str, dict[str, float | int | None]], group: str, geometry: Mapping[int, MaterialGeometry],
-    names: Mapping[int, str],
-) -> None:  # fmt: skip
-    """Adds to each row of :func:`as_table` the scores of a group of the product's points measured alone (e.g. the
-    splat-surface points, ``source`` = 4, of the survey product): ``<group>_points`` (points on the material),
-    ``<group>_accuracy_mean_m`` and ``<group>_completeness`` (at the same τ). Rows without a name are left out."""
-    for m, name in names.items():
-        if name not in rows:
-            continue
-        g = geometry.get(m)
-        rows[name][f"{group}_points"] = g.accuracy_points if g else 0
-        rows[name][f"{group}_accuracy_mean_m"] = g.accuracy_mean if g else None
-        rows[name][f"{group}_completeness"] = g.completeness if g else None

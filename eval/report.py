@@ -420,19 +420,14 @@ Table = tuple[str, list[str], list[list[str]]]
 
 def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> list[Table]:
     """Table 5: per ground-truth material, each product's F-score at τ (precision / recall), then its accuracy and
-    held-out PSNR; for a survey product with splat-surface points (the merge's ``splat_surface``; the first such
-    product), those points alone: how many lie on the material, their accuracy and completeness. One column per
-    product, so that the tables stay as narrow as the products are few."""
+    held-out PSNR. One column per product, so that the tables stay as narrow as the products are few."""
     if not per_material:
         return []
     products: Mapping[str, Any] = per_material["products"]
     kinds: Mapping[str, Any] = per_material.get("materials") or {}
     names = list(dict.fromkeys(m for table in products.values() for m in table))
-    # the splat-surface points (source 4) of the survey product, scored alone: the first product that has them (its
-    # controls share its points: merged_no_background, merged_unrefined), none when none has them
-    grouped = [p for p, table in products.items() if any("splat_surface_points" in r for r in table.values())]
     tau = _len(per_material.get("tau_m"), u)
-    f_rows, geo_rows, group_rows = [], [], []
+    f_rows, geo_rows = [], []
     for m in names:
         info = kinds.get(m) or {}
         kind = str(info.get("kind", "")) + ("" if info.get("collaborative", True) else " (non-collab.)")
@@ -444,29 +439,19 @@ def _per_material_tables(per_material: Mapping[str, Any] | None, u: Units) -> li
             geo_row.append(f"{_len(r.get('accuracy_mean_m'), u)} · {_num(r.get('psnr'), 2)}")
         f_rows.append(f_row)
         geo_rows.append(geo_row)
-        if grouped:
-            r = products[grouped[0]].get(m) or {}
-            group_rows.append([m, kind, str(r.get("splat_surface_points", 0)),
-                               _len(r.get("splat_surface_accuracy_mean_m"), u),
-                               _num(r.get("splat_surface_completeness"), 3)])  # fmt: skip
     header = ["material", "kind", *products]
     tables = [
         (f"Table 5 — per ground-truth material: F-score at τ = {tau} {u.value} (precision / recall)", header, f_rows),
         (f"Table 5b — per ground-truth material: accuracy mean ({u.value}) · PSNR on held-out pixels (dB)", header,
          geo_rows),
     ]  # fmt: skip
-    if grouped:
-        p = grouped[0]
-        header_c = ["material", "kind", "points", f"accuracy ({u.value})", "completeness"]
-        tables.append((f"Table 5c — the splat-surface points of `{p}` alone, per ground-truth material", header_c,
-                       group_rows))  # fmt: skip
     return tables + _sigma_calibration_tables(per_material.get("sigma_calibration"), u)
 
 
 def _sigma_calibration_tables(calibration: Mapping[str, Any] | None, u: Units) -> list[Table]:
-    """Table 6: the σ of the splat-surface points of ``merged`` (else the first product that has them) against their
-    distance to the reference surface (:mod:`eval.sigma_calibration`), all points and per material; none without
-    such points."""
+    """Table 6: the σ of the points of ``merged`` that carry one (else of the first product whose points do; a
+    ``sigma`` field) against their distance to the reference surface (:mod:`eval.sigma_calibration`), all points and
+    per material; none when no product's points carry a σ."""
     if not calibration:
         return []
     product = "merged" if "merged" in calibration else next(iter(calibration))
@@ -477,7 +462,7 @@ def _sigma_calibration_tables(calibration: Mapping[str, Any] | None, u: Units) -
              _len(r.get("median_sigma_m"), u), _len(r.get("median_distance_m"), u)]
             for m, r in table.items()]  # fmt: skip
     title = (
-        f"Table 6 — σ of the splat-surface points of `{product}` against their distance to the reference "
+        f"Table 6 — σ of the points of `{product}` that carry one against their distance to the reference "
         "surface (local plane of the 8 nearest reference points)"
     )
     return [(title, header, rows)]

@@ -1,8 +1,8 @@
 """Is a point's σ honest? Its stated uncertainty against its distance to the reference surface, per material.
 
-A survey point that carries a σ (the splat-surface points of the survey product, ``sigma`` field, metres) claims
-that its distance to the true surface is within 1.96 σ with 95 % probability (a normal error along the surface
-normal). :func:`calibration_per_material` counts how often that holds against a reference cloud (a LiDAR scan):
+A survey point that carries a σ (a ``sigma`` field of a product's points, metres) claims that its distance to the
+true surface is within 1.96 σ with 95 % probability (a normal error along the surface normal).
+:func:`calibration_per_material` counts how often that holds against a reference cloud (a LiDAR scan):
 
 - the distance of a point to the reference *surface* is estimated as CloudCompare's C2C with a local model does: a
   least-squares plane through the ``k`` nearest reference points (their PCA), the point's distance to that plane,

@@ -26,13 +26,9 @@ class Source(IntEnum):
     MVS = 1  # the survey layer: converted from the photogrammetric (MVS) cloud
     SPLAT = 2  # the fill layer: splats trained inside the region masks
     BACKGROUND = 3  # the background layer: what the photos see beyond the survey region (fusion.background)
-    SPLAT_SURFACE = 4  # survey points on the surface the fill layer renders (fusion.splat_surface; points only)
-
-
-SPLAT_SURFACE_CLASS = 68
-"""The ``classification`` (and LAS classification) of splat-surface points (``source`` = ``SPLAT_SURFACE``): a code
-of the LAS 1.4 user-definable range (64–255) that the default class set (``classify/classes.toml``: codes 0–4, LAS
-codes 1–6, 14, 15, 64–67 read as its classes) does not use, so a reader tells them from MVS points by either field."""
+    # 4: reserved (splat-surface points, removed in 0.4; their LAS classification was 68): survey points of earlier
+    # versions may carry it, and the readers pass any code through (fusion.tiles3d.layer_name: "source_4"), so no
+    # new layer takes it.
 
 
 LAYERS: dict[str, Source] = {"survey": Source.MVS, "fill": Source.SPLAT, "background": Source.BACKGROUND}

@@ -8,12 +8,6 @@ which rejects the virtual images of reflections and refractions that MVS and spl
 glass), plus the ``needs_splats`` MVS points of the classes that leave MVS incomplete rather than wrong
 (:attr:`MergeOptions.needs_mvs_classes`). ``surface`` is 1 for the MVS Gaussians and for the splats whose centres
 pass :func:`fusion.clean.surface_splat_options`; the mesh builds its geometry from ``surface = 1`` only.
-
-With :attr:`MergeOptions.splat_surface` (off by default), the point product also holds the splat-surface points
-(:mod:`fusion.splat_surface`: the surface the fill layer renders inside the training masks, multi-view checked, a σ
-each) as :func:`with_splat_surface` adds them: ``source`` = 4, their own ``classification`` and a ``sigma`` field;
-the splat centres that pass the survey-point rule leave the product then (the surface points replace them) unless
-``splat_surface_keep_centres``.
 """
 
 from __future__ import annotations
@@ -142,68 +136,3 @@ def hybrid_products(
         counts["point_needs_mvs"] = vars(sel_mvs.counts)
     counts["point_needs_mvs_classes"] = {name: int(kept.sum()) for name, kept in by_class.items()}
     return HybridProducts(result.gaussians, points, result.stats, counts)
-
-
-def with_splat_surface(
-    points: GaussianSet, surface: GaussianSet, keep_centres: bool, tolerance: float,
-    support: tuple[np.ndarray, float] | None = None,
-) -> tuple[GaussianSet, dict[str, int]]:  # fmt: skip
-    """The survey point product with splat-surface points: ``points`` (fields ``source`` and ``classification``)
-    without its splat centres (``source`` = SPLAT) unless ``keep_centres``, plus the ``surface`` points (a set of
-    :func:`fusion.splat_surface.as_point_set`) that lie farther than ``tolerance`` metres from every MVS point of the
-    product (MVS is preferred where both sample a surface, as in :func:`fusion.merge.merge_gaussians`). Every point
-    gets the float32 ``sigma`` field (metres; 0 = no estimate: MVS points and splat centres). ``support``: (M, 3)
-    points in ``points``' frame (the fused MVS cloud, trusted or not) and a radius (metres): a surface point farther
-    than the radius from all of them is left out (``unsupported``): a floater of the fill layer in front of a
-    surface renders a depth every view agrees on, but no MVS point lies near it, while a hole of MVS on a real
-    surface is bordered by (noisy, incomplete) MVS points. Returns the product and counts
-    (``splat_centres_dropped``; surface points: ``unsupported``, ``near_mvs`` dropped, ``kept`` added)."""
-    from fusion.convert_options import Source
-    from fusion.merge import near_any, subset
-
-    source = np.asarray(points.fields["source"])
-    dropped = 0 if keep_centres else int((source == Source.SPLAT).sum())
-    base = points if keep_centres else subset(points, source != Source.SPLAT)
-    mvs = base.means[np.asarray(base.fields["source"]) == Source.MVS]
-    surface = surface.with_origin(base.origin)
-    unsupported = np.zeros(len(surface), bool)
-    if support is not None:
-        unsupported = ~near_any(surface.means, np.asarray(support[0], np.float64).reshape(-1, 3), float(support[1]))
-    near = ~unsupported & near_any(surface.means, mvs, tolerance)
-    added = subset(surface, ~unsupported & ~near)
-    base = replace(base, fields={**base.fields, "sigma": np.zeros(len(base), np.float32)})
-    out = GaussianSet.concatenate([base, added]) if len(added) else base
-    counts = {"splat_centres_dropped": dropped, "unsupported": int(unsupported.sum()), "near_mvs": int(near.sum())}
-    return out, counts | {"kept": len(added)}
-
-
-def class_names_of_points(
-    positions: np.ndarray, mvs: GaussianSet, needs: np.ndarray, predicted: np.ndarray | None,
-    codes: Mapping[str, int],
-) -> np.ndarray:  # fmt: skip
-    """The predicted class (the material kind the classifier saw there) of each point: ``positions`` (n, 3, the
-    frame of ``mvs``) take the class of their nearest ``needs_splats`` MVS Gaussian (``needs`` (N,) bool,
-    ``predicted`` (N,) class code each); ``codes``: class name → code. (n,) array of names; a point of no named
-    class (or with no classified neighbour) is ``"other"``."""
-    n = len(positions)
-    out = np.full(n, "other", dtype=object)
-    if n == 0 or predicted is None or not needs.any():
-        return out
-    from scipy.spatial import cKDTree
-
-    _, nearest = cKDTree(mvs.means[needs]).query(np.asarray(positions, np.float64), k=1)
-    cls = np.asarray(predicted)[needs][nearest]
-    for name, code in codes.items():
-        out[cls == code] = name
-    return out
-
-
-def classes_of_points(
-    positions: np.ndarray, mvs: GaussianSet, needs: np.ndarray, predicted: np.ndarray | None,
-    codes: Mapping[str, int],
-) -> dict[str, int]:  # fmt: skip
-    """Points per predicted class (:func:`class_names_of_points`): class name → count, the named classes in the
-    order of ``codes``, ``"other"`` last; classes without points left out."""
-    names = class_names_of_points(positions, mvs, needs, predicted, codes)
-    out = {name: int((names == name).sum()) for name in [*codes, "other"]}
-    return {k: v for k, v in out.items() if v}

@@ -163,6 +163,7 @@ _PHOTOMETRIC = "the SmoothL1 + MS-SSIM loss: never shown to help (L1 + SSIM is t
 _HARD_VIEWS = "hard-view mining: never shown to help (every view is seen once per epoch)"
 _MCMC = "MCMC densification: never shown to help (DefaultStrategy is the strategy)"
 _LPIPS = "the LPIPS training term lowered the held-out PSNR (LPIPS stays an evaluation metric: [eval] lpips_weights)"
+_SPLAT_SURFACE = "the splat-surface points: their F-score gain on the tuning layouts did not hold on the scoring ones"
 
 #: per training stage (each composes a ``TrainOptions`` as ``training``): removed dotted path → :class:`Removed`
 _REMOVED_TRAINING: dict[str, Removed] = {
@@ -194,6 +195,13 @@ REMOVED["train"].update({
     "normal_prior": Removed(_PRIORS, _not_positive),
     **{key: Removed(_PRIORS, _any) for key in ("prior_border_px", "prior_edge_scale", "prior_hull_share")},
 })  # fmt: skip
+REMOVED["merge"] = {
+    "splat_surface": Removed(_SPLAT_SURFACE, _is_false),
+    # options that acted only with splat_surface (a table: splat_surface_points)
+    **{key: Removed(_SPLAT_SURFACE, _any) for key in (
+        "splat_surface_keep_centres", "splat_surface_support", "splat_surface_sigma_scale", "splat_surface_points",
+    )},
+}  # fmt: skip
 
 
 def _spelled(value: Any) -> str:

@@ -30,19 +30,6 @@ class TileAppearanceFiles:
 
 
 @dataclass(frozen=True)
-class TileSurfaceFiles:
-    """A tile's part of the splat-surface points of a tiled merge: its inputs, written by the parent (the fill
-    splats, and in an ``.npz`` the trusted MVS points and the fused MVS points, in the tile's bounds), the points it
-    found (an ``.npz`` of :class:`fusion.splat_surface.SplatSurfacePoints`' arrays and its views' names) and its
-    record (counts)."""
-
-    splats: Path
-    points: Path
-    found: Path
-    record: Path
-
-
-@dataclass(frozen=True)
 class ProjectLayout:
     """Paths of one project folder ``root`` (nothing is created here; stages create what they write)."""
 
@@ -202,16 +189,6 @@ class ProjectLayout:
             survey_refined=self.splats_dir / "tile_survey_refined.ply",
             fill_refined=self.splats_dir / "tile_fill_refined.ply",
             record=self.logs_dir / "appearance_tile.json",
-        )
-
-    def tile_surface_files(self) -> TileSurfaceFiles:
-        """In a tile's project: the files of its part of a tiled merge's splat-surface points
-        (:mod:`hybridsplat.tile_surface`); absent elsewhere."""
-        return TileSurfaceFiles(
-            splats=self.splats_dir / "tile_surface_splats.ply",
-            points=self.splats_dir / "tile_surface_points.npz",
-            found=self.splats_dir / "tile_surface_found.npz",
-            record=self.logs_dir / "surface_tile.json",
         )
 
     @property

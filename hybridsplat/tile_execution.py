@@ -26,9 +26,9 @@ TileDone = Callable[[str, int, int], None]
 
 TileTask = Callable[[Any], Any]
 """What runs one tile's job (a module-level function, which Ray pickles by reference): :func:`run_tile` for the tile
-stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` and :func:`hybridsplat.tile_surface.run_tile_surface`
-for the appearance and merge stages' parts. A job has ``name`` and ``memory_mb`` (the MB its task declares; 0:
-unknown); the task returns the tile's record, a frozen dataclass with a ``resources`` field (what Ray gave it)."""
+stages, :func:`hybridsplat.tile_appearance.run_tile_appearance` for the appearance stage's parts. A job has ``name``
+and ``memory_mb`` (the MB its task declares; 0: unknown); the task returns the tile's record, a frozen dataclass with
+a ``resources`` field (what Ray gave it)."""
 
 
 @dataclass(frozen=True)

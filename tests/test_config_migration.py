@@ -123,6 +123,16 @@ def test_a_stage_recorded_by_0_2_is_current_when_its_options_did_not_move_in_val
 
 
 # -- removed options (issue 54) -----------------------------------------------------------------------------------
+#: the splat-surface options of [merge] as a default config.toml of 0.3 spelled them (every one, the switch off)
+SPLAT_SURFACE_OFF = {
+    "splat_surface": False, "splat_surface_keep_centres": False, "splat_surface_support": 2.0,
+    "splat_surface_sigma_scale": [["reflective", 1.25]],
+    "splat_surface_points": {
+        "depth": "plane", "min_agreeing": 2, "max_reproj_px": 1.0, "max_rel_depth": 0.01, "front_margin": 0.01,
+        "sigma_floor_px": 0.1, "sigma_footprint": 1.5, "sigma_roughness": 0.5, "sigma_anchor": 2.0,
+        "sigma_neighbours": 8,
+    },
+}  # fmt: skip
 #: (stage, the option as the error spells it, its stage table with the option off, the same with it on)
 REMOVED_CASES = {
     "priors": ("train", "train.training.priors", {"training": {"priors": "none"}},
@@ -152,6 +162,8 @@ REMOVED_CASES = {
                             {"training": {"lpips_weight": 0.2, "lpips_start": 0.5}}),
     "lpips of 0.2": ("train", "train.lpips_weight", {"lpips_weight": 0.0, "lpips_start": 0.8, "lpips_weights": ""},
                      {"lpips_weight": 0.1}),
+    "splat surface": ("merge", "merge.splat_surface", SPLAT_SURFACE_OFF,
+                      {**SPLAT_SURFACE_OFF, "splat_surface": True}),
 }  # fmt: skip
 
 
@@ -187,3 +199,30 @@ def test_a_stage_recorded_with_removed_options_off_stays_current(tmp_path):
     assert record_is_current(record, train, {"a": "h"}, now, tmp_path)
     recorded["training"]["priors"] = {"depth_weight": 0.2}  # it trained with priors: rerun without them
     assert not record_is_current(record, train, {"a": "h"}, now, tmp_path)
+
+
+def test_an_old_config_with_splat_surface_on_fails_naming_it_and_the_verdict(tmp_path):
+    """``[merge] splat_surface = true`` (removed by issue 54): one line naming the file, the key, the version, why
+    and where to read more; the same option off loads to today's defaults."""
+    types = stage_options_types()
+    path = tmp_path / "config.toml"
+    path.write_text("[merge]\nsplat_surface = true\nsplat_surface_support = 2.0\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as err:
+        read_config(path, types)
+    line = err.value.one_line()
+    assert line.startswith(f"{path}: option(s) removed in 0.4: merge.splat_surface = true (the splat-surface"), line
+    assert "did not hold on the scoring ones" in line and "docs/migration.md" in line
+    assert "splat_surface_support" not in line  # acts only with the switch: left out, not refused on its own
+    path.write_text("[merge]\nsplat_surface = false\n", encoding="utf-8")
+    assert read_config(path, types).options("merge", types["merge"]) == types["merge"]()
+
+
+def test_a_merge_recorded_with_the_splat_surface_options_off_stays_current(tmp_path):
+    """A merge of 0.3 recorded every splat-surface option (off): not re-run for their removal; on, it is."""
+    merge = stage_named("merge")
+    recorded = {**options_digest(merge.Options()), **SPLAT_SURFACE_OFF}
+    record = StageRecord(name="merge", config={"options": recorded, "fingerprint": {}}, inputs={"a": "h"})
+    now = {"options": options_digest(merge.Options()), "fingerprint": {}}
+    assert record_is_current(record, merge, {"a": "h"}, now, tmp_path)
+    recorded["splat_surface"] = True  # it merged with splat-surface points: rerun without them
+    assert not record_is_current(record, merge, {"a": "h"}, now, tmp_path)

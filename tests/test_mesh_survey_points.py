@@ -1,5 +1,5 @@
 """A mesh from the survey point product (MeshSource.SURVEY): on a sphere whose cap MVS missed, the survey product's
-splat-surface points (source 4) close the cap the MVS points alone leave open. Truth: the analytic sphere."""
+trustworthy splat centres (source 2) close the cap the MVS points alone leave open. Truth: the analytic sphere."""
 
 from __future__ import annotations
 
@@ -15,11 +15,10 @@ from fusion.mesh.pipeline import MeshOptions, MeshSource, mesh_from_gaussians
 from fusion.mesh.survey_points import oriented_points_from_survey
 
 R, CAP_Z, TAU = 0.5, 0.25, 0.01
-SPLAT_SURFACE = 4
 
 
 def _survey(with_surface: bool, origin: np.ndarray | None = None) -> tuple[PointCloud, np.ndarray]:
-    """MVS points below the cap; splat-surface points (1 mm of noise) on it when ``with_surface``; camera centres."""
+    """MVS points below the cap; splat centres (1 mm of noise) on it when ``with_surface``; camera centres."""
     rng = np.random.default_rng(1)
     pts = fibonacci_sphere(4000, R)
     mvs = pts[pts[:, 2] <= CAP_Z]
@@ -28,7 +27,7 @@ def _survey(with_surface: bool, origin: np.ndarray | None = None) -> tuple[Point
         cap = fibonacci_sphere(2500, R)
         cap = cap[cap[:, 2] > CAP_Z] + rng.normal(scale=0.001, size=(1, 3))
         parts.append(cap)
-        sources.append(np.full(len(cap), SPLAT_SURFACE))
+        sources.append(np.full(len(cap), Source.SPLAT))
     positions = np.concatenate(parts)
     origin = np.zeros(3) if origin is None else origin
     cloud = PointCloud(positions, origin, colors=np.full((len(positions), 3), 200, np.uint8),
@@ -58,7 +57,7 @@ def test_oriented_survey_points_face_the_cameras_and_lie_on_the_surface():
     assert 0.5 * spacing < np.median(points.footprint) < 3 * spacing  # from the neighbours: no scale field
 
 
-def test_the_survey_mesh_closes_the_cap_with_the_splat_surface_points():
+def test_the_survey_mesh_closes_the_cap_with_the_splat_centres():
     merged = _merged()
     meshes = {}
     for with_surface in (False, True):

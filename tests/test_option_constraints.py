@@ -32,7 +32,6 @@ from fusion.mesh.options import (
     SnapshotOptions,
 )
 from fusion.mesh.tsdf import TSDFOptions
-from fusion.splat_surface import SplatSurfaceOptions
 from fusion.tiles3d import TilesetOptions
 from hybridsplat.config import InputOptions
 from hybridsplat.stages.mesh import MeshStageOptions
@@ -145,20 +144,8 @@ REFUSED = [
     (AppearanceOptions, "max_scale_spacings", [0.0, NAN]),
     (AppearanceOptions, "spacing_neighbours", [0, 65]),
     (AppearanceOptions, "max_passes", [-1.0, NAN]),
-    (SplatSurfaceOptions, "depth", ["mean"]),
-    (SplatSurfaceOptions, "min_agreeing", [0]),
-    (SplatSurfaceOptions, "max_reproj_px", [0.0, NAN]),
-    (SplatSurfaceOptions, "max_rel_depth", [0.0]),
-    (SplatSurfaceOptions, "front_margin", [-0.01]),
-    (SplatSurfaceOptions, "sigma_floor_px", [-0.1, NAN]),
-    (SplatSurfaceOptions, "sigma_footprint", [-1.0]),
-    (SplatSurfaceOptions, "sigma_roughness", [-1.0]),
-    (SplatSurfaceOptions, "sigma_anchor", [NAN]),
-    (SplatSurfaceOptions, "sigma_neighbours", [0]),
     (MergeOptions, "viewer_formats", [("ply", "fbx"), ("x",)]),
     (MergeOptions, "needs_mvs_max_rim_spacing", [0.0, -1.0, NAN]),
-    (MergeOptions, "splat_surface_sigma_scale", [(("reflective", 0.5),), (("reflective",),), ((1.5, 2.0),)]),
-    (MergeOptions, "splat_surface_support", [0.0, NAN]),
     (ConvertOptions, "opacity_logit_min", [NAN, -INF]),
     (ConvertOptions, "opacity_logit_max", [INF]),
     (ConvertOptions, "min_spacing", [0.0, -1.0]),
@@ -251,13 +238,8 @@ ACCEPTED = [
     (AppearanceOptions, "max_image_size", [0]),
     (AppearanceOptions, "spacing_neighbours", [1, 64]),
     (AppearanceOptions, "max_passes", [0.0, INF]),
-    (SplatSurfaceOptions, "depth", ["median"]),
-    (SplatSurfaceOptions, "front_margin", [0.0]),
-    (SplatSurfaceOptions, "sigma_anchor", [0.0]),
     (MergeOptions, "viewer_formats", [()]),
     (MergeOptions, "needs_mvs_max_rim_spacing", [None, 1.0]),
-    (MergeOptions, "splat_surface_sigma_scale", [(), (("reflective", 1.0), ("glass", 2))]),
-    (MergeOptions, "splat_surface_support", [None, 0.5]),
     (ConvertOptions, "thickness_ratio", [1.0]),
     (ConvertOptions, "k_neighbors", [1, 64]),
     (ConvertOptions, "neighbor_backend", ["kdtree"]),

@@ -9,7 +9,6 @@ import pytest
 
 from core.pointcloud import PointCloud
 from eval.sigma_calibration import Z95, calibration_per_material, calibration_row, local_plane_distances
-from fusion.convert_options import Source
 
 
 def _tilted_plane(spacing: float = 0.01, half: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -99,37 +98,37 @@ def test_per_material_rows_follow_the_nearest_reference_point() -> None:
     assert table["all"]["points"] == 40 and table["all"]["within_95"] == 0.25
 
 
-def test_the_eval_stage_and_the_report_carry_the_calibration_of_the_splat_surface_points() -> None:
+def test_the_eval_stage_and_the_report_carry_the_calibration_of_the_points_that_carry_a_sigma() -> None:
+    """Any product whose points carry a ``sigma`` field (0: no estimate, left out) gets Table 6; one without a σ
+    field, or with none positive, gets none and its tables are as before."""
     from core.units import Units
     from eval.report import _per_material_tables
-    from hybridsplat.stages.evaluate import _MaterialReference, _splat_surface_group
+    from hybridsplat.stages.evaluate import _MaterialReference, _sigma_calibration
 
     g = np.arange(-0.5, 0.5, 0.01) + 0.005
     x, y = np.meshgrid(g, g)
     ref = PointCloud(np.c_[x.ravel(), y.ravel(), np.zeros(x.size)], fields={"material": (x.ravel() > 0) + 1})
     names = {1: "wood", 2: "mirror"}
-    mvs = ref.positions[ref.positions[:, 0] < 0]
-    surface = ref.positions[ref.positions[:, 0] > 0][::7] + [0.003, 0.002, 3e-3]  # 3 mm above the mirror
-    n_mvs, n_surface = len(mvs), len(surface)
-    fields = {
-        "source": np.r_[np.full(n_mvs, Source.MVS), np.full(n_surface, Source.SPLAT_SURFACE)].astype(np.uint8),
-        "sigma": np.r_[np.zeros(n_mvs), np.full(n_surface, 2e-3)].astype(np.float32),  # 1.5σ: in 95 %, not in 1σ
-    }
-    rows: dict = {"wood": {}, "mirror": {}}
+    plain = ref.positions[ref.positions[:, 0] < 0]
+    with_sigma = ref.positions[ref.positions[:, 0] > 0][::7] + [0.003, 0.002, 3e-3]  # 3 mm above the mirror
+    n_plain, n_sigma = len(plain), len(with_sigma)
+    sigma = np.r_[np.zeros(n_plain), np.full(n_sigma, 2e-3)].astype(np.float32)  # 1.5σ: in 95 %, not in 1σ
     reference = _MaterialReference(ref, None, Path("."))
-    table = _splat_surface_group(rows, PointCloud(np.r_[mvs, surface], fields=fields), reference, 6e-3, names)
+    table = _sigma_calibration(PointCloud(np.r_[plain, with_sigma], fields={"sigma": sigma}), reference, names)
     assert table is not None and set(table) == {"all", "mirror"}
-    assert table["mirror"]["points"] == n_surface
+    assert table["mirror"]["points"] == n_sigma
     assert table["mirror"]["within_1sigma"] == 0.0 and table["mirror"]["within_95"] == 1.0
     assert table["mirror"]["median_distance_m"] == pytest.approx(3e-3, abs=1e-9)
-    no_sigma = PointCloud(np.r_[mvs, surface], fields={"source": fields["source"]})
-    assert _splat_surface_group({"wood": {}, "mirror": {}}, no_sigma, reference, 6e-3, names) is None
+    assert _sigma_calibration(PointCloud(np.r_[plain, with_sigma]), reference, names) is None
+    zeros = PointCloud(np.r_[plain, with_sigma], fields={"sigma": np.zeros(n_plain + n_sigma, np.float32)})
+    assert _sigma_calibration(zeros, reference, names) is None
+    rows: dict = {"wood": {}, "mirror": {}}
     per_material = {"tau_m": 6e-3, "materials": {}, "products": {"merged": rows},
                     "sigma_calibration": {"merged": table}}  # fmt: skip
     tables = _per_material_tables(per_material, Units.MM)
     title, header, body = tables[-1]
     assert title.startswith("Table 6") and "`merged`" in title
-    assert body[-1] == ["mirror", str(n_surface), "0.000", "1.000", "2.0", "3.0"]
+    assert body[-1] == ["mirror", str(n_sigma), "0.000", "1.000", "2.0", "3.0"]
     without = _per_material_tables({k: v for k, v in per_material.items() if k != "sigma_calibration"}, Units.MM)
     assert not any(t[0].startswith("Table 6") for t in without) and len(without) == len(tables) - 1
 

@@ -136,7 +136,7 @@ def _samples() -> list[StageResult]:
     from hybridsplat.stages.baseline import BaselineResult
     from hybridsplat.stages.classify import ClassifyResult
     from hybridsplat.stages.evaluate import EvalResult, ProductHeadline
-    from hybridsplat.stages.merge import MergeResult, SplatSurfaceCounts
+    from hybridsplat.stages.merge import MergeResult
     from hybridsplat.stages.mesh import MeshResult
     from hybridsplat.stages.sfm import SfmResult
     from hybridsplat.stages.tiles import SeamCheck, StitchedProducts, TilePrediction, TilesResult
@@ -161,7 +161,6 @@ def _samples() -> list[StageResult]:
                          survey_unrefined=0, fill_unrefined=1, tiles=1, per_tile=(tile,), peak_mb_with_workers=900.0),
         MergeResult(merged=10, written=10, mvs=6, splats=3, background=1, points=8, survey_refined=True,
                     point_splats={"input": 3, "kept": 2}, point_needs_mvs_classes={"thin": 0},
-                    splat_surface=SplatSurfaceCounts(4, 2, {"kept": 5}, 5, 1, 0, 0, 4, {"thin": 4}, 0.002),
                     fill_refined=True, memory_limit_mb=800.0, export_chunk_points=1000),
         MeshResult(triangles_raw=300, triangles=100, vertices=52, budget=100, within_budget_tolerance=True,
                    method="tsdf", formats=("ply",), warnings=("a warning",)),

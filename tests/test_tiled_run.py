@@ -270,50 +270,6 @@ def test_the_tiles_appearance_fits_as_ray_tasks_make_the_same_survey_layer(tiled
     assert products[0] == products[1]
 
 
-def test_splat_surface_points_found_tile_by_tile_are_the_untiled_ones(tiled, tmp_path):
-    import shutil
-
-    from scipy.spatial import cKDTree
-
-    from core.io.gaussian_ply import read_gaussian_ply
-    from fusion.merge_options import MergeOptions
-    from fusion.splat_surface import SplatSurfaceOptions, front_depths_from_points, splat_surface_points
-    from hybridsplat import project_io
-
-    scene, sequential = tiled
-    layout = ProjectLayout(tmp_path / "surface")
-    shutil.copytree(sequential, layout.root)
-    merge = MergeOptions(splat_surface=True, splat_surface_support=None)
-    config = ProjectConfig(input=InputOptions(path=str(scene)),
-                           stages={**FAST, "tiles": TilesOptions(grid="2x1"), "merge": merge})  # fmt: skip
-    merged = stage_result(run_pipeline(layout.root, config, stages=[stage_named("merge")]), stage_named("merge"))
-    tiled_found = merged.splat_surface.found
-    # the untiled search on the same products, as the merge stage runs it without tiles
-    cameras, _ = project_io.read_project_model(layout, layout.dense_workspace.sparse)
-    masks = {k: m for k, m in project_io.read_region_masks(layout, cameras, training=True).items() if m.any()}
-    mvs = read_gaussian_ply(layout.mvs_gaussians)
-    needs = project_io.needs_splats_per_gaussian(layout, mvs)
-    trusted = mvs.subset(~needs).with_origin(cameras.origin).means
-    front = front_depths_from_points(trusted, cameras, sorted(masks))
-    untiled = splat_surface_points(read_gaussian_ply(layout.cleaned_splats), cameras, masks, front,
-                                   SplatSurfaceOptions(), mvs.with_origin(cameras.origin).means)  # fmt: skip
-    from core.io.ply import read_ply
-    from fusion.convert_options import Source
-
-    points = read_ply(layout.merged_points_ply)
-    local = points.positions + (points.origin - cameras.origin)
-    ours = local[np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE]
-    assert len(untiled) > 100 and abs(tiled_found - len(untiled)) <= 0.05 * len(untiled)
-    assert len(np.unique(ours, axis=0)) == len(ours)  # no point from two tiles
-    tree = cKDTree(untiled.positions)
-    spacing = float(np.median(tree.query(untiled.positions, k=2)[0][:, 1]))
-    distance = tree.query(ours)[0]
-    # most are the untiled points themselves (to the product's float32 rounding); the rest, near core borders, were
-    # fused from another view's pixel of the same surface (a view's pixels already used differ per tile)
-    assert np.mean(distance < 1e-4) >= 0.7, np.mean(distance < 1e-4)
-    assert np.mean(distance < 0.5 * spacing) >= 0.95, np.mean(distance < 0.5 * spacing)
-
-
 def test_a_tile_that_fuses_no_point_adds_nothing_and_is_not_redone(tiled, tmp_path, monkeypatch):
     import shutil
 

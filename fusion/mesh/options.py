@@ -158,7 +158,7 @@ class SnapshotOptions(Constrained):
 
 class MeshSource(str, Enum):
     """What is meshed: all Gaussians of the merged set (hybrid, their ellipses sampled), only those converted from
-    MVS, or the survey point product (MVS points, trustworthy splat centres and splat-surface points; see
+    MVS, or the survey point product (MVS points and trustworthy splat centres; see
     :mod:`fusion.mesh.survey_points`)."""
 
     ALL = "all"

@@ -1,12 +1,11 @@
 """Oriented points from the survey point product (``export/merged_points.ply``): the input of a mesh made from
 what the survey measured (``MeshSource.SURVEY``) rather than from the Gaussians' ellipses.
 
-The survey product holds the MVS points (``source`` 1), the splat centres that passed the survey-point rule (2) and,
-when that option is on, the multi-view-checked splat-surface points (4, each with a ``sigma``). Each point becomes
-one oriented point: its normal is the cloud's own where the file has normals, else the PCA normal of its
-``normal_neighbors`` nearest survey points, turned to face the cameras (:func:`orient_normals`); its footprint (the
-support radius trimming uses) is ``footprint_sigmas`` × its ``scale`` field (the σ of the Gaussian it came from),
-or the mean distance to its nearest neighbours where there is none.
+The survey product holds the MVS points (``source`` 1) and the splat centres that passed the survey-point rule (2).
+Each point becomes one oriented point: its normal is the cloud's own where the file has normals, else the PCA
+normal of its ``normal_neighbors`` nearest survey points, turned to face the cameras (:func:`orient_normals`); its
+footprint (the support radius trimming uses) is ``footprint_sigmas`` × its ``scale`` field (the σ of the Gaussian it
+came from), or the mean distance to its nearest neighbours where there is none.
 """
 
 from __future__ import annotations

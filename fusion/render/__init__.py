@@ -23,13 +23,12 @@ if TYPE_CHECKING:
     from fusion.render.projection import Projection, project_gaussians
     from fusion.render.scene import render_gaussian_set
     from fusion.render.sh import sh_to_colour
-    from fusion.render.types import Backend, RenderedImage, RenderGeometry, RenderResult
+    from fusion.render.types import Backend, RenderedImage, RenderResult
 
 #: name -> submodule that defines it (imported on first access: the package itself imports nothing heavy)
 _EXPORTS: dict[str, str] = {
     "Backend": "types",
     "Projection": "projection",
-    "RenderGeometry": "types",
     "RenderResult": "types",
     "RenderedImage": "types",
     "gsplat_available": "gsplat_backend",
@@ -44,7 +43,6 @@ _EXPORTS: dict[str, str] = {
 __all__ = [
     "Backend",
     "Projection",
-    "RenderGeometry",
     "RenderResult",
     "RenderedImage",
     "gsplat_available",

@@ -5,14 +5,13 @@ from __future__ import annotations
 import torch
 
 from core.errors import ConfigError, DataError
-from fusion.render.cpu import rasterize_cpu, rasterize_geometry_cpu
+from fusion.render.cpu import rasterize_cpu
 from fusion.render.gsplat_backend import gsplat_available, render_gsplat
-from fusion.render.normals_cpu import gaussian_normals_cpu
 from fusion.render.project_cpu import project_splats_cpu
-from fusion.render.projection import gaussian_normals, project_gaussians
-from fusion.render.reference import rasterize_reference, rasterize_reference_geometry
+from fusion.render.projection import project_gaussians
+from fusion.render.reference import rasterize_reference
 from fusion.render.sh import sh_to_colour
-from fusion.render.types import NEAR_PLANE, TILE_SIZE, Backend, RenderGeometry, RenderResult
+from fusion.render.types import NEAR_PLANE, TILE_SIZE, Backend, RenderResult
 
 
 def resolve_backend(backend: Backend | str) -> Backend:
@@ -65,7 +64,6 @@ def render(
     backend: Backend | str = Backend.AUTO,
     near_plane: float = NEAR_PLANE,
     tile_size: int = TILE_SIZE,
-    render_geometry: bool = False,
 ) -> RenderResult:
     """Render N Gaussians into one pinhole camera, differentiably.
 
@@ -85,8 +83,6 @@ def render(
     near_plane: Gaussians with camera z below this are culled (metres).
     tile_size: tile edge in pixels for binning (the ``cpu`` kernels are compiled for 16 only). Images do not
         depend on it: the 3σ cut is per pixel.
-    render_geometry: also render normals, plane and median depth into ``RenderResult.geometry`` (conventions:
-        :class:`RenderGeometry`; ``reference`` and ``cpu``; colour, alpha and depth unchanged to float rounding).
 
     Returns a :class:`RenderResult`; gradients flow to means, quats, log_scales, logit_opacities and sh_coeffs.
     Computation runs in the dtype of ``means`` (float32 normally, float64 for gradient checks).
@@ -102,8 +98,6 @@ def render(
     K = K.to(dtype)
     chosen = resolve_backend(backend)
     if chosen is Backend.GSPLAT:
-        if render_geometry:
-            raise ConfigError("render: render_geometry=True needs the 'reference' or 'cpu' backend, not 'gsplat'")
         return render_gsplat(
             means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height,
             degree, bg, near_plane, tile_size,
@@ -113,7 +107,7 @@ def render(
         raise ConfigError(f"render: backend {chosen.value!r} runs on CPU tensors, got {means.device}; use 'gsplat'")
     inputs = (means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree)
     raster = _rasterize_cpu if chosen is Backend.CPU else _rasterize_reference
-    image, means2d, depths, extents, visible, extra = raster(*inputs, near_plane, tile_size, render_geometry)
+    image, means2d, depths, extents, visible = raster(*inputs, near_plane, tile_size)
     alpha = image[..., -1]
     colour = image[..., :3] + (1 - alpha)[..., None] * bg
     depth = image[..., 3] / alpha.clamp_min(1e-10)
@@ -127,63 +121,16 @@ def render(
         visible=visible,
         depths=depths,
         backend=chosen,
-        geometry=None if extra is None else geometry_from_raster(image, alpha, depths, *extra, K),
     )
 
 
-def geometry_from_raster(
-    image: torch.Tensor, alpha: torch.Tensor, depths: torch.Tensor, median_id: torch.Tensor, normals: torch.Tensor,
-    K: torch.Tensor,
-) -> RenderGeometry:  # fmt: skip
-    """:class:`RenderGeometry` from an (H, W, 9) geometry image (RGB, z, normal, plane distance, alpha: the output
-    of ``rasterize_geometry_cpu`` / ``rasterize_reference_geometry`` with features (colour, z, normals, plane
-    distances)), its (H, W) alpha, the (N,) Gaussian depths and the (H, W) median Gaussian ids over the same N
-    rows, the (N, 3) normals (:func:`fusion.render.projection.gaussian_normals`) and the intrinsics (3, 3).
-    Public so that a renderer assembling its own rows (training's trainable + frozen context) can build it too."""
-    height, width = alpha.shape
-    normal, plane_dist = image[..., 4:7], image[..., 7]
-    dtype = image.dtype
-    u = torch.arange(width, dtype=dtype) + 0.5
-    v = torch.arange(height, dtype=dtype) + 0.5
-    rays = torch.stack(
-        [((u - K[0, 2]) / K[0, 0])[None, :].expand(height, width), ((v - K[1, 2]) / K[1, 1])[:, None].expand(height,
-         width), torch.ones(height, width, dtype=dtype)], dim=-1,
-    )  # fmt: skip
-    denom = (normal * rays).sum(-1)
-    grazing = 0.05 * normal.detach().norm(dim=-1) * rays.norm(dim=-1)
-    plane_valid = (alpha.detach() >= 0.5) & (denom.detach() < -grazing)
-    safe = torch.where(plane_valid, denom, -torch.ones_like(denom))
-    plane_depth = torch.where(plane_valid, -plane_dist / safe, torch.zeros_like(plane_dist))
-    median_valid = median_id >= 0
-    if depths.shape[0] == 0:
-        median_depth = torch.zeros_like(alpha)
-    else:
-        picked = depths[median_id.clamp_min(0)]
-        median_depth = torch.where(median_valid, picked, torch.zeros_like(picked))
-    return RenderGeometry(
-        normal=normal,
-        plane_dist=plane_dist,
-        plane_depth=plane_depth,
-        plane_valid=plane_valid,
-        median_depth=median_depth,
-        median_valid=median_valid,
-        median_id=median_id,
-        normals=normals,
-    )
-
-
-_Raster = tuple[
-    torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, tuple[torch.Tensor, torch.Tensor] | None
-]
-"""(H, W, 5) image (premultiplied RGB, alpha-weighted z, alpha: the last channel; (H, W, 9) with geometry: normal
-xyz and plane distance before alpha), and per Gaussian the (N, 2) pixel means, (N,) camera z (metres), (N, 2) pixel
-extents and (N,) bool visible; with geometry, the (H, W) int64 median Gaussian ids and (N, 3) camera-frame normals,
-else None."""
+_Raster = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+"""(H, W, 5) image (premultiplied RGB, alpha-weighted z, alpha: the last channel), and per Gaussian the (N, 2) pixel
+means, (N,) camera z (metres), (N, 2) pixel extents and (N,) bool visible."""
 
 
 def _rasterize_cpu(
-    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size,
-    geometry,
+    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size
 ) -> _Raster:  # fmt: skip
     """The ``cpu`` backend: numba projection with SH evaluation, then the numba tile rasteriser."""
     sp = project_splats_cpu(
@@ -193,19 +140,12 @@ def _rasterize_cpu(
     means2d, depths, extents, visible = sp.means2d, sp.depths, sp.extents, sp.visible
     features = torch.cat([sp.colours, depths[:, None]], dim=1)  # (N, 4): RGB, z; alpha is appended
     raster = (means2d, sp.conics, sp.opacities)
-    if geometry:
-        normals, plane = gaussian_normals_cpu(means, quats, log_scales, viewmat)
-        features = torch.cat([features, normals, plane[:, None]], dim=1)  # (N, 8)
-        image, median_id = rasterize_geometry_cpu(*raster, features, extents, depths, visible, width, height,
-                                                  tile_size)  # fmt: skip
-        return image, means2d, depths, extents, visible, (median_id, normals)
     image = rasterize_cpu(*raster, features, extents, depths, visible, width, height, tile_size)
-    return image, means2d, depths, extents, visible, None
+    return image, means2d, depths, extents, visible
 
 
 def _rasterize_reference(
-    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size,
-    geometry,
+    means, quats, log_scales, logit_opacities, sh_coeffs, viewmat, K, width, height, degree, near_plane, tile_size
 ) -> _Raster:  # fmt: skip
     """The ``reference`` backend: plain torch projection, SH evaluation and rasterisation (autograd gradients)."""
     proj = project_gaussians(means, quats, log_scales, viewmat, K, width, height, near_plane=near_plane)
@@ -215,11 +155,5 @@ def _rasterize_reference(
     opacities = torch.sigmoid(logit_opacities)
     means2d, depths, extents, visible = proj.means2d, proj.depths, proj.extents, proj.visible
     raster = (means2d, proj.conics, opacities)
-    if geometry:
-        normals, plane = gaussian_normals(means, quats, log_scales, viewmat)
-        features = torch.cat([features, normals, plane[:, None]], dim=1)  # (N, 8)
-        image, median_id = rasterize_reference_geometry(*raster, features, extents, depths, visible, width, height,
-                                                        tile_size)  # fmt: skip
-        return image, means2d, depths, extents, visible, (median_id, normals)
     image = rasterize_reference(*raster, features, extents, depths, visible, width, height, tile_size)
-    return image, means2d, depths, extents, visible, None
+    return image, means2d, depths, extents, visible

@@ -23,9 +23,9 @@ this module does the per-pixel work:
    sum in list-entry order: results do not depend on the thread count). Entries of frozen Gaussians (training's
    context, whose gradients nobody reads) are only peeled off the remainders and the transmittance.
 
-Colour (RGB, z) and geometry (RGB, z, normal, plane distance, and each pixel's median Gaussian) are channels of
-one kernel pair: :func:`_forward_kernel` and :func:`_backward_kernel` compile a variant per channel count (1-8) and
-median flag, both compile-time constants, as gsplat's rasteriser takes any number of channels.
+The composited features are channels of one kernel pair: :func:`_forward_kernel` and :func:`_backward_kernel`
+compile a variant per channel count (1-8; the renderer's colour is RGB and z), a compile-time constant, as gsplat's
+rasteriser takes any number of channels.
 
 Training renders only the pixels its loss reads (``pixels``): the others start as finished, so a unit or tile
 without one costs nothing in either pass.
@@ -247,9 +247,6 @@ def _row_span(m, e, y0, y1):  # pragma: no cover - numba
     return r0 - y0, r1 - y0
 
 
-_T_MEDIAN = np.float32(0.5)
-
-
 @intrinsic
 def _item(typingctx, tup, idx):  # noqa: ANN001, ANN202 - a numba intrinsic
     """``tup[idx]`` of a homogeneous tuple, idx in range (not checked), through a stack copy of the tuple.
@@ -416,39 +413,32 @@ def _forward_kernel(
     j0,
     j1,
     channels,
-    median_flag,
     live,
     out,
     n_used,
-    median,
 ):  # pragma: no cover - numba
     """Tiles order[j0:j1] of features (N, nf) into out (H, W, nf + 1) and n_used (H, W) (disjoint per tile);
-    pixels where ``live`` (H, W) is 0 are not composited (features 0, alpha 0, n_used 0). With the median:
-    median (H, W) int32, the list position (1-based, within the tile) of the first composited entry after
-    which the transmittance is below 0.5, 0 where there is none (else median is not touched).
+    pixels where ``live`` (H, W) is 0 are not composited (features 0, alpha 0, n_used 0).
 
     Tile state is kept in units of 2 rows × 8 columns, [half h, row pair p, i] with pixel (row 2p + i // 8,
     column 8h + i % 8): a Gaussian visits only the units its 3σ box reaches (one 16-wide vectorised loop
     each; a box in one half of the columns costs half a row loop), and units whose 16 pixels have all
     stopped are skipped.
 
-    The channel count and the median flag are compile-time constants, carried by the types of two arguments
-    (numba compiles, and caches on disk, one variant per pair, and dispatches on them as fast as on arrays):
-    ``channels``, a tuple of C zeros in the float type (:func:`_channel_tuple`), and ``median_flag``, ``()`` or
-    ``(0,)``. Each Gaussian's channels are a tuple of that length, composited by written-out lines
-    (:func:`_accumulate`) of which LLVM keeps those the tuple has, so that it vectorises the 16-pixel loop as it
-    did the hand-written 4- and 8-channel kernels this one replaced (a runtime channel count, or one 16-pixel loop
-    per channel, ran markedly slower).
+    The channel count is a compile-time constant, carried by the type of an argument (numba compiles, and caches
+    on disk, one variant per count, and dispatches on it as fast as on arrays): ``channels``, a tuple of C zeros in
+    the float type (:func:`_channel_tuple`). Each Gaussian's channels are a tuple of that length, composited by
+    written-out lines (:func:`_accumulate`) of which LLVM keeps those the tuple has, so that it vectorises the
+    16-pixel loop as it did the hand-written 4- and 8-channel kernels this one replaced (a runtime channel count, or
+    one 16-pixel loop per channel, ran markedly slower).
     """
     nf = len(channels)
-    track = len(median_flag) > 0
     ts = _TS
     dt = means2d.dtype
     n_tiles = offsets.shape[0] - 1
     T = np.empty((2, _PAIRS, 16), dt)
     acc = np.empty((nf, 2, _PAIRS, 16), dt)
     used = np.empty((2, _PAIRS, 16), np.int32)
-    med = np.empty((2, _PAIRS, 16), np.int32)
     alive = np.empty((2, _PAIRS), np.int32)  # pixels of each unit still compositing
     xu = np.empty((2, 16), dt)  # pixel centres of a unit
     yu = np.empty((_PAIRS, 16), dt)
@@ -472,7 +462,6 @@ def _forward_kernel(
                     alive[h, p] += 1 if inside else 0
         acc[:] = 0.0
         used[:] = 0
-        med[:] = 0
         _unit_centres(xu, yu, x0, y0)
         zero = xu[0, 0] - xu[0, 0]
         one = xu[0, 1] - xu[0, 0]  # 1 in the float type: an int or float64 count made LLVM pick 4-wide vectors
@@ -506,9 +495,6 @@ def _forward_kernel(
                         T[h, p, i] = -tp if stop else (test_t if draw else tp)
                         u = used[h, p, i]  # load first: a select on the store target blocks vectorisation
                         used[h, p, i] = kk if draw else u
-                        if track:
-                            md = med[h, p, i]
-                            med[h, p, i] = kk if (draw & (tp >= _T_MEDIAN) & (test_t < _T_MEDIAN)) else md
                         stops += one if stop else zero
                     n_stops = np.int32(stops)
                     n_done += n_stops
@@ -522,8 +508,6 @@ def _forward_kernel(
                     out[y0 + r, x0 + c, f] = acc[f, h, p, i]
                 out[y0 + r, x0 + c, nf] = 1.0 - abs(T[h, p, i])
                 n_used[y0 + r, x0 + c] = used[h, p, i]
-                if track:
-                    median[y0 + r, x0 + c] = med[h, p, i]
 
 
 @njit(nogil=True, cache=True, fastmath=True, error_model="numpy")
@@ -732,27 +716,22 @@ def _np(t: torch.Tensor) -> np.ndarray:
 
 
 class _RasterizeCPU(torch.autograd.Function):
-    """Composite C features front to back, and with ``track_median`` find each pixel's median entry;
-    differentiable w.r.t. means2d, conics, opacities and features (the median index is not)."""
+    """Composite C features front to back; differentiable w.r.t. means2d, conics, opacities and features."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen, track_median):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, features, extents, bins, width, height, live, frozen):  # type: ignore[override]
         m2 = _np(means2d)
         args = (m2, _np(conics), _np(opacities), _np(features), _np(extents).astype(m2.dtype))
         args += (bins.offsets, bins.ids, bins.order, width, height, bins.tiles_x)
         out = np.zeros((height, width, features.shape[1] + 1), m2.dtype)
         n_used = np.zeros((height, width), np.int32)
-        median = np.zeros((height, width) if track_median else (0, 0), np.int32)
-        flag = (np.int8(0),) if track_median else ()
-        tail = (_channel_tuple(features.shape[1], m2.dtype), flag, live, out, n_used, median)
+        tail = (_channel_tuple(features.shape[1], m2.dtype), live, out, n_used)
         run_chunks(_forward_kernel, args, tail, len(bins.order), "raster fwd")
         ctx.args, ctx.out, ctx.n_used, ctx.bins, ctx.frozen = args, out, n_used, bins, frozen
-        median_id = _median_ids(median, bins, width, height) if track_median else torch.empty(0, dtype=torch.int64)
-        ctx.mark_non_differentiable(median_id)
-        return torch.from_numpy(out), median_id
+        return torch.from_numpy(out)
 
     @staticmethod
-    def backward(ctx, grad_out, _grad_median):  # type: ignore[override]
+    def backward(ctx, grad_out):  # type: ignore[override]
         args = ctx.args
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=args[0].dtype)
         n, nf, dt = args[0].shape[0], args[3].shape[1], args[0].dtype
@@ -762,7 +741,7 @@ class _RasterizeCPU(torch.autograd.Function):
         outs = (np.zeros((n, 2), dt), np.zeros((n, 3), dt), np.zeros(n, dt), np.zeros((n, nf), dt))
         bins = ctx.bins
         run_threads(_sum_kernel, (g_isect, bins.sorted_ids, bins.g_offsets), outs, "gaussian sums")
-        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None, None)
+        return (*(torch.from_numpy(a) for a in outs), None, None, None, None, None, None)
 
 
 def rasterize_cpu(
@@ -782,7 +761,7 @@ def rasterize_cpu(
     """Front-to-back composite of per-Gaussian features (N, C) into an (H, W, C + 1) image with the numba kernels.
 
     Inputs as :class:`fusion.render.projection.Projection` plus opacities (N,) in (0, 1). Output channels are the
-    C composited features (Σ wᵢ fᵢ; the renderer's are RGB and z, plus normal and plane distance with geometry)
+    C composited features (Σ wᵢ fᵢ; the renderer's are RGB and z)
     and the accumulated alpha (1 - T_final). No background: the caller blends it with the alpha channel.
     Gradients flow to means2d, conics, opacities and features.
     pixels: (H, W) bool, the pixels to composite (training renders only the pixels its loss reads); the others
@@ -791,40 +770,6 @@ def rasterize_cpu(
     composites, and their gradient rows come back zero. None = none.
     Twin of :func:`fusion.render.reference.rasterize_reference`.
     """
-    image, _ = _rasterize(means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size,
-                          pixels, frozen, track_median=False)  # fmt: skip
-    return image
-
-
-def rasterize_geometry_cpu(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    features: torch.Tensor,
-    extents: torch.Tensor,
-    depths: torch.Tensor,
-    visible: torch.Tensor,
-    width: int,
-    height: int,
-    tile_size: int = TILE_SIZE,
-    pixels: np.ndarray | None = None,
-    frozen: np.ndarray | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`rasterize_cpu` (the same kernels and gradients) plus each pixel's median Gaussian: (H, W) int64
-    index of the first composited Gaussian after which the transmittance is below 0.5 (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)),
-    -1 where there is none (not differentiable). The renderer's geometry outputs composite 8 features (RGB, z,
-    normal, plane distance) through it. Twin of :func:`fusion.render.reference.rasterize_reference_geometry`.
-    """
-    return _rasterize(means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size,
-                      pixels, frozen, track_median=True)  # fmt: skip
-
-
-def _rasterize(
-    means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, pixels, frozen,
-    track_median: bool,
-) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-    """Checks, binning and the autograd function shared by :func:`rasterize_cpu` and
-    :func:`rasterize_geometry_cpu`."""
     if tile_size != TILE_SIZE:
         raise ConfigError(f"the cpu rasteriser is compiled for {TILE_SIZE}-pixel tiles, got tile_size={tile_size}")
     if features.dim() != 2 or features.shape[0] != means2d.shape[0] or not 1 <= features.shape[1] <= _MAX_CHANNELS:
@@ -834,9 +779,7 @@ def _rasterize(
         )
     live, frozen_u8 = _live_and_frozen(pixels, frozen, int(means2d.shape[0]), width, height)
     bins = bin_gaussians(_np(means2d), _np(extents), _np(depths), _np(visible), width, height, tile_size)
-    return _RasterizeCPU.apply(
-        means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8, track_median
-    )
+    return _RasterizeCPU.apply(means2d, conics, opacities, features, extents, bins, width, height, live, frozen_u8)
 
 
 def _live_and_frozen(
@@ -856,14 +799,3 @@ def _live_and_frozen(
             raise ValueError(f"frozen must be ({n},), got {tuple(frozen.shape)}")
         frozen_u8 = np.ascontiguousarray(frozen, dtype=np.uint8)
     return live, frozen_u8
-
-
-def _median_ids(median: np.ndarray, bins: TileBins, width: int, height: int) -> torch.Tensor:
-    """(H, W) int64 Gaussian ids from the kernel's 1-based per-tile list positions (0 = none -> -1)."""
-    rows, cols = np.divmod(np.arange(height * width), width)
-    tile = (rows // bins.tile_size) * bins.tiles_x + cols // bins.tile_size
-    pos = median.reshape(-1).astype(np.int64)
-    found = pos > 0
-    ids = np.full(height * width, -1, np.int64)
-    ids[found] = bins.ids[bins.offsets[tile[found]] + pos[found] - 1]
-    return torch.from_numpy(ids.reshape(height, width))

@@ -108,35 +108,3 @@ def project_gaussians(
         )
         visible = in_front & overlaps & torch.isfinite(m2).all(dim=-1)
     return Projection(means2d, conics, z, extents, visible)
-
-
-def gaussian_normals(
-    means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor, viewmat: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Camera-frame normals (N, 3) and plane distances (N,) of Gaussians (inputs as :func:`project_gaussians`).
-
-    A Gaussian's normal is the rotation axis (column of ``R_view R_q``) of its smallest scale, flipped to face the
-    camera: ``n · μ <= 0`` with μ the mean in camera coordinates (the camera centre is the origin). The plane
-    distance ``δ = -n · μ >= 0`` (metres) is the distance from the camera centre to the Gaussian's plane. Gradients
-    flow to quats, means and viewmat; the axis choice (argmin of the scales, ties to the first) and the flip are
-    piecewise constant, so log_scales get none.
-    """
-    R = viewmat[:3, :3]
-    p_cam = means @ R.T + viewmat[:3, 3]
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    # columns of quat_to_rotmat (the Gaussian's axes), (N, 3 rows, 3 columns); only the smallest axis is kept
-    cols = torch.stack(
-        [
-            torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], dim=-1),
-            torch.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], dim=-1),
-            torch.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], dim=-1),
-        ],
-        dim=1,
-    )  # (N, axis, xyz)
-    smallest = torch.argmin(log_scales.detach(), dim=1)
-    normals = torch.gather(cols, 1, smallest[:, None, None].expand(-1, 1, 3))[:, 0] @ R.T
-    facing = (normals * p_cam).sum(-1)
-    sign = torch.where(facing.detach() > 0, -torch.ones_like(facing), torch.ones_like(facing))
-    normals = normals * sign[:, None]
-    return normals, -(normals * p_cam).sum(-1)

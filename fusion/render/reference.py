@@ -69,38 +69,13 @@ def rasterize_reference(
     the pixels outside it are rendered and then zeroed.
     """
     args = (means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, chunk)
-    return _composite(*args, pixels, track_median=False)[0]
-
-
-def rasterize_reference_geometry(
-    means2d: torch.Tensor,
-    conics: torch.Tensor,
-    opacities: torch.Tensor,
-    features: torch.Tensor,
-    extents: torch.Tensor,
-    depths: torch.Tensor,
-    visible: torch.Tensor,
-    width: int,
-    height: int,
-    tile_size: int = TILE_SIZE,
-    chunk: int = 32,
-    pixels: np.ndarray | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`rasterize_reference` plus each pixel's median Gaussian: (H, W) int64 index of the first composited
-    Gaussian after which the transmittance is below 0.5 (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)), -1 where there is none (or
-    outside ``pixels``). The index is not differentiable. Same contract as
-    :func:`fusion.render.cpu.rasterize_geometry_cpu`.
-    """
-    args = (means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, chunk)
-    image, median = _composite(*args, pixels, track_median=True)
-    return image, median
+    return _composite(*args, pixels)
 
 
 def _composite(
-    means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, chunk, pixels,
-    track_median: bool,
-) -> tuple[torch.Tensor, torch.Tensor | None]:  # fmt: skip
-    """The tile loop of :func:`rasterize_reference`; also the median Gaussian per pixel when ``track_median``."""
+    means2d, conics, opacities, features, extents, depths, visible, width, height, tile_size, chunk, pixels
+) -> torch.Tensor:  # fmt: skip
+    """The tile loop of :func:`rasterize_reference`."""
     features = torch.cat([features, torch.ones_like(features[:, :1])], dim=1)
     tiles_x = (width + tile_size - 1) // tile_size
     tiles_y = (height + tile_size - 1) // tile_size
@@ -117,7 +92,6 @@ def _composite(
 
     T = torch.ones(n_tiles, tile_size * tile_size, dtype=dtype)
     acc = torch.zeros(n_tiles, tile_size * tile_size, n_feat, dtype=dtype)
-    median = torch.full((n_tiles, tile_size * tile_size), -1, dtype=torch.long)
     for s in range(0, lists.shape[1], chunk):
         active = torch.nonzero((lengths > s) & (T.detach().amax(dim=1) >= T_MIN)).squeeze(1)
         if len(active) == 0:
@@ -141,20 +115,11 @@ def _composite(
         T_before = T_in * torch.cat([torch.ones_like(trans[..., :1]), trans[..., :-1]], dim=-1)
         weights = alpha * T_before  # (A, P, C)
         acc = acc.index_add(0, active, torch.einsum("apc,acf->apf", weights, features[g]))
-        if track_median:
-            # T only decreases, so at most one composited entry per pixel crosses 0.5.
-            cross = ((T_before >= 0.5) & (T_in * trans < 0.5) & (alpha > 0)).detach()
-            found = cross.any(dim=-1)
-            picked = torch.where(cross, g[:, None, :].expand_as(cross), torch.zeros_like(cross, dtype=torch.long))
-            median[active] = torch.where(found, picked.sum(dim=-1), median[active])
         T = T.index_copy(0, active, T_in[..., 0] * trans[..., -1])
 
     image = acc.reshape(tiles_y, tiles_x, tile_size, tile_size, n_feat).permute(0, 2, 1, 3, 4)
     image = image.reshape(tiles_y * tile_size, tiles_x * tile_size, n_feat)[:height, :width]
-    med = median.reshape(tiles_y, tiles_x, tile_size, tile_size).permute(0, 2, 1, 3)
-    med = med.reshape(tiles_y * tile_size, tiles_x * tile_size)[:height, :width]
     if pixels is not None:
         mask = torch.from_numpy(np.asarray(pixels, bool))
         image = image * mask.to(dtype)[..., None]
-        med = torch.where(mask, med, torch.full_like(med, -1))
-    return image, (med if track_median else None)
+    return image

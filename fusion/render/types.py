@@ -57,46 +57,6 @@ class RenderedImage:
 
 
 @dataclass(frozen=True)
-class RenderGeometry:
-    """Geometry outputs of :func:`fusion.render.render` with ``render_geometry=True`` (torch tensors, camera frame:
-    OpenCV axes, x right, y down, z forward, metres).
-
-    Attributes
-    ----------
-    normal: (H, W, 3) ``Σ wᵢ nᵢ``: per-Gaussian unit normals alpha-blended with the colour weights ``wᵢ = αᵢ Tᵢ``,
-        premultiplied by alpha like the colour (not renormalised; its length is <= alpha, 0 where nothing is drawn).
-        A Gaussian's normal ``nᵢ`` is the axis of its smallest scale (column of its rotation) in camera
-        coordinates, flipped to face the camera (``nᵢ · μᵢ <= 0`` with μᵢ the mean in camera coordinates).
-        Gradients flow to the quaternions and the viewing rotation; the choice of axis (argmin of the scales) and
-        the flip are piecewise constant, so the scales get no gradient through it.
-    plane_dist: (H, W) ``Σ wᵢ δᵢ`` with ``δᵢ = -nᵢ · μᵢ >= 0`` the distance from the camera centre to Gaussian i's
-        plane (metres), premultiplied by alpha (PGSR's distance map).
-    plane_depth: (H, W) z-depth where the pixel's ray meets the blended plane ``n · x = -δ``:
-        ``-plane_dist / (normal · r)`` with ``r = K⁻¹ (u, v, 1)`` at the pixel centre (PGSR's unbiased depth; the
-        premultiplication cancels). 0 where not ``plane_valid``.
-    plane_valid: (H, W) bool, alpha >= 0.5 and the blended plane faces the ray (``normal · r < -0.05 |normal| |r|``,
-        i.e. within ~87° of grazing).
-    median_depth: (H, W) camera z of the mean of the pixel's median Gaussian (metres), 0 where not ``median_valid``.
-        The median Gaussian is the first composited Gaussian after which the pixel's transmittance is below 0.5
-        (Tᵢ >= 0.5 > Tᵢ (1 - αᵢ)). The choice is piecewise constant: the gradient flows only to that Gaussian's
-        depth (its z), none to opacities or to the other Gaussians.
-    median_valid: (H, W) bool, the pixel's transmittance drops below 0.5 (alpha > 0.5). 2DGS instead falls back to
-        the last contributor; here such pixels are masked.
-    median_id: (H, W) int64 index of the median Gaussian, -1 where not ``median_valid``.
-    normals: (N, 3) the per-Gaussian camera-frame normals ``nᵢ`` (differentiable), for regularisers.
-    """
-
-    normal: torch.Tensor
-    plane_dist: torch.Tensor
-    plane_depth: torch.Tensor
-    plane_valid: torch.Tensor
-    median_depth: torch.Tensor
-    median_valid: torch.Tensor
-    median_id: torch.Tensor
-    normals: torch.Tensor
-
-
-@dataclass(frozen=True)
 class RenderResult:
     """The output of :func:`fusion.render.render` for one camera (torch tensors, differentiable).
 
@@ -113,8 +73,6 @@ class RenderResult:
     visible: (N,) bool: in front of the near plane and overlapping the image.
     depths: (N,) camera-frame z of each mean (metres).
     backend: the backend that produced the result (``reference``, ``cpu`` or ``gsplat``).
-    geometry: normals, plane and median depth (:class:`RenderGeometry`) when rendered with
-        ``render_geometry=True``, else None.
     """
 
     colour: torch.Tensor
@@ -125,7 +83,6 @@ class RenderResult:
     visible: torch.Tensor
     depths: torch.Tensor
     backend: Backend
-    geometry: RenderGeometry | None = None
 
     def to_numpy(self) -> RenderedImage:
         """Colour, alpha and depth as float32 numpy arrays (detached, on the CPU)."""

@@ -510,7 +510,7 @@ class EvalStage(Stage):
             if gaussians is not None and images is not None and labels_dir is not None:
                 pixels = psnr_per_material(_label_pairs(gaussians, images, labels_dir))
             result["products"][name] = as_table(geometry, pixels, names)
-            calibration = _splat_surface_group(result["products"][name], cloud, ref, tau, names)
+            calibration = _sigma_calibration(cloud, ref, names)
             if calibration is not None:
                 result.setdefault("sigma_calibration", {})[name] = calibration
         for name, entry in stored.items():
@@ -608,32 +608,22 @@ class _MaterialReference:
         return geometry_per_material_streamed(compared_world, self.source, tau, self.plan, self.work_dir)  # type: ignore[arg-type]
 
 
-def _splat_surface_group(
-    rows: dict[str, Any], cloud: Any, ref: Any, tau: float, names: dict[int, str]
-) -> dict[str, Any] | None:
-    """The product's splat-surface points (``source`` = 4; the merge's ``splat_surface`` option) scored alone per
-    material into its rows (:func:`eval.per_material.add_point_group`, group ``splat_surface``); nothing when it
-    has none, so the tables of a product without them are as before.
-
-    Returns their σ calibration table (:func:`eval.sigma_calibration.calibration_per_material`) when they carry a
-    ``sigma`` field and the reference is held in memory (not under ``memory_limit_mb``), else None."""
-    from eval.per_material import add_point_group
+def _sigma_calibration(cloud: Any, ref: Any, names: dict[int, str]) -> dict[str, Any] | None:
+    """The σ calibration table (:func:`eval.sigma_calibration.calibration_per_material`) of the product's points that
+    carry a σ (a ``sigma`` field, metres; a σ of 0 or not finite is no estimate and leaves its point out), when any
+    does and the reference is held in memory (not under ``memory_limit_mb``); else None, so that the tables of a
+    product without σ are as before."""
     from eval.sigma_calibration import calibration_per_material
-    from fusion.convert_options import Source
 
-    source = cloud.fields.get("source")
-    if source is None:
-        return None
-    mine = np.asarray(source) == Source.SPLAT_SURFACE
-    if not mine.any():
-        return None
-    geometry = ref.geometry(cloud.world_positions[mine], tau)
-    add_point_group(rows, "splat_surface", geometry, names)
     sigma = cloud.fields.get("sigma")
     if sigma is None or ref.cloud is None:
         return None
+    sigma = np.asarray(sigma, np.float64)
+    carried = np.isfinite(sigma) & (sigma > 0)
+    if not carried.any():
+        return None
     reference = ref.cloud
-    return calibration_per_material(cloud.world_positions[mine], np.asarray(sigma, np.float64)[mine],
+    return calibration_per_material(cloud.world_positions[carried], sigma[carried],
                                     reference.world_positions, reference.fields["material"], names)  # fmt: skip
 
 

@@ -5,21 +5,17 @@ trusted MVS Gaussians + splats, a ``source`` and a ``surface`` field per Gaussia
 Gaussians whose geometry is trustworthy); the splats alone also go to export/splats.ply. Without them, the
 converted MVS cloud. ``viewer_formats`` also writes the viewer product as SPZ, SOG, compressed PLY, ``.splat`` or a
 3D Tiles tileset beside merged.ply (``--viewer-format``, repeatable); the tileset also holds the survey points as a
-point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it). ``splat_surface``
-(``run --splat-surface``, off by default) adds the splat-surface points of the fill layer to the
-survey points (:mod:`fusion.splat_surface`, ``source`` = 4), counted per predicted class in the record; on a tiled
-project they are found tile by tile (:mod:`hybridsplat.tile_surface`).
+point-cloud layer (not the mesh: the mesh stage runs later; ``hybridsplat export`` adds it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from fusion.merge_options import MergeOptions
 from hybridsplat.disk_space import tree_bytes
-from hybridsplat.records import TypedRecord
 from hybridsplat.stages import sizes
 from hybridsplat.stages.base import (
     MEMORY_LIMIT_HELP,
@@ -58,27 +54,6 @@ def _survey_exports(ctx: StageContext, points: Any, crs: str | None) -> int | No
 
 
 @dataclass(frozen=True)
-class SplatSurfaceCounts(TypedRecord):
-    """The splat-surface points of the merge (``splat_surface``): rendered in ``views`` training views, kept where
-    ``min_agreeing`` other views agree; the pixels per outcome (``pixels``, by the outcomes of
-    :class:`fusion.splat_surface.SplatSurfacePoints`), the points ``found``; of the survey-point product (the counts
-    of :func:`fusion.survey.with_splat_surface`) the splat centres dropped for them, those left out as unsupported
-    or near an MVS point and those ``kept``; the kept ones per predicted class (class name → count) and their
-    median σ (m; None without any)."""
-
-    views: int = 0
-    min_agreeing: int = 0
-    pixels: dict[str, int] = field(default_factory=dict)
-    found: int = 0
-    splat_centres_dropped: int = 0
-    unsupported: int = 0
-    near_mvs: int = 0
-    kept: int = 0
-    per_class: dict[str, int] = field(default_factory=dict)
-    sigma_median_m: float | None = None
-
-
-@dataclass(frozen=True)
 class MergeResult(StageResult):
     """What the merge stage made: the viewer product's Gaussians (``merged``; ``written`` to export/merged.ply) per
     layer (``mvs`` survey, ``splats`` fill, ``background``), the survey points, and whether the survey, fill
@@ -87,8 +62,8 @@ class MergeResult(StageResult):
     Hybrid only (:func:`fusion.survey.hybrid_products`; each a :class:`fusion.clean.SurveyPointCounts` by its field
     names): the survey-point selection of the splats (``point_splats``), the surface test of the splats
     (``surface_splats``) and the selection of the ``needs_splats`` MVS points (``point_needs_mvs``), and the
-    needs-splats MVS points kept per class (``point_needs_mvs_classes``); with ``splat_surface``, its counts. With
-    ``memory_limit_mb`` (MiB), the points a chunk of the survey-point export holds."""
+    needs-splats MVS points kept per class (``point_needs_mvs_classes``). With ``memory_limit_mb`` (MiB), the
+    points a chunk of the survey-point export holds."""
 
     merged: int = 0
     written: int = 0
@@ -101,7 +76,6 @@ class MergeResult(StageResult):
     surface_splats: dict[str, int] | None = omitted_if_none()
     point_needs_mvs: dict[str, int] | None = omitted_if_none()
     point_needs_mvs_classes: dict[str, int] | None = omitted_if_none()
-    splat_surface: SplatSurfaceCounts | None = omitted_if_none()
     fill_refined: bool | None = omitted_if_none()
     background_refined: bool = False
     memory_limit_mb: float | None = omitted_if_none()
@@ -118,12 +92,6 @@ class MergeStage(Stage):
             "viewer_formats",
             "--viewer-format",
             help="Also write the viewer product as spz | sog | compressed-ply | splat | 3dtiles (repeatable).",
-        ),
-        CliOption(
-            "splat_surface",
-            "--splat-surface/--no-splat-surface",
-            help="Add multi-view-checked splat-surface points (source 4, a sigma each) to the survey points "
-            "(off by default).",
         ),
         CliOption("memory_limit_mb", "--memory-limit", help=MEMORY_LIMIT_HELP),
     )
@@ -181,9 +149,8 @@ class MergeStage(Stage):
         layer: merged.ply with n Gaussians at the highest SH degree (the refined survey layer's included) and the
         sets' extra fields + ``classification``, ``source``, ``surface``; merged_points.ply and .las with n points
         and those fields + ``opacity``, ``scale`` and the normals (3DGS properties at 4 bytes, point fields at 8 at
-        most), with ``splat_surface`` up to :meth:`_surface_bound` more points and a ``sigma`` field; export/splats.ply
-        at most splats/cleaned.ply's size; a 3D Tiles viewer product also holds the survey points (20 bytes each); 4
-        origin sidecars and the log (64 KiB)."""
+        most); export/splats.ply at most splats/cleaned.ply's size; a 3D Tiles viewer product also holds the
+        survey points (20 bytes each); 4 origin sidecars and the log (64 KiB)."""
         layout = ctx.layout
         sets = [sizes.ply_vertices(layout.mvs_gaussians)]
         if self._hybrid(ctx):
@@ -195,30 +162,15 @@ class MergeStage(Stage):
         extras = sum(len(s.extras) for s in sets) + 3
         refined = sizes.ply_vertices(survey) if survey is not None else sizes.PlyVertices()  # replaces the MVS set
         merged = sizes.gaussian_ply_bytes(n, max(refined.sh_degree, *(s.sh_degree for s in sets)), extras)
-        surface = self._surface_bound(ctx)
-        fields = extras + 5 + (1 if surface else 0)  # + sigma with splat-surface points
-        points = sizes.point_ply_bytes(n + surface, fields) + sizes.las_bytes(n + surface, fields)
+        fields = extras + 5
+        points = sizes.point_ply_bytes(n, fields) + sizes.las_bytes(n, fields)
         splats = tree_bytes([layout.cleaned_splats]) if self._hybrid(ctx) else 0
         formats = ctx.options(self).viewer_formats  # each at most the PLY's size; a tileset adds its JSON (12 %)
-        tiled_points = 20 * (n + surface)  # a tileset's survey points: float32 xyz + RGBA, 20 % for JSON and GLB
+        tiled_points = 20 * n  # a tileset's survey points: float32 xyz + RGBA, 20 % for JSON and GLB
         viewer = sum(
             (int(merged * 1.12) + tiled_points if f == "3dtiles" else merged) + sizes.SIDECAR_BYTES for f in formats
         )
         return merged + points + splats + viewer + 4 * sizes.SIDECAR_BYTES + sizes.LOG_BYTES
-
-    def _surface_bound(self, ctx: StageContext) -> int:
-        """The most splat-surface points (0 when ``splat_surface`` is off): every pixel of the dense model's photos
-        (the largest camera's each) over 1 + ``min_agreeing`` (a kept point uses its pixel and one in each agreeing
-        view)."""
-        opts: MergeOptions = ctx.options(self)
-        if not (opts.splat_surface and self._hybrid(ctx)):
-            return 0
-        model = ctx.layout.dense_workspace.sparse
-        cameras = sizes.camera_sizes(model)
-        if not cameras:
-            return 0
-        width, height = sizes.largest(cameras)
-        return sizes.model_count(model, "images") * width * height // (1 + opts.splat_surface_points.min_agreeing)
 
     def run(self, ctx: StageContext) -> MergeResult:
         from core.gaussians import GaussianSet
@@ -273,7 +225,7 @@ class MergeStage(Stage):
         """Reads what the hybrid needs (splats, masks, classes) and writes export/splats.ply; with ``refined`` (the
         survey layer's refined appearance, one per MVS Gaussian) the viewer set takes it. Returns the products and
         the hybrid's fields of :class:`MergeResult` (the point selections' counts of
-        :func:`fusion.survey.hybrid_products`, the splat-surface points', whether the fill was refined)."""
+        :func:`fusion.survey.hybrid_products`, whether the fill was refined)."""
         from core.io.gaussian_ply import read_gaussian_ply
         from fusion.export import export_gaussian_ply
         from fusion.merge import merge_hybrid
@@ -295,12 +247,11 @@ class MergeStage(Stage):
             if any(n in codes for n in opts.needs_mvs_classes):
                 predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype("int64")
         products = hybrid_products(mvs, splats, needs, views, opts, predicted, codes)
-        surface = _add_splat_surface(ctx, products, splats, views, (mvs, needs)) if opts.splat_surface else None
         if refined is not None or refined_fill is not None:
             survey, fill = mvs if refined is None else refined, splats if refined_fill is None else refined_fill
             viewer = merge_hybrid(survey, fill, needs, keep_needs_splats=opts.keep_needs_splats).gaussians
             products.gaussians = _same_rows(viewer, products.gaussians)
-        return products, {**products.counts, "splat_surface": surface, "fill_refined": refined_fill is not None}
+        return products, {**products.counts, "fill_refined": refined_fill is not None}
 
     def report_section(self, result: MergeResult) -> ReportSection | None:
         line = (
@@ -311,22 +262,7 @@ class MergeStage(Stage):
             f"{result.background:,} (what the photos see beyond the survey region; viewer product only). "
             f"The survey points (merged_points.ply/.las) hold {result.points:,} points, no background."
         )
-        lines = (line,)
-        surface = result.splat_surface
-        if surface is not None:
-            per_class = ", ".join(f"{k} {v:,}" for k, v in surface.per_class.items()) or "none"
-            dropped = surface.splat_centres_dropped
-            from fusion.convert_options import SPLAT_SURFACE_CLASS
-
-            lines += (
-                f"Of those, {surface.kept:,} are splat-surface points (`source` 4, LAS classification "
-                f"{SPLAT_SURFACE_CLASS}, a `sigma` each, median {_mm(surface.sigma_median_m)}): the fill "
-                f"layer's rendered surface inside the training masks of {surface.views} views, kept where "
-                f"at least {surface.min_agreeing} other views agree, not behind a trusted surface and near "
-                f"a fused MVS point; by the class the classifier predicted there: {per_class}. "
-                + (f"They replace the {dropped:,} splat centres of the survey-point rule." if dropped else ""),
-            )
-        return ReportSection("The merged product's layers", lines)
+        return ReportSection("The merged product's layers", (line,))
 
     def summary(self, result: MergeResult) -> str:
         layers = f"survey {result.mvs}, fill {result.splats}, background {result.background}"
@@ -334,10 +270,6 @@ class MergeStage(Stage):
         if result.point_splats is not None:
             c = result.point_splats
             text += f", {result.points} survey points ({c.get('kept', 0)} of {c.get('input', 0)} splats trustworthy)"
-        if result.splat_surface is not None:
-            surface = result.splat_surface
-            per_class = ", ".join(f"{k} {v}" for k, v in surface.per_class.items()) or "none"
-            text += f", {surface.kept} splat-surface points ({per_class})"
         return text
 
 
@@ -355,71 +287,6 @@ def _viewer_exports(ctx: StageContext, gaussians: Any, points: Any, crs: str | N
             export_tileset(path, gaussians, ExportOptions(crs=crs), points=cloud)
         else:
             export_gaussians(path, gaussians, ExportOptions(crs=crs))
-
-
-def _mm(metres: Any) -> str:
-    return f"{1000 * metres:.2f} mm" if isinstance(metres, (int, float)) else "n/a"
-
-
-def _add_splat_surface(
-    ctx: StageContext, products: Any, splats: Any, views: Any, mvs_needs: tuple[Any, Any]
-) -> SplatSurfaceCounts:
-    """Adds the splat-surface points of the cleaned fill layer (``splats``) to ``products.points``; their counts:
-    rendered in the training views (held-out photos left out) inside their
-    training masks, the trusted MVS points (``views.trusted``) as the front surface, supported by the MVS Gaussians
-    (``splat_surface_support``; they are also the anchors of the σ model, :func:`fusion.splat_surface.sigma_model`),
-    counted per predicted class of the nearest ``needs_splats`` MVS point (``mvs_needs``:
-    the MVS Gaussians and their ``needs`` flags)."""
-    from dataclasses import replace
-
-    import numpy as np
-
-    from fusion.convert_options import Source
-    from fusion.splat_surface import as_point_set, front_depths_from_points, splat_surface_points
-    from fusion.survey import class_names_of_points, classes_of_points, with_splat_surface
-    from hybridsplat import project_io
-    from hybridsplat.stages.tiles import tiling_on
-
-    layout, opts = ctx.layout, ctx.options(MergeStage)
-    held_out = set(ctx.source.holdout_names) if ctx.source is not None else set()
-    masks = project_io.read_region_masks(layout, views.cameras, training=True)
-    masks = {k: m for k, m in masks.items() if k not in held_out and m.any() and len(splats)}  # none: nothing to render
-    mvs, needs = mvs_needs
-    anchors = mvs.with_origin(views.cameras.origin).means  # the σ model's anchor surface: every fused MVS point
-    if tiling_on(ctx):  # each tile renders its own views (hybridsplat.tile_surface)
-        from hybridsplat.tile_surface import run_tiled_surface
-
-        found = run_tiled_surface(ctx, splats, views.cameras, set(masks), views.trusted, anchors,
-                                  opts.splat_surface_points)  # fmt: skip
-    else:
-        front = front_depths_from_points(views.trusted, views.cameras, sorted(masks))
-        found = splat_surface_points(splats, views.cameras, masks, front, opts.splat_surface_points, anchors)
-    codes = project_io.read_needs_splats_class_codes(layout) if needs.any() else {}
-    predicted = None
-    if codes:
-        predicted = project_io.classified_field_per_gaussian(layout, mvs, "classification").astype(np.int64)
-    if opts.splat_surface_sigma_scale and len(found):
-        # σ widened per predicted class: the σ model's interval is too narrow where the fill layer is biased alike
-        # in every view (mirrors, polished metal); the factors are MergeOptions'.
-        local = found.positions + (views.cameras.origin - mvs.origin)
-        names = class_names_of_points(local, mvs, needs, predicted, codes)
-        scale = dict(opts.splat_surface_sigma_scale)
-        found = replace(found, sigma=found.sigma * np.array([scale.get(n, 1.0) for n in names], np.float64))
-    surface = as_point_set(found, views.cameras.origin)
-    support = None
-    if opts.splat_surface_support is not None:
-        support = (mvs.with_origin(products.points.origin).means, opts.splat_surface_support * views.spacing)
-    points, counts = with_splat_surface(products.points, surface, opts.splat_surface_keep_centres,
-                                        0.5 * views.spacing, support)  # fmt: skip
-    added = np.asarray(points.fields["source"]) == Source.SPLAT_SURFACE
-    per_class = classes_of_points(points.with_origin(mvs.origin).means[added], mvs, needs, predicted, codes)
-    sigma = np.asarray(points.fields["sigma"], np.float64)[added]
-    products.points = points
-    return SplatSurfaceCounts(
-        views=len(masks), min_agreeing=opts.splat_surface_points.min_agreeing, pixels=dict(found.counts),
-        found=len(found), **counts, per_class=per_class,
-        sigma_median_m=float(np.median(sigma)) if len(sigma) else None,
-    )  # fmt: skip
 
 
 def _refined_rows(path: Path | None, base: Any, what: str) -> Any:

@@ -113,7 +113,7 @@ class MeshStage(Stage):
         CliOption(
             "mesh.source",
             help="all (hybrid Gaussians, default) | mvs (MVS Gaussians only) | survey (the survey "
-            "points: MVS, trustworthy splats, splat surface).",
+            "points: MVS, trustworthy splats).",
         ),
         CliOption(
             "mesh.use_snapshots", "--snapshots/--no-snapshots", help="Use training snapshots for transparent regions."
