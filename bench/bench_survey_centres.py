@@ -32,7 +32,7 @@ from hybridsplat.layout import ProjectLayout  # noqa: E402
 
 def threshold_scores(distances: np.ndarray, positions: np.ndarray, reference: np.ndarray, tau: float) -> list[float]:
     """[precision, recall, F] at ``tau`` metres: ``distances`` (N,) of the product's points to the reference,
-    ``positions`` (N, 3) and ``reference`` (M, 3) world metres (float64)."""
+    ``positions`` (N, 3) and ``reference`` (M, 3) metres in one local frame (float64)."""
     precision = float(np.count_nonzero(distances < tau) / max(len(distances), 1))
     back, _ = cKDTree(positions).query(reference, distance_upper_bound=tau)
     recall = float(np.count_nonzero(back < tau) / max(len(reference), 1))
@@ -51,6 +51,8 @@ def centre_scores(project: Path) -> dict[str, Any]:
     distances = np.asarray(vertex["c2c"], np.float64)
     centres = np.asarray(vertex["source"]) == Source.SPLAT
     kept = ~centres
+    anchor = ref[0].copy()  # a local origin for the k-d tree (georeferenced coordinates are large)
+    ref, positions = ref - anchor, positions - anchor
     return {
         "tau_m": tau,
         "eval": [c2c["precision"], c2c["recall"], c2c["fscore"]],
